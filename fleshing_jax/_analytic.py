@@ -1,0 +1,184 @@
+"""Analytic spines: line, circular arc and circular helix, with closed-form frames.
+
+Their rotation-minimising frames are exact: constant for a line, the Frenet frame rotated by a
+constant angle for a planar arc, and the Frenet frame rotated by `−τ s` for a helix.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, ArrayLike
+
+from ._misc import as_float_array, check_positive, is_concrete, unit
+from ._spine import AbstractSpine, initial_normal
+
+
+class Line(AbstractSpine):
+    """The straight spine `C(s) = origin + s · tangent`, `s ∈ [0, length]`.
+
+    **Arguments:**
+
+    - `length`: positive scalar.
+    - `origin`: (3,) start point.
+    - `tangent`: (3,) direction (normalised here).
+    """
+
+    length: Array
+    origin: Array
+    direction: Array
+
+    def __init__(self, length: ArrayLike, *, origin=(0.0, 0.0, 0.0), tangent=(1.0, 0.0, 0.0)):
+        self.length = as_float_array(length, "length", ())
+        self.origin = as_float_array(origin, "origin", (3,))
+        self.direction = unit(as_float_array(tangent, "tangent", (3,)), "tangent")
+        check_positive(self.length, "length")
+
+    def _jet(self, s):
+        return self.origin + s * self.direction, self.direction, jnp.zeros_like(self.direction)
+
+    def _normals(self, s):
+        normal = initial_normal(self.direction)
+        return normal, jnp.cross(self.direction, normal)
+
+    def _torsion(self, s):
+        return jnp.zeros_like(s)
+
+
+class Arc(AbstractSpine):
+    """The circular arc `C(s) = o + R sin(s/R) t + R (1 − cos(s/R)) n`, `s ∈ [0, length]`.
+
+    **Arguments:**
+
+    - `radius`: positive scalar `R`.
+    - `length`: positive scalar (arc length; may exceed a full turn).
+    - `origin`: (3,) start point `o`.
+    - `tangent`: (3,) start tangent `t` (normalised here).
+    - `normal`: (3,) direction of the centre from the start (made orthogonal to `t`).
+    """
+
+    radius: Array
+    length: Array
+    origin: Array
+    start_tangent: Array
+    start_normal: Array
+
+    def __init__(
+        self,
+        radius: ArrayLike,
+        length: ArrayLike,
+        *,
+        origin=(0.0, 0.0, 0.0),
+        tangent=(1.0, 0.0, 0.0),
+        normal=(0.0, 1.0, 0.0),
+    ):
+        self.radius = as_float_array(radius, "radius", ())
+        self.length = as_float_array(length, "length", ())
+        self.origin = as_float_array(origin, "origin", (3,))
+        t = unit(as_float_array(tangent, "tangent", (3,)), "tangent")
+        n = as_float_array(normal, "normal", (3,))
+        n = unit(n - jnp.dot(n, t) * t, "normal (its part orthogonal to tangent)")
+        self.start_tangent, self.start_normal = t, n
+        check_positive(self.radius, "radius")
+        check_positive(self.length, "length")
+
+    def _jet(self, s):
+        t, n, r = self.start_tangent, self.start_normal, self.radius
+        phi = s / r
+        sin, cos = jnp.sin(phi), jnp.cos(phi)
+        # R (1 − cos φ) written as 2R sin²(φ/2): no cancellation near the start.
+        position = self.origin + r * sin * t + 2 * r * jnp.sin(phi / 2) ** 2 * n
+        return position, cos * t + sin * n, (cos * n - sin * t) / r
+
+    def _normals(self, s):
+        t, n = self.start_tangent, self.start_normal
+        b = jnp.cross(t, n)
+        i0 = initial_normal(t)
+        phi = s / self.radius
+        principal = jnp.cos(phi) * n - jnp.sin(phi) * t  # the Frenet normal N(s)
+        normal = jnp.dot(i0, n) * principal + jnp.dot(i0, b) * b
+        return normal, jnp.cross(jnp.cos(phi) * t + jnp.sin(phi) * n, normal)
+
+    def _torsion(self, s):
+        return jnp.zeros_like(s)
+
+    def default_samples(self) -> int:
+        return _samples_for_turns(self.length / self.radius)
+
+
+class Helix(AbstractSpine):
+    """The circular helix `C(s) = (r cos u, r sin u, h u)`, `h = pitch/2π`, `u = s/√(r² + h²)`.
+
+    Its axis is `z`; it starts at `(r, 0, 0)`. A negative pitch gives a left-handed helix.
+
+    **Arguments:**
+
+    - `radius`: positive scalar `r`.
+    - `pitch`: scalar, rise per turn (0 gives a circle).
+    - `length`: positive scalar arc length.
+    """
+
+    radius: Array
+    pitch: Array
+    length: Array
+
+    def __init__(self, radius: ArrayLike, pitch: ArrayLike, length: ArrayLike):
+        self.radius = as_float_array(radius, "radius", ())
+        self.pitch = as_float_array(pitch, "pitch", ())
+        self.length = as_float_array(length, "length", ())
+        check_positive(self.radius, "radius")
+        check_positive(self.length, "length")
+        if is_concrete(self.pitch) and not np.isfinite(np.asarray(self.pitch)):
+            raise ValueError(f"`pitch` must be finite, got {self.pitch}.")
+
+    def _constants(self):
+        h = self.pitch / (2 * jnp.pi)
+        c = jnp.sqrt(self.radius**2 + h**2)
+        return h, c
+
+    def _frenet(self, s):
+        r = self.radius
+        h, c = self._constants()
+        u = s / c
+        sin, cos = jnp.sin(u), jnp.cos(u)
+        position = jnp.stack([r * cos, r * sin, h * u])
+        tangent = jnp.stack([-r * sin, r * cos, h]) / c
+        normal = jnp.stack([-cos, -sin, jnp.zeros_like(u)])
+        binormal = jnp.stack([h * sin, -h * cos, r]) / c
+        return position, tangent, normal, binormal
+
+    def _jet(self, s):
+        position, tangent, normal, _ = self._frenet(s)
+        _, c = self._constants()
+        return position, tangent, (self.radius / c**2) * normal
+
+    def _normals(self, s):
+        _, tangent0, normal0, binormal0 = self._frenet(jnp.zeros_like(s))
+        _, tangent, normal, binormal = self._frenet(s)
+        i0 = initial_normal(tangent0)
+        a, b = jnp.dot(i0, normal0), jnp.dot(i0, binormal0)
+        angle = self._torsion(s) * s  # the RMF turns by −∫τ ds relative to Frenet
+        cos, sin = jnp.cos(angle), jnp.sin(angle)
+        normal_out = (a * cos + b * sin) * normal + (b * cos - a * sin) * binormal
+        return normal_out, jnp.cross(tangent, normal_out)
+
+    def _torsion(self, s):
+        h, c = self._constants()
+        return jnp.broadcast_to(h / c**2, jnp.shape(s))
+
+    def default_samples(self) -> int:
+        h, c = self._constants()
+        return _samples_for_turns(self.length * self.radius / c**2)
+
+
+def _samples_for_turns(turning_angle) -> int:
+    """32 samples per radian of turning (at least 128); 256 when the angle is traced."""
+    try:
+        angle = float(jax.device_get(turning_angle))
+    except (jax.errors.ConcretizationTypeError, TypeError):
+        return 256
+    if not np.isfinite(angle):
+        return 256
+    return int(max(128, min(32 * angle, 8192)))
+

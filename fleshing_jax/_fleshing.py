@@ -1,0 +1,214 @@
+"""The fleshing pipeline (paper §3.3): register → unbend → transfer → bend.
+
+Written for one point and batched with `vmap`. Registration depends only on the source spine,
+so `register` runs once per shape and `pose` is the per-frame path: O(1) work per point plus,
+by default, the global check that each image projects back where it should.
+
+Unequal lengths: with `λ = L₁/L₀`, the cross-section at `s` goes to `s₁ = λ s` and its
+straightened offset is scaled by `1/√λ`, so that `ds₁ dA₁ = ds dA` (`det J = 1` still).
+"""
+
+from __future__ import annotations
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+from jaxtyping import Array, ArrayLike, Bool, Float
+
+from ._frames import twist_normals
+from ._maps import BEND, UNBEND, check_method
+from ._misc import cast_floats, relative_tolerance
+from ._projection import Registration, closest_arc_length, register_point
+from ._spine import AbstractSpine
+
+
+def pose_point(
+    registration: Registration,
+    target: AbstractSpine,
+    method: str,
+    twist: Array,
+    check_projection: bool = True,
+) -> tuple[Array, Array]:
+    """Maps one registered point onto `target`. Returns `(image (3,), valid)`.
+
+    Invalid points are returned unchanged (their image is computed from safe values and
+    discarded, so that neither values nor gradients of other points are affected).
+    """
+    reg = registration
+    stretch = target.length / reg.length
+    s1 = stretch * reg.arc_length
+    straight, unbent = UNBEND[method](reg.offset, reg.curvature)
+    if method != "skinning":  # skinning is the uncorrected baseline: offsets carried rigidly
+        straight = straight / jnp.sqrt(stretch)
+    (c1, _, k1), normals = target.jet_and_normals(s1)
+    i1, j1 = twist_normals(normals, twist)
+    k1_2d = jnp.stack([jnp.dot(k1, i1), jnp.dot(k1, j1)])
+    d1, bent = BEND[method](straight, k1_2d)
+    image = c1 + d1[0] * i1 + d1[1] * j1
+    valid = reg.valid & unbent & bent & (1 - jnp.dot(k1_2d, d1) > 0)
+    if check_projection:
+        back, converged = closest_arc_length(target, image)
+        tol = relative_tolerance(image.dtype) * (target.length + jnp.linalg.norm(d1))
+        valid = valid & converged & (jnp.abs(back - s1) <= tol)
+    return jnp.where(valid, image, reg.points), valid
+
+
+class Fleshing(eqx.Module):
+    """A locally volume-preserving map from around `source` to around `target`.
+
+    `M = Fleshing(C0, C1, method="radial", twist=0.0)`; `M(x)` maps one point (3,) → (3,) and
+    works under `jit`, `vmap`, `jax.jacfwd` and `grad` (also with respect to the spines'
+    parameters and `twist`). Points outside the valid space are returned unchanged; test them
+    with `M.is_valid(x)` or get both at once with `M.apply(x)`.
+
+    **Arguments:**
+
+    - `source`, `target`: `AbstractSpine`s (`C0`, `C1`); their lengths may differ.
+    - `method`: `"radial"`, `"normal"`, `"binormal"` or `"skinning"` (the uncorrected baseline).
+    - `twist`: scalar global twist in radians, applied to the target frame about `T₁(0)`.
+    - `check_projection`: also require that `M(x)` projects back on `target` at the mapped arc
+      length (the global reach test: catches spines that come back near themselves).
+    """
+
+    source: AbstractSpine
+    target: AbstractSpine
+    twist: Array
+    method: str = eqx.field(static=True)
+    check_projection: bool = eqx.field(static=True)
+
+    def __init__(self, source, target, *, method="radial", twist=0.0, check_projection=True):
+        for name, spine in (("source", source), ("target", target)):
+            if not isinstance(spine, AbstractSpine):
+                raise TypeError(f"`{name}` must be a spine (AbstractSpine), got {type(spine)}.")
+        self.source, self.target = source, target
+        self.method = check_method(method)
+        self.twist = jnp.asarray(twist, dtype=jnp.result_type(twist, float))
+        if self.twist.shape != ():
+            raise ValueError(f"`twist` must be a scalar, got shape {self.twist.shape}.")
+        self.check_projection = bool(check_projection)
+
+    def apply(self, x: ArrayLike) -> tuple[Array, Array]:
+        """`(M(x), valid)` for one point `x` (3,)."""
+        x = _check_points(x, "x", single=True)
+        source, target, twist = cast_floats((self.source, self.target, self.twist), x.dtype)
+        registration = register_point(source, x)
+        return pose_point(registration, target, self.method, twist, self.check_projection)
+
+    def __call__(self, x: ArrayLike) -> Array:
+        """The image of one point `x` (3,), (3,) (unchanged if `x` is not valid)."""
+        return self.apply(x)[0]
+
+    def is_valid(self, x: ArrayLike) -> Array:
+        """Whether `x` (3,) lies in the valid space of this fleshing (scalar bool)."""
+        return self.apply(x)[1]
+
+    @property
+    def inverse(self) -> Fleshing:
+        """The fleshing back from `target` to `source` (same method, opposite twist)."""
+        return Fleshing(
+            self.target,
+            self.source,
+            method=self.method,
+            twist=-self.twist,
+            check_projection=self.check_projection,
+        )
+
+
+def _check_points(points: ArrayLike, name: str, single: bool = False) -> Array:
+    points = jnp.asarray(points)
+    if not jnp.issubdtype(points.dtype, jnp.floating):
+        points = points.astype(jnp.result_type(float))
+    expected = (3,) if single else ("N", 3)
+    if points.ndim != len(expected) or points.shape[-1] != 3:
+        raise ValueError(f"`{name}` must have shape {expected}, got shape {points.shape}.")
+    return points
+
+
+def register(points: ArrayLike, source: AbstractSpine, *, samples: int | None = None):
+    """Registers `points` on the spine `source` (closest projection and local coordinates).
+
+    **Arguments:** `points`: (N, 3) array; `source`: an `AbstractSpine`; `samples`: number of
+    coarse samples of the closest-point search (default: the spine's `default_samples()`).
+
+    **Returns:** a `Registration` (per-point arc length, offset, curvature and validity), to be
+    posed on any number of target spines with `pose`.
+    """
+    points = _check_points(points, "points")
+    if not isinstance(source, AbstractSpine):
+        raise TypeError(f"`source` must be a spine (AbstractSpine), got {type(source)}.")
+    samples = source.default_samples() if samples is None else int(samples)
+    return _register(points, cast_floats(source, points.dtype), samples)
+
+
+@eqx.filter_jit
+def _register(points, source, samples):
+    registration = jax.vmap(lambda x: register_point(source, x, samples))(points)
+    return eqx.tree_at(lambda r: r.length, registration, source.length)
+
+
+def pose(
+    registration: Registration,
+    target: AbstractSpine,
+    *,
+    method: str = "radial",
+    twist: ArrayLike = 0.0,
+    check_projection: bool = True,
+) -> tuple[Float[Array, "N 3"], Bool[Array, " N"]]:
+    """Poses registered points on a new spine: the per-frame path of an animation.
+
+    Same result as `flesh(points, source, target, ...)` without repeating the projection.
+
+    **Arguments:** `registration` from `register`; `target` spine; `method`, `twist` and
+    `check_projection` as for `Fleshing`.
+
+    **Returns:** `(deformed (N, 3), valid (N,) bool)`, in the dtype of the registered points.
+    """
+    if not isinstance(registration, Registration):
+        raise TypeError(f"`registration` must come from `register`, got {type(registration)}.")
+    if not isinstance(target, AbstractSpine):
+        raise TypeError(f"`target` must be a spine (AbstractSpine), got {type(target)}.")
+    dtype = registration.points.dtype
+    target, twist = cast_floats((target, jnp.asarray(twist, dtype)), dtype)
+    return _pose(registration, target, check_method(method), twist, bool(check_projection))
+
+
+@eqx.filter_jit
+def _pose(registration, target, method, twist, check_projection):
+    def one(reg):
+        return pose_point(reg, target, method, twist, check_projection)
+
+    # Per-point leaves are batched; the source length is shared.
+    axes = Registration(points=0, arc_length=0, offset=0, curvature=0, valid=0, length=None)
+    return jax.vmap(one, in_axes=(axes,))(registration)
+
+
+def flesh(
+    points: ArrayLike,
+    source: AbstractSpine,
+    target: AbstractSpine,
+    *,
+    method: str = "radial",
+    twist: ArrayLike = 0.0,
+    check_projection: bool = True,
+) -> tuple[Float[Array, "N 3"], Bool[Array, " N"]]:
+    """Bends `points` from around `source` to around `target`, preserving local volume.
+
+    **Arguments:**
+
+    - `points`: (N, 3) array (float32 in, float32 out).
+    - `source`, `target`: `AbstractSpine`s.
+    - `method`: `"radial"`, `"normal"`, `"binormal"` or `"skinning"`.
+    - `twist`: scalar twist in radians.
+    - `check_projection`: see `Fleshing`.
+
+    **Returns:** `(deformed (N, 3), valid (N,) bool)`. Invalid points (outside the valid space,
+    or not finite) are returned unchanged and flagged `False`; they never raise.
+    """
+    check_method(method)
+    return pose(
+        register(points, source),
+        target,
+        method=method,
+        twist=twist,
+        check_projection=check_projection,
+    )

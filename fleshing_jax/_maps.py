@@ -1,0 +1,124 @@
+"""The closed-form unbending and bending maps of the paper (§4), in curvature-vector form.
+
+All functions act in one cross-section, in the 2D coordinates of a twist-compensated frame
+`(I, J)`: `d` is the offset of a point from the spine and `k` the curvature vector there, both
+(2,) arrays. With `p = k·d` (`= κx`, the paper's `κ r cos θ`), the volume element around the
+spine is `(1 − p) ds dA`. Each `unbend` has area Jacobian `1 − p` (it straightens the spine
+locally) and each `bend` is its inverse, so unbend → transfer → bend has `det J = 1`.
+
+Every function returns `(image, ok)`: `ok` is the method's own existence condition (paper eqs.
+7–9, 11–13, 15–17). Values stay finite outside it, with finite derivatives, so that invalid
+points never poison a batch or a gradient. The reach conditions `1 − k·d > 0` before and after
+are checked by the caller.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+from jaxtyping import Array
+
+from ._misc import safe_divide, safe_sqrt
+
+METHODS = ("radial", "normal", "binormal", "skinning")
+_A = 2.0 / (3.0 * 3.0**0.5)  # the branch point of μ³ − μ = α
+
+
+def _normal_part(d: Array, k: Array) -> tuple[Array, Array]:
+    """`p = k·d` and the component `x N` of `d` along the Frenet normal `N = k/κ`.
+
+    `x N = p k/κ²`; it vanishes as `κ → 0` (straight spines, inflections), where `N` is
+    undefined: the safe division gives 0 there, with finite derivatives.
+    """
+    p = jnp.dot(k, d)
+    return p, safe_divide(p, jnp.dot(k, k)) * k
+
+
+@jax.custom_jvp
+def cubic_root(alpha: Array) -> Array:
+    """The root `μ` of `μ³ − μ − α = 0` that equals 1 at `α = 0` (closed form).
+
+    With `a = 2/(3√3)`: `μ = (2/√3) cos(arccos(α/a)/3)` for `|α| ≤ a` and
+    `μ = (2/√3) cosh(arccosh(α/a)/3)` for `α > a`. For `α < −a` there is no such root (the point
+    is outside the valid space) and `1/√3` is returned. One Newton step polishes the root to
+    round-off. The derivative is `1/(3μ² − 1)`, finite at the branch point `α = a`.
+    """
+    z = alpha / _A
+    inside = jnp.clip(z, -1.0, 1.0)
+    outside = jnp.where(z > 1, z, 1.0)
+    scale = 2.0 / 3.0**0.5
+    mu = jnp.where(
+        z > 1,
+        scale * jnp.cosh(jnp.arccosh(outside) / 3),
+        scale * jnp.cos(jnp.arccos(inside) / 3),
+    )
+    slope = 3 * mu**2 - 1
+    # Newton polish, skipped near the double root μ = 1/√3 where it would be ill-conditioned.
+    step = safe_divide(mu**3 - mu - alpha, jnp.where(slope > 1e-2, slope, 0))
+    return mu - step
+
+
+@cubic_root.defjvp
+def _cubic_root_jvp(primals, tangents):
+    (alpha,), (alpha_dot,) = primals, tangents
+    mu = cubic_root(alpha)
+    return mu, safe_divide(alpha_dot, 3 * mu**2 - 1)
+
+
+def radial_unbend(d: Array, k: Array) -> tuple[Array, Array]:
+    """Radial unbending (eq. 7): `d* = d √(1 − (2/3) k·d)`."""
+    arg = 1 - (2.0 / 3.0) * jnp.dot(k, d)
+    return d * safe_sqrt(arg), arg > 0
+
+
+def radial_bend(d: Array, k: Array) -> tuple[Array, Array]:
+    """Radial bending (eqs. 8–9): `d₁ = d/μ`, `μ³ − μ = α = −(2/3) k·d`; needs `α > −a`."""
+    alpha = -(2.0 / 3.0) * jnp.dot(k, d)
+    mu = cubic_root(alpha)
+    return d / mu, alpha > -_A
+
+
+def normal_unbend(d: Array, k: Array) -> tuple[Array, Array]:
+    """Normal unbending (eq. 11): `x* = x − (κ/2) x²`, i.e. `d* = d − (p/2) x N`."""
+    p, xn = _normal_part(d, k)
+    return d - 0.5 * p * xn, jnp.ones_like(p, dtype=bool)
+
+
+def normal_bend(d: Array, k: Array) -> tuple[Array, Array]:
+    """Normal bending (eqs. 12–13): `x₁ = 2x/(1 + √(1 − 2κx))`; needs `κx ≤ 1/2`.
+
+    Written as `d₁ = d + x N · 2p/(1 + q)²`, `q = √(1 − 2p)`: no cancellation at small `p`.
+    """
+    p, xn = _normal_part(d, k)
+    arg = 1 - 2 * p
+    q = safe_sqrt(arg)
+    return d + xn * (2 * p / (1 + q) ** 2), arg >= 0
+
+
+def binormal_unbend(d: Array, k: Array) -> tuple[Array, Array]:
+    """Binormal unbending (eq. 15): `y* = (1 − κx) y`, i.e. `d* = d − p (d − x N)`."""
+    p, xn = _normal_part(d, k)
+    return d - p * (d - xn), jnp.ones_like(p, dtype=bool)
+
+
+def binormal_bend(d: Array, k: Array) -> tuple[Array, Array]:
+    """Binormal bending (eqs. 16–17): `y₁ = y/(1 − κx)`; needs `κx < 1`."""
+    p, xn = _normal_part(d, k)
+    return d + safe_divide(p, 1 - p) * (d - xn), p < 1
+
+
+def skinning(d: Array, k: Array) -> tuple[Array, Array]:
+    """The uncorrected baseline: offsets carried rigidly in the frames (not volume preserving)."""
+    return d, jnp.ones(jnp.shape(d)[:-1], dtype=bool)
+
+
+UNBEND = {"radial": radial_unbend, "normal": normal_unbend, "binormal": binormal_unbend}
+BEND = {"radial": radial_bend, "normal": normal_bend, "binormal": binormal_bend}
+UNBEND["skinning"] = BEND["skinning"] = skinning
+
+
+def check_method(method: str) -> str:
+    """Raises `ValueError` unless `method` is one of `METHODS`."""
+    if method not in METHODS:
+        raise ValueError(f"`method` must be one of {METHODS}, got {method!r}.")
+    return method

@@ -1,0 +1,169 @@
+"""The spine interface, and the continuation of every spine beyond its ends.
+
+A spine is a smooth curve `C(s)` parameterised by arc length on `[0, length]`. Concrete spines
+implement four private methods valid on `[0, length]`; this module turns them into the public
+methods, which are defined for every `s`: beyond its ends a spine continues along its
+osculating circle there (a straight ray where the end curvature is zero). Position, tangent and
+curvature vector are then continuous through the ends, so the fleshing of points that project
+beyond the ends is continuous and still exactly volume preserving.
+"""
+
+from __future__ import annotations
+
+import abc
+
+import equinox as eqx
+import jax.numpy as jnp
+from jaxtyping import Array, ArrayLike
+
+from ._misc import safe_sqrt
+
+
+def initial_normal(tangent: Array) -> Array:
+    """The fixed rule that picks the first normal of a twist-compensated frame.
+
+    The coordinate axis least aligned with `tangent` (the first one on ties), made orthogonal to
+    it and normalised. Two spines that start with the same tangent thus start with the same frame.
+
+    **Arguments:** `tangent`: (3,) unit vector. **Returns:** (3,) unit vector orthogonal to it.
+    """
+    axis = jnp.eye(3, dtype=tangent.dtype)[jnp.argmin(jnp.abs(tangent))]
+    normal = axis - jnp.dot(axis, tangent) * tangent
+    return normal / jnp.linalg.norm(normal)
+
+
+def _circle_functions(kk: Array, t: Array) -> tuple[Array, Array, Array]:
+    """`cos(κt)`, `sin(κt)/κ` and `(1 − cos(κt))/κ²` as smooth functions of `kk = κ²`.
+
+    All three are entire in `κ²`, so they are exact (and differentiable) at `κ = 0`, where they
+    become `1`, `t` and `t²/2`: the straight-ray continuation.
+    """
+    kappa = safe_sqrt(kk)
+    x = kappa * t / jnp.pi  # jnp.sinc(x) = sin(πx)/(πx), smooth at 0
+    cos = jnp.cos(kappa * t)
+    sin_over_k = t * jnp.sinc(x)
+    one_minus_cos_over_kk = 0.5 * t**2 * jnp.sinc(x / 2) ** 2
+    return cos, sin_over_k, one_minus_cos_over_kk
+
+
+def _continue(jet: tuple[Array, Array, Array], normals: tuple[Array, Array], t: Array):
+    """Jet and frame at signed distance `t` past an end, along the end's osculating circle.
+
+    `jet = (C, T, k)` and `normals = (I, J)` at the end. The circle has zero torsion, so its
+    rotation-minimising frame is the end frame rotated with the tangent about the binormal.
+    """
+    c, tangent, k = jet
+    kk = jnp.dot(k, k)
+    cos, sin_k, vers_kk = _circle_functions(kk, t)
+    position = c + sin_k * tangent + vers_kk * k
+    new_tangent = cos * tangent + sin_k * k
+    new_k = cos * k - kk * sin_k * tangent
+
+    def rotate(v):  # the rotation taking T to the new tangent, applied to v ⟂ T
+        return v - jnp.dot(v, k) * (vers_kk * k + sin_k * tangent)
+
+    return (position, new_tangent, new_k), tuple(rotate(v) for v in normals)
+
+
+class AbstractSpine(eqx.Module):
+    """A smooth 3D curve parameterised by arc length on `[0, length]`.
+
+    Subclasses provide `length` and the private methods `_jet`, `_normals` and `_torsion` on
+    `[0, length]`. The public methods accept any `s` (scalar; `vmap` for many): beyond the ends
+    the spine continues along its osculating circle there.
+    """
+
+    length: eqx.AbstractVar[Array]
+
+    @abc.abstractmethod
+    def _jet(self, s: Array) -> tuple[Array, Array, Array]:
+        """Position, unit tangent and curvature vector at `s ∈ [0, length]`, each (3,)."""
+
+    @abc.abstractmethod
+    def _normals(self, s: Array) -> tuple[Array, Array]:
+        """The rotation-minimising normals `(I, J)` at `s ∈ [0, length]`, each (3,).
+
+        `I(0) = initial_normal(T(0))`, transported without twist; `J = T × I`.
+        """
+
+    @abc.abstractmethod
+    def _torsion(self, s: Array) -> Array:
+        """Torsion at `s ∈ [0, length]` (0 where the spine is straight)."""
+
+    def default_samples(self) -> int:
+        """How many samples the coarse closest-point search uses on this spine (static)."""
+        return 128
+
+    def _split(self, s: ArrayLike) -> tuple[Array, Array, Array]:
+        """`s` clamped to `[0, length]`, and the signed overshoots before 0 and past `length`.
+
+        Selections use `where` rather than `clip`, whose derivative is 1/2 at the bounds.
+        """
+        s = jnp.asarray(s, dtype=self.length.dtype)
+        before, after = s < 0, s > self.length
+        inner = jnp.where(before, 0, jnp.where(after, self.length, s))
+        return inner, jnp.where(before, s, 0), jnp.where(after, s - self.length, 0)
+
+    def jet_and_normals(self, s: ArrayLike):
+        """`((C, T, k), (I, J))` at any `s`: position, tangent, curvature vector, RMF normals."""
+        inner, t0, t1 = self._split(s)
+        zero = jnp.zeros_like(self.length)
+        # Continue from the end the point lies beyond (t = 0 inside: the identity).
+        anchors = [
+            (self._jet(inner), self._normals(inner)),
+            (self._jet(zero), self._normals(zero)),
+            (self._jet(self.length), self._normals(self.length)),
+        ]
+        select = jnp.where(t0 < 0, 1, jnp.where(t1 > 0, 2, 0))
+        jet, normals = _pick(select, anchors)
+        return _continue(jet, normals, t0 + t1)
+
+    def jet(self, s: ArrayLike) -> tuple[Array, Array, Array]:
+        """Position, unit tangent and curvature vector at `s`, each (3,)."""
+        return self.jet_and_normals(s)[0]
+
+    def __call__(self, s: ArrayLike) -> Array:
+        """The point `C(s)`, (3,)."""
+        return self.jet(s)[0]
+
+    def tangent(self, s: ArrayLike) -> Array:
+        """The unit tangent `T(s) = C'(s)`, (3,)."""
+        return self.jet(s)[1]
+
+    def curvature_vector(self, s: ArrayLike) -> Array:
+        """The curvature vector `k(s) = C''(s) = κN`, (3,); zero where the spine is straight."""
+        return self.jet(s)[2]
+
+    def torsion(self, s: ArrayLike) -> Array:
+        """The torsion `τ(s)`, scalar; 0 on the circular continuations beyond the ends."""
+        inner, t0, t1 = self._split(s)
+        return jnp.where((t0 == 0) & (t1 == 0), self._torsion(inner), 0)
+
+    def extension(self) -> tuple[Array, Array]:
+        """How far past each end the closest-point search looks, `(before 0, after length)`.
+
+        A quarter turn of the osculating circle at that end, at most `length`: far enough for
+        points just beyond the ends, short of the continuation coming back on the spine.
+        """
+
+        def reach(s):
+            k = self._jet(s)[2]
+            kappa = safe_sqrt(jnp.dot(k, k))
+            return jnp.minimum(self.length, 0.5 * jnp.pi / jnp.maximum(kappa, 1e-30))
+
+        return reach(jnp.zeros_like(self.length)), reach(self.length)
+
+
+def _pick(index: Array, candidates: list):
+    """Selects `candidates[index]` leaf by leaf (all candidates are finite: safe under grad)."""
+    first, *rest = candidates
+    out = first
+    for i, candidate in enumerate(rest, start=1):
+        out = _tree_where(index == i, candidate, out)
+    return out
+
+
+def _tree_where(condition, a, b):
+    if isinstance(a, tuple):
+        return tuple(_tree_where(condition, x, y) for x, y in zip(a, b))
+    return jnp.where(condition, a, b)
