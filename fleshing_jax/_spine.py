@@ -90,6 +90,15 @@ class AbstractSpine(eqx.Module):
     def _torsion(self, s: Array) -> Array:
         """Torsion at `s ∈ [0, length]` (0 where the spine is straight)."""
 
+    def _jet_and_normals(self, s: Array):
+        """`(self._jet(s), self._normals(s))` at `s ∈ [0, length]`."""
+        return self._jet(s), self._normals(s)
+
+    def _anchors(self, s: Array) -> list:
+        """`_jet_and_normals` at `s`, at 0 and at `length` (spines override it to share work)."""
+        zero = jnp.zeros_like(self.length)
+        return [self._jet_and_normals(x) for x in (s, zero, self.length)]
+
     def default_samples(self) -> int:
         """How many samples the coarse closest-point search uses on this spine (static)."""
         return 128
@@ -107,13 +116,8 @@ class AbstractSpine(eqx.Module):
     def jet_and_normals(self, s: ArrayLike):
         """`((C, T, k), (I, J))` at any `s`: position, tangent, curvature vector, RMF normals."""
         inner, t0, t1 = self._split(s)
-        zero = jnp.zeros_like(self.length)
         # Continue from the end the point lies beyond (t = 0 inside: the identity).
-        anchors = [
-            (self._jet(inner), self._normals(inner)),
-            (self._jet(zero), self._normals(zero)),
-            (self._jet(self.length), self._normals(self.length)),
-        ]
+        anchors = self._anchors(inner)
         select = jnp.where(t0 < 0, 1, jnp.where(t1 > 0, 2, 0))
         jet, normals = _pick(select, anchors)
         return _continue(jet, normals, t0 + t1)
