@@ -64,8 +64,9 @@ def _gauss(parts: int, dtype):
 def cumulative_lengths(coefficients: Array, parts: int) -> Array:
     """Arc length from the start to every sub-interval break, (S·parts + 1,), from 0."""
     nodes, weights = _gauss(parts, coefficients.dtype)
-    derivative = jnp.einsum("kqd,sdc->skqc", monomials(nodes, coefficients.shape[-2] - 1, 1),
-                            coefficients)
+    derivative = jnp.einsum(
+        "kqd,sdc->skqc", monomials(nodes, coefficients.shape[-2] - 1, 1), coefficients
+    )
     lengths = jnp.linalg.norm(derivative, axis=-1) @ weights
     return jnp.concatenate([jnp.zeros((1,), coefficients.dtype), jnp.cumsum(lengths.reshape(-1))])
 

@@ -35,6 +35,7 @@ def pose_point(
     discarded, so that neither values nor gradients of other points are affected).
     """
     reg = registration
+    target = target._prepare()
     stretch = target.length / reg.length
     s1 = stretch * reg.arc_length
     straight, unbent = UNBEND[method](reg.offset, reg.curvature)

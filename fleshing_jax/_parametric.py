@@ -65,16 +65,22 @@ class AbstractParametricSpine(AbstractSpine):
         return _jet(self, s)
 
     def _normals(self, s):
-        return _evaluate(self, s)[0][1]
+        return _with_tables(evaluate_at, self, s)[0][1]
 
     def _jet_and_normals(self, s):
-        return _evaluate(self, s)[0]
+        return _with_tables(evaluate_at, self, s)[0]
 
     def _anchors(self, s):
-        return _evaluate(self, s)
+        return _with_tables(evaluate_at, self, s)
+
+    def _anchor_jets(self, s):
+        return _with_tables(jets_at, self, s)
 
     def _torsion(self, s):
-        return _torsion(self, s)
+        return _with_tables(torsion_at, self, s)
+
+    def _prepare(self):
+        return PreparedSpine(self, tables(self))
 
     def default_samples(self) -> int:
         return self.samples
@@ -89,11 +95,67 @@ def _jet_of(coefficients: Array, u: Array, order: int = 2):
     return (c, tangent, k), (c1, c2, *rest)
 
 
-def _locate(spine: AbstractParametricSpine, s: Array):
+class Tables(eqx.Module):
+    """Everything about a parametric spine that does not depend on `s`, computed once.
+
+    **Fields:** `coefficients` (S, d+1, 3) of the pieces; `cumulative` (M+1,) arc length at the
+    sub-interval breaks; `nodes`: positions, tangents, curvature vectors and double-reflection
+    normals at the breaks, each (M+1, 3); `parts`: static sub-intervals per piece.
+    """
+
+    coefficients: Array
+    cumulative: Array
+    nodes: tuple[Array, Array, Array, Array]
+    parts: int = eqx.field(static=True)
+
+
+def tables(spine: AbstractParametricSpine) -> Tables:
+    """The `Tables` of `spine` (differentiable in its parameters)."""
     coefficients = spine._coefficients()
-    cumulative = arclength.cumulative_lengths(coefficients, spine.subdivisions)
-    i, u, j = arclength.inverse(coefficients, cumulative, spine.subdivisions, s)
-    return coefficients, i, u, j
+    parts = spine.subdivisions
+    cumulative = arclength.cumulative_lengths(coefficients, parts)
+    # Frame nodes: the sub-interval breaks, at static local parameters of every piece.
+    x = jnp.asarray(np.linspace(-1.0, 1.0, parts + 1)[:-1], coefficients.dtype)
+    (c, t, k), _ = jax.vmap(lambda a: _jet_of(a, x))(coefficients)
+    last, _ = _jet_of(coefficients[-1], jnp.ones((), coefficients.dtype))
+    c, t, k = (jnp.concatenate([v.reshape(-1, 3), e[None]]) for v, e in zip((c, t, k), last))
+    normals = propagate(c, t, k, initial_normal(t[0]), "double_reflection")
+    return Tables(coefficients, cumulative, (c, t, k, normals), parts)
+
+
+def _locate(tab: Tables, s: Array):
+    i, u, j = arclength.inverse(tab.coefficients, tab.cumulative, tab.parts, s)
+    return i, u, j
+
+
+def jet_at(tab: Tables, s):
+    i, u, _ = _locate(tab, s)
+    return _jet_of(tab.coefficients[i], u)[0]
+
+
+def jets_at(tab: Tables, s):
+    """Jets at `s` and at both ends."""
+    i, u, _ = _locate(tab, s)
+    a = tab.coefficients
+    ends = [(a[0], -jnp.ones_like(s)), (a[-1], jnp.ones_like(s))]
+    return [_jet_of(p, v)[0] for p, v in [(a[i], u)] + ends]
+
+
+def evaluate_at(tab: Tables, s):
+    """Jet and normals at `s`, and at both ends (the anchors of the continuations)."""
+    i, u, j = _locate(tab, s)
+    jet = _jet_of(tab.coefficients[i], u)[0]
+    c, t, k, normals = tab.nodes
+    normal = double_reflection(c[j], t[j], normals[j], jet[0], jet[1], k[j])
+    ends = [((c[e], t[e], k[e]), (normals[e], jnp.cross(t[e], normals[e]))) for e in (0, -1)]
+    return [(jet, (normal, jnp.cross(jet[1], normal)))] + ends
+
+
+def torsion_at(tab: Tables, s):
+    i, u, _ = _locate(tab, s)
+    _, (c1, c2, c3) = _jet_of(tab.coefficients[i], u, order=3)
+    b = jnp.cross(c1, c2)
+    return safe_divide(jnp.dot(b, c3), jnp.dot(b, b))
 
 
 # Jitted entry points: eager calls (e.g. `spine.length`) compile once per spine structure;
@@ -105,32 +167,63 @@ def _length(spine):
 
 @eqx.filter_jit
 def _jet(spine, s):
-    coefficients, i, u, _ = _locate(spine, s)
+    coefficients = spine._coefficients()
+    cumulative = arclength.cumulative_lengths(coefficients, spine.subdivisions)
+    i, u, _ = arclength.inverse(coefficients, cumulative, spine.subdivisions, s)
     return _jet_of(coefficients[i], u)[0]
 
 
 @eqx.filter_jit
-def _evaluate(spine, s):
-    """Jet and normals at `s`, and at both ends (the anchors of the continuations)."""
-    coefficients, i, u, j = _locate(spine, s)
-    jet = _jet_of(coefficients[i], u)[0]
-    # Frame nodes: the sub-interval breaks, at static local parameters of every piece.
-    x = jnp.asarray(np.linspace(-1.0, 1.0, spine.subdivisions + 1)[:-1], s.dtype)
-    (c, t, k), _ = jax.vmap(lambda a: _jet_of(a, x))(coefficients)
-    last, _ = _jet_of(coefficients[-1], jnp.ones((), s.dtype))
-    c, t, k = (jnp.concatenate([v.reshape(-1, 3), e[None]]) for v, e in zip((c, t, k), last))
-    normals = propagate(c, t, k, initial_normal(t[0]), "double_reflection")
-    normal = double_reflection(c[j], t[j], normals[j], jet[0], jet[1], k[j])
-    ends = [((c[e], t[e], k[e]), (normals[e], jnp.cross(t[e], normals[e]))) for e in (0, -1)]
-    return [(jet, (normal, jnp.cross(jet[1], normal)))] + ends
+def _with_tables(function, spine, s):
+    return function(tables(spine), s)
+
+
+class PreparedSpine(AbstractSpine):
+    """A parametric spine with its `Tables` computed once (internal: for many evaluations).
+
+    Used inside `jit` by the projection and the fleshing, so that coefficients, lengths and
+    frame nodes are computed once per call rather than once per evaluation. Built from the
+    live spine, it stays differentiable in the spine's parameters.
+    """
+
+    spine: AbstractParametricSpine
+    tables: Tables
+
+    def __init__(self, spine: AbstractParametricSpine, tables: Tables):
+        self.spine, self.tables = spine, tables
+
+    @property
+    def length(self):
+        return self.tables.cumulative[-1]
+
+    def _jet(self, s):
+        return _prepared(jet_at, self.tables, s)
+
+    def _normals(self, s):
+        return _prepared(evaluate_at, self.tables, s)[0][1]
+
+    def _jet_and_normals(self, s):
+        return _prepared(evaluate_at, self.tables, s)[0]
+
+    def _anchors(self, s):
+        return _prepared(evaluate_at, self.tables, s)
+
+    def _anchor_jets(self, s):
+        return _prepared(jets_at, self.tables, s)
+
+    def _torsion(self, s):
+        return _prepared(torsion_at, self.tables, s)
+
+    def default_samples(self) -> int:
+        return self.spine.default_samples()
+
+    def _prepare(self):
+        return self
 
 
 @eqx.filter_jit
-def _torsion(spine, s):
-    coefficients, i, u, _ = _locate(spine, s)
-    _, (c1, c2, c3) = _jet_of(coefficients[i], u, order=3)
-    b = jnp.cross(c1, c2)
-    return safe_divide(jnp.dot(b, c3), jnp.dot(b, b))
+def _prepared(function, tab, s):
+    return function(tab, s)
 
 
 def static_sizes(point_np, span_breaks, spans: int, subdivisions: int | None, name: str):
@@ -158,13 +251,17 @@ def static_sizes(point_np, span_breaks, spans: int, subdivisions: int | None, na
         speed = np.linalg.norm(point_np(hi) - point_np(lo), axis=-1) / (hi - lo)
     chords = np.diff(positions, axis=0)
     length = np.sum(np.linalg.norm(chords, axis=-1))
-    if not np.all(np.isfinite(speed)) or speed.min() <= 1e-6 * length / (breaks[-1] - breaks[0]):
-        raise ValueError(
-            f"`{name}` define a curve that stops (zero speed, a cusp) near parameter "
-            f"t = {grid[np.argmin(speed)]:.6g}: a spine needs a tangent everywhere."
-        )
     units = chords / np.maximum(np.linalg.norm(chords, axis=-1, keepdims=True), 1e-300)
     cosines = np.clip(np.sum(units[1:] * units[:-1], axis=-1), -1.0, 1.0)
+    # A cusp: the speed vanishes at a sample, or the direction flips between two samples.
+    stop = speed <= 1e-6 * length / (breaks[-1] - breaks[0])
+    flip = np.concatenate([[False], cosines < -0.5, [False]])
+    if not np.all(np.isfinite(speed)) or np.any(stop | flip):
+        where = np.argmax(stop | flip | ~np.isfinite(speed))
+        raise ValueError(
+            f"`{name}` define a curve that stops (zero speed, a cusp) near parameter "
+            f"t = {grid[where]:.6g}: a spine needs a tangent everywhere."
+        )
     turning = np.concatenate([[0.0], np.arccos(cosines)]).reshape(spans, 64).sum(axis=-1)
     if subdivisions is None:
         subdivisions = int(np.clip(np.ceil(RMF_NODES_PER_RADIAN * turning.max()), 8, 512))

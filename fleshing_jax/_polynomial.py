@@ -61,7 +61,7 @@ def _neville(points: Array, t: Array) -> Array:
     t = t[..., None]
     for m in range(1, points.shape[0]):
         left, right = nodes[:-m], nodes[m:]
-        p = (
-            (t - right)[..., None] * p[..., :-1, :] + (left - t)[..., None] * p[..., 1:, :]
-        ) / (left - right)[:, None]
+        p = ((t - right)[..., None] * p[..., :-1, :] + (left - t)[..., None] * p[..., 1:, :]) / (
+            left - right
+        )[:, None]
     return p[..., 0, :]

@@ -18,19 +18,27 @@ from ._misc import relative_tolerance, safe_divide
 from ._spine import AbstractSpine
 
 NEWTON_STEPS = 8
+CANDIDATES = 3  # Newton starts: the best local minima of the sampled distance
 
 
 def closest_arc_length(spine: AbstractSpine, x: Array, samples: int | None = None):
     """Arc length `s` of the closest projection of one point on the (continued) spine.
 
-    The search covers `[−e₀, length + e₁]` (see `AbstractSpine.extension`).
+    The search covers `[−e₀, length + e₁]` (see `AbstractSpine.extension`). It is global: Newton
+    runs from the `CANDIDATES` best local minima of the sampled distance (so that a spine coming
+    back near itself — a U-turn, a coil — is projected on its nearest part, not on the part
+    whose sample happened to be nearest), and the closest result is kept. A point (nearly)
+    equidistant from two separate parts of the spine has no unique projection: it is reported
+    as not converged.
 
     **Arguments:** `spine`; `x`: (3,) point; `samples`: coarse samples (default: the spine's).
 
     **Returns:** `(s, converged)`: scalar arc length (differentiable with respect to `x` and the
-    spine) and whether `s` is a stationary point strictly inside the searched range.
+    spine) and whether `s` is a stationary point strictly inside the searched range, and the
+    unique closest one.
     """
     samples = spine.default_samples() if samples is None else samples
+    spine = spine._prepare()
     fixed = jax.lax.stop_gradient(spine)
     x_fixed = jax.lax.stop_gradient(x)
     e0, e1 = fixed.extension()
@@ -38,7 +46,14 @@ def closest_arc_length(spine: AbstractSpine, x: Array, samples: int | None = Non
     grid = jnp.linspace(lo, hi, samples)
     # Sample positions do not depend on x: under vmap they are computed once per spine.
     positions = jax.vmap(fixed)(grid)
-    s = grid[jnp.argmin(jnp.sum((positions - x_fixed) ** 2, axis=-1))]
+    distances = jnp.sum((positions - x_fixed) ** 2, axis=-1)
+    inf = jnp.asarray(jnp.inf, distances.dtype)
+    before = jnp.concatenate([inf[None], distances[:-1]])
+    after = jnp.concatenate([distances[1:], inf[None]])
+    minima = jnp.where((distances <= before) & (distances <= after), distances, inf)
+    count = min(CANDIDATES, samples)
+    _, index = jax.lax.top_k(-minima, count)
+    candidate = jnp.isfinite(minima[index]).at[0].set(True)
     h = (hi - lo) / (samples - 1)
 
     def newton(_, s):
@@ -50,14 +65,25 @@ def closest_arc_length(spine: AbstractSpine, x: Array, samples: int | None = Non
         step = jnp.where(jnp.abs(step) > h, jnp.sign(step) * h, step)
         return jnp.where(s + step < lo, lo, jnp.where(s + step > hi, hi, s + step))
 
-    s = jax.lax.stop_gradient(jax.lax.fori_loop(0, NEWTON_STEPS, newton, s))
+    def solve(s):
+        s = jax.lax.fori_loop(0, NEWTON_STEPS, newton, s)
+        d = x_fixed - fixed(s)
+        return s, jnp.dot(d, d)
+
+    starts, distance = jax.vmap(solve)(grid[index])
+    distance = jnp.where(candidate, distance, inf)
+    best = jnp.argmin(distance)
+    s = jax.lax.stop_gradient(starts[best])
+    # Another candidate, elsewhere on the spine, as close as the best one: no unique projection.
+    tol = relative_tolerance(distance.dtype)
+    elsewhere = jnp.abs(starts - s) > h
+    tie = candidate & elsewhere & (distance - distance[best] <= tol * (1 + distance[best]))
     c, tangent, k = spine.jet(s)
     d = x - c
     f, slope = -jnp.dot(d, tangent), 1 - jnp.dot(k, d)
     s = s - safe_divide(f, jnp.where(slope > 0, slope, 0))
-    tol = relative_tolerance(s.dtype)
     converged = (jnp.abs(f) <= tol * (1 + jnp.linalg.norm(d))) & (s > lo) & (s < hi)
-    return s, converged
+    return s, converged & ~jnp.any(tie)
 
 
 class Registration(eqx.Module):
@@ -87,6 +113,7 @@ class Registration(eqx.Module):
 def register_point(spine: AbstractSpine, x: ArrayLike, samples: int | None = None) -> Registration:
     """Registers one point (3,) on `spine`; see `register` for the batched version."""
     x = jnp.asarray(x)
+    spine = spine._prepare()
     finite = jnp.all(jnp.isfinite(x))
     s, converged = closest_arc_length(spine, jnp.where(finite, x, 0), samples)
     (c, _, k), (i, j) = spine.jet_and_normals(s)

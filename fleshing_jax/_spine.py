@@ -99,6 +99,15 @@ class AbstractSpine(eqx.Module):
         zero = jnp.zeros_like(self.length)
         return [self._jet_and_normals(x) for x in (s, zero, self.length)]
 
+    def _prepare(self) -> AbstractSpine:
+        """An equivalent spine for many evaluations in one trace (tables computed once)."""
+        return self
+
+    def _anchor_jets(self, s: Array) -> list:
+        """`_jet` at `s`, at 0 and at `length` (spines override it to share work)."""
+        zero = jnp.zeros_like(self.length)
+        return [self._jet(x) for x in (s, zero, self.length)]
+
     def default_samples(self) -> int:
         """How many samples the coarse closest-point search uses on this spine (static)."""
         return 128
@@ -124,7 +133,10 @@ class AbstractSpine(eqx.Module):
 
     def jet(self, s: ArrayLike) -> tuple[Array, Array, Array]:
         """Position, unit tangent and curvature vector at `s`, each (3,)."""
-        return self.jet_and_normals(s)[0]
+        inner, t0, t1 = self._split(s)
+        anchors = self._anchor_jets(inner)
+        jet = _pick(jnp.where(t0 < 0, 1, jnp.where(t1 > 0, 2, 0)), anchors)
+        return _continue(jet, (), t0 + t1)[0]
 
     def __call__(self, s: ArrayLike) -> Array:
         """The point `C(s)`, (3,)."""

@@ -1,0 +1,192 @@
+"""The paper's discrete spine (§6): a polyline resampled at a constant arc-length step.
+
+Vertices `V_k` are resampled at equal arc length `d` along the input polyline; `C(s)` is the
+polyline itself, `C(s) = V_k + a (V_{k+1} − V_k)` on edge `k` (the paper's anchor; `s` is the
+arc length along the resampled polyline, `≈ (k + a) d`). A polyline has no curvature, so, as in
+the paper, tangent, curvature and frames come from the samples:
+
+- vertex tangents bisect consecutive edges (at the ends: the first/last edge direction reflected
+  like a circle through three vertices); `T(s)` is the normalised linear interpolation of the
+  vertex tangents along each edge and `k(s) = dT/ds` (exactly orthogonal to `T`);
+- the twist-compensated normal is propagated from vertex to vertex by double reflection, and
+  on an edge by one more double reflection from the vertex before.
+
+`C'(s)` is the edge direction, not `T(s)`: the volume element is off by `1 − (C'·T)`, which is
+second order in the step, so fleshings with polylines preserve volume only up to a
+discretisation error that shrinks with `step` (`det J − 1 = O(d²)` where the spines are smooth;
+see `benchmarks/README.md`). It exists for comparison with the paper and for rigs that give
+polylines; the smooth spines (`BSpline`, `InterpolatingPolynomial`) are exact.
+"""
+
+from __future__ import annotations
+
+import equinox as eqx
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, ArrayLike
+
+from ._misc import check_points, is_concrete, safe_divide, safe_sqrt
+from ._rmf import propagate, reflect_twice
+from ._spine import AbstractSpine, initial_normal
+
+
+class Polyline(AbstractSpine):
+    """The paper's discrete spine: `points` resampled at a constant arc-length step.
+
+    **Arguments:**
+
+    - `points`: (N, 3) array, `N ≥ 2`, finite, no two consecutive equal, never turning back
+      on itself (consecutive edges less than 179° apart).
+    - `step`: optional positive float: the resampling step `d` (rounded so that a whole number
+      of steps fits the input's length). Default: the input's mean edge length (as many edges
+      as the input). A given step needs concrete `points` (the number of vertices is static).
+
+    Accuracy: position is exact (piecewise linear), tangent and curvature are second-order
+    approximations of the smooth curve the points sample; `|det J − 1|` of a fleshing and the
+    volume error shrink as `step` does.
+    """
+
+    points: Array
+    step: float | None = eqx.field(static=True)
+    edges: int = eqx.field(static=True)
+    samples: int = eqx.field(static=True)
+
+    def __init__(self, points: ArrayLike, *, step: float | None = None):
+        points = check_points(points, "points", 2, "2")
+        self.points = points
+        concrete = is_concrete(points)
+        if concrete:
+            p = np.asarray(points, np.float64)
+            units = np.diff(p, axis=0)
+            units /= np.linalg.norm(units, axis=-1, keepdims=True)
+            back = np.flatnonzero(np.sum(units[1:] * units[:-1], axis=-1) < -0.9998)
+            if back.size:
+                raise ValueError(
+                    f"`points` turn back on themselves at row {int(back[0]) + 1}: a spine "
+                    "cannot reverse its direction."
+                )
+            length = float(np.sum(np.linalg.norm(np.diff(p, axis=0), axis=-1)))
+        if step is None:
+            self.step, self.edges = None, points.shape[0] - 1
+        else:
+            if not isinstance(step, int | float | np.number) or not np.isfinite(step) or step <= 0:
+                raise ValueError(f"`step` must be a finite positive number, got {step!r}.")
+            if not concrete:
+                raise ValueError("`step` needs concrete `points` (the vertex count is static).")
+            self.step, self.edges = float(step), max(1, int(round(length / step)))
+        turning = 0.0
+        if concrete:
+            cosines = np.clip(np.sum(units[1:] * units[:-1], axis=-1), -1, 1)
+            turning = float(np.sum(np.arccos(cosines)))
+        self.samples = int(np.clip(max(128, 4 * self.edges, 32 * turning), 128, 16384))
+
+    def _vertices(self) -> Array:
+        """The resampled vertices, (edges + 1, 3)."""
+        p = self.points
+        lengths = jnp.linalg.norm(jnp.diff(p, axis=0), axis=-1)
+        cumulative = jnp.concatenate([jnp.zeros((1,), p.dtype), jnp.cumsum(lengths)])
+        fractions = np.linspace(0.0, 1.0, self.edges + 1)[1:-1]
+        targets = jnp.asarray(fractions, p.dtype) * cumulative[-1]
+        k = jnp.clip(jnp.searchsorted(cumulative, targets, side="right") - 1, 0, p.shape[0] - 2)
+        a = (targets - cumulative[k]) / lengths[k]
+        inner = p[k] + a[:, None] * (p[k + 1] - p[k])
+        return jnp.concatenate([p[:1], inner, p[-1:]])
+
+    def _table(self):
+        """Vertices, cumulative arc lengths, edge directions and vertex tangents."""
+        v = self._vertices()
+        edges = jnp.diff(v, axis=0)
+        lengths = jnp.linalg.norm(edges, axis=-1)
+        units = edges / lengths[:, None]
+        cumulative = jnp.concatenate([jnp.zeros((1,), v.dtype), jnp.cumsum(lengths)])
+        inner = units[1:] + units[:-1]
+        inner = inner / jnp.linalg.norm(inner, axis=-1, keepdims=True)
+        if self.edges == 1:
+            tangents = jnp.concatenate([units, units])
+        else:  # ends: the next vertex tangent reflected about the end edge (exact on circles)
+            first = 2 * jnp.dot(units[0], inner[0]) * units[0] - inner[0]
+            last = 2 * jnp.dot(units[-1], inner[-1]) * units[-1] - inner[-1]
+            tangents = jnp.concatenate([first[None], inner, last[None]])
+        return v, cumulative, lengths, units, tangents
+
+    @property
+    def length(self) -> Array:
+        """Arc length of the resampled polyline (scalar)."""
+        return _length(self)
+
+    def _jet(self, s):
+        return _evaluate(self, s)[0][0]
+
+    def _normals(self, s):
+        return _evaluate(self, s)[0][1]
+
+    def _jet_and_normals(self, s):
+        return _evaluate(self, s)[0]
+
+    def _anchors(self, s):
+        return _evaluate(self, s)
+
+    def _anchor_jets(self, s):
+        return [jet for jet, _ in _evaluate(self, s)]
+
+    def _torsion(self, s):
+        return _torsion(self, s)
+
+    def default_samples(self) -> int:
+        return self.samples
+
+    def vertices(self) -> Array:
+        """The resampled vertices `C[k]`, (edges + 1, 3)."""
+        return self._vertices()
+
+
+def _on_edge(table, s):
+    """Edge index, position, `T(s)` and `k(s) = dT/ds` at `s ∈ [0, length]`."""
+    v, cumulative, lengths, units, tangents = table
+    k = jnp.clip(jnp.searchsorted(cumulative, s, side="right") - 1, 0, lengths.shape[0] - 1)
+    a = (s - cumulative[k]) / lengths[k]
+    position = v[k] + a * lengths[k] * units[k]
+    blend = (1 - a) * tangents[k] + a * tangents[k + 1]
+    norm = jnp.linalg.norm(blend)
+    tangent = blend / norm
+    slope = (tangents[k + 1] - tangents[k]) / (norm * lengths[k])
+    curvature = slope - jnp.dot(slope, tangent) * tangent
+    return k, (position, tangent, curvature)
+
+
+@eqx.filter_jit
+def _length(spine):
+    return spine._table()[1][-1]
+
+
+@eqx.filter_jit
+def _evaluate(spine, s):
+    """Jet and normals at `s`, and at both ends (the anchors of the continuations)."""
+    table = spine._table()
+    v, cumulative, lengths, units, tangents = table
+    k, jet = _on_edge(table, s)
+    zeros = jnp.zeros_like(v)
+    normals = propagate(v, tangents, zeros, initial_normal(tangents[0]), "double_reflection")
+    normal = reflect_twice(units[k], tangents[k], normals[k], jet[1])
+    ends = []
+    for e in (jnp.zeros_like(s), cumulative[-1]):
+        m, end = _on_edge(table, e)
+        i = reflect_twice(units[m], tangents[m], normals[m], end[1])
+        ends.append((end, (i, jnp.cross(end[1], i))))
+    return [(jet, (normal, jnp.cross(jet[1], normal)))] + ends
+
+
+@eqx.filter_jit
+def _torsion(spine, s):
+    """Discrete torsion: the turn of the vertex binormals about the edge, per unit length."""
+    v, cumulative, lengths, units, _ = spine._table()
+    k = jnp.clip(jnp.searchsorted(cumulative, s, side="right") - 1, 0, lengths.shape[0] - 1)
+    binormals = jnp.cross(units[:-1], units[1:])  # at interior vertices 1 … edges − 1
+    inside = (k >= 1) & (k <= lengths.shape[0] - 2)
+    b0 = binormals[jnp.clip(k - 1, 0, binormals.shape[0] - 1)]
+    b1 = binormals[jnp.clip(k, 0, binormals.shape[0] - 1)]
+    sin = jnp.dot(jnp.cross(b0, b1), units[k])
+    cos = jnp.dot(b0, b1)
+    defined = inside & (safe_sqrt(jnp.dot(b0, b0) * jnp.dot(b1, b1)) > 0) & (sin**2 + cos**2 > 0)
+    angle = jnp.arctan2(jnp.where(defined, sin, 0), jnp.where(defined, cos, 1))
+    return jnp.where(defined, safe_divide(angle, lengths[k]), 0)
