@@ -181,4 +181,3 @@ def _samples_for_turns(turning_angle) -> int:
     if not np.isfinite(angle):
         return 256
     return int(max(128, min(32 * angle, 8192)))
-

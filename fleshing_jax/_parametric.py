@@ -29,12 +29,12 @@ from jaxtyping import Array
 from . import _arclength as arclength
 from ._misc import safe_divide
 from ._rmf import double_reflection, propagate
-from ._spine import AbstractSpine, initial_normal
+from ._spine import AbstractTabulatedSpine, Evaluators, PreparedSpine, initial_normal
 
 RMF_NODES_PER_RADIAN = 24  # double-reflection error ~1e-10 over a 12-unit helix (benchmarks/)
 
 
-class AbstractParametricSpine(AbstractSpine):
+class AbstractParametricSpine(AbstractTabulatedSpine):
     """A spine made of smooth polynomial pieces, exactly reparameterised by arc length.
 
     Subclasses implement `_piece_values(x)` and provide three static ints: `piece_degree`,
@@ -56,31 +56,8 @@ class AbstractParametricSpine(AbstractSpine):
         values = self._piece_values(x)
         return jnp.einsum("kq,sqc->skc", jnp.asarray(fit, values.dtype), values)
 
-    @property
-    def length(self) -> Array:
-        """The arc length of the curve (scalar, differentiable in its parameters)."""
-        return _length(self)
-
-    def _jet(self, s):
-        return _jet(self, s)
-
-    def _normals(self, s):
-        return _with_tables(evaluate_at, self, s)[0][1]
-
-    def _jet_and_normals(self, s):
-        return _with_tables(evaluate_at, self, s)[0]
-
-    def _anchors(self, s):
-        return _with_tables(evaluate_at, self, s)
-
-    def _anchor_jets(self, s):
-        return _with_tables(jets_at, self, s)
-
-    def _torsion(self, s):
-        return _with_tables(torsion_at, self, s)
-
-    def _prepare(self):
-        return PreparedSpine(self, tables(self))
+    def _prepare(self) -> PreparedSpine:
+        return PreparedSpine(_tables(self), EVALUATORS, self.samples)
 
     def default_samples(self) -> int:
         return self.samples
@@ -158,72 +135,16 @@ def torsion_at(tab: Tables, s):
     return safe_divide(jnp.dot(b, c3), jnp.dot(b, b))
 
 
-# Jitted entry points: eager calls (e.g. `spine.length`) compile once per spine structure;
-# inside an outer `jit` they are inlined.
-@eqx.filter_jit
-def _length(spine):
-    return arclength.cumulative_lengths(spine._coefficients(), spine.subdivisions)[-1]
+def length_of(tab: Tables):
+    return tab.cumulative[-1]
+
+
+EVALUATORS = Evaluators(length_of, jet_at, jets_at, evaluate_at, torsion_at)
 
 
 @eqx.filter_jit
-def _jet(spine, s):
-    coefficients = spine._coefficients()
-    cumulative = arclength.cumulative_lengths(coefficients, spine.subdivisions)
-    i, u, _ = arclength.inverse(coefficients, cumulative, spine.subdivisions, s)
-    return _jet_of(coefficients[i], u)[0]
-
-
-@eqx.filter_jit
-def _with_tables(function, spine, s):
-    return function(tables(spine), s)
-
-
-class PreparedSpine(AbstractSpine):
-    """A parametric spine with its `Tables` computed once (internal: for many evaluations).
-
-    Used inside `jit` by the projection and the fleshing, so that coefficients, lengths and
-    frame nodes are computed once per call rather than once per evaluation. Built from the
-    live spine, it stays differentiable in the spine's parameters.
-    """
-
-    spine: AbstractParametricSpine
-    tables: Tables
-
-    def __init__(self, spine: AbstractParametricSpine, tables: Tables):
-        self.spine, self.tables = spine, tables
-
-    @property
-    def length(self):
-        return self.tables.cumulative[-1]
-
-    def _jet(self, s):
-        return _prepared(jet_at, self.tables, s)
-
-    def _normals(self, s):
-        return _prepared(evaluate_at, self.tables, s)[0][1]
-
-    def _jet_and_normals(self, s):
-        return _prepared(evaluate_at, self.tables, s)[0]
-
-    def _anchors(self, s):
-        return _prepared(evaluate_at, self.tables, s)
-
-    def _anchor_jets(self, s):
-        return _prepared(jets_at, self.tables, s)
-
-    def _torsion(self, s):
-        return _prepared(torsion_at, self.tables, s)
-
-    def default_samples(self) -> int:
-        return self.spine.default_samples()
-
-    def _prepare(self):
-        return self
-
-
-@eqx.filter_jit
-def _prepared(function, tab, s):
-    return function(tab, s)
+def _tables(spine):
+    return tables(spine)
 
 
 def static_sizes(point_np, span_breaks, spans: int, subdivisions: int | None, name: str):

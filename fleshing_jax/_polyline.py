@@ -27,10 +27,10 @@ from jaxtyping import Array, ArrayLike
 
 from ._misc import check_points, is_concrete, safe_divide, safe_sqrt
 from ._rmf import propagate, reflect_twice
-from ._spine import AbstractSpine, initial_normal
+from ._spine import AbstractTabulatedSpine, Evaluators, PreparedSpine, initial_normal
 
 
-class Polyline(AbstractSpine):
+class Polyline(AbstractTabulatedSpine):
     """The paper's discrete spine: `points` resampled at a constant arc-length step.
 
     **Arguments:**
@@ -109,28 +109,8 @@ class Polyline(AbstractSpine):
             tangents = jnp.concatenate([first[None], inner, last[None]])
         return v, cumulative, lengths, units, tangents
 
-    @property
-    def length(self) -> Array:
-        """Arc length of the resampled polyline (scalar)."""
-        return _length(self)
-
-    def _jet(self, s):
-        return _evaluate(self, s)[0][0]
-
-    def _normals(self, s):
-        return _evaluate(self, s)[0][1]
-
-    def _jet_and_normals(self, s):
-        return _evaluate(self, s)[0]
-
-    def _anchors(self, s):
-        return _evaluate(self, s)
-
-    def _anchor_jets(self, s):
-        return [jet for jet, _ in _evaluate(self, s)]
-
-    def _torsion(self, s):
-        return _torsion(self, s)
+    def _prepare(self) -> PreparedSpine:
+        return PreparedSpine(_tables(self), EVALUATORS, self.samples)
 
     def default_samples(self) -> int:
         return self.samples
@@ -142,7 +122,7 @@ class Polyline(AbstractSpine):
 
 def _on_edge(table, s):
     """Edge index, position, `T(s)` and `k(s) = dT/ds` at `s ∈ [0, length]`."""
-    v, cumulative, lengths, units, tangents = table
+    v, cumulative, lengths, units, tangents, *_ = table
     k = jnp.clip(jnp.searchsorted(cumulative, s, side="right") - 1, 0, lengths.shape[0] - 1)
     a = (s - cumulative[k]) / lengths[k]
     position = v[k] + a * lengths[k] * units[k]
@@ -155,31 +135,28 @@ def _on_edge(table, s):
 
 
 @eqx.filter_jit
-def _length(spine):
-    return spine._table()[1][-1]
-
-
-@eqx.filter_jit
-def _evaluate(spine, s):
-    """Jet and normals at `s`, and at both ends (the anchors of the continuations)."""
-    table = spine._table()
-    v, cumulative, lengths, units, tangents = table
-    k, jet = _on_edge(table, s)
+def _tables(spine):
+    """The polyline table and the double-reflection normals at its vertices."""
+    v, cumulative, lengths, units, tangents = spine._table()
     zeros = jnp.zeros_like(v)
     normals = propagate(v, tangents, zeros, initial_normal(tangents[0]), "double_reflection")
-    normal = reflect_twice(units[k], tangents[k], normals[k], jet[1])
-    ends = []
-    for e in (jnp.zeros_like(s), cumulative[-1]):
-        m, end = _on_edge(table, e)
-        i = reflect_twice(units[m], tangents[m], normals[m], end[1])
-        ends.append((end, (i, jnp.cross(end[1], i))))
-    return [(jet, (normal, jnp.cross(jet[1], normal)))] + ends
+    return v, cumulative, lengths, units, tangents, normals
 
 
-@eqx.filter_jit
-def _torsion(spine, s):
+def _evaluate(tab, s):
+    """Jet and normals at `s`, and at both ends (the anchors of the continuations)."""
+    v, cumulative, lengths, units, tangents, normals = tab
+    out = []
+    for e in (s, jnp.zeros_like(s), cumulative[-1]):
+        k, jet = _on_edge(tab, e)
+        i = reflect_twice(units[k], tangents[k], normals[k], jet[1])
+        out.append((jet, (i, jnp.cross(jet[1], i))))
+    return out
+
+
+def _torsion(tab, s):
     """Discrete torsion: the turn of the vertex binormals about the edge, per unit length."""
-    v, cumulative, lengths, units, _ = spine._table()
+    v, cumulative, lengths, units, *_ = tab
     k = jnp.clip(jnp.searchsorted(cumulative, s, side="right") - 1, 0, lengths.shape[0] - 1)
     binormals = jnp.cross(units[:-1], units[1:])  # at interior vertices 1 … edges − 1
     inside = (k >= 1) & (k <= lengths.shape[0] - 2)
@@ -190,3 +167,12 @@ def _torsion(spine, s):
     defined = inside & (safe_sqrt(jnp.dot(b0, b0) * jnp.dot(b1, b1)) > 0) & (sin**2 + cos**2 > 0)
     angle = jnp.arctan2(jnp.where(defined, sin, 0), jnp.where(defined, cos, 1))
     return jnp.where(defined, safe_divide(angle, lengths[k]), 0)
+
+
+EVALUATORS = Evaluators(
+    length=lambda tab: tab[1][-1],
+    jet=lambda tab, s: _on_edge(tab, s)[1],
+    jets=lambda tab, s: [jet for jet, _ in _evaluate(tab, s)],
+    evaluate=_evaluate,
+    torsion=_torsion,
+)

@@ -11,6 +11,8 @@ beyond the ends is continuous and still exactly volume preserving.
 from __future__ import annotations
 
 import abc
+from collections.abc import Callable
+from typing import NamedTuple
 
 import equinox as eqx
 import jax.numpy as jnp
@@ -168,6 +170,100 @@ class AbstractSpine(eqx.Module):
             return jnp.minimum(self.length, 0.5 * jnp.pi / jnp.maximum(kappa, 1e-30))
 
         return reach(jnp.zeros_like(self.length)), reach(self.length)
+
+
+class Evaluators(NamedTuple):
+    """Functions `(tables, s) → …` of a tabulated spine (see `PreparedSpine`)."""
+
+    length: Callable  # tables → scalar
+    jet: Callable  # → (C, T, k)
+    jets: Callable  # → [jet at s, at 0, at length]
+    evaluate: Callable  # → [(jet, (I, J)) at s, at 0, at length]
+    torsion: Callable  # → scalar
+
+
+class PreparedSpine(AbstractSpine):
+    """A free-form spine with its tables (everything that does not depend on `s`) computed once.
+
+    Internal: the projection and the fleshing prepare spines at the start of a traced call,
+    so that coefficients, lengths and frame nodes are computed once per call rather than once
+    per evaluation. Built from the live spine, it stays differentiable in its parameters.
+    """
+
+    tables: object
+    functions: Evaluators = eqx.field(static=True)
+    samples: int = eqx.field(static=True)
+
+    def __init__(self, tables, functions: Evaluators, samples: int):
+        self.tables, self.functions, self.samples = tables, functions, samples
+
+    @property
+    def length(self):
+        return _call(self.functions.length, self.tables)
+
+    def _jet(self, s):
+        return _call(self.functions.jet, self.tables, s)
+
+    def _normals(self, s):
+        return self._jet_and_normals(s)[1]
+
+    def _jet_and_normals(self, s):
+        return _call(self.functions.evaluate, self.tables, s)[0]
+
+    def _anchors(self, s):
+        return _call(self.functions.evaluate, self.tables, s)
+
+    def _anchor_jets(self, s):
+        return _call(self.functions.jets, self.tables, s)
+
+    def _torsion(self, s):
+        return _call(self.functions.torsion, self.tables, s)
+
+    def default_samples(self) -> int:
+        return self.samples
+
+    def _prepare(self):
+        return self
+
+
+@eqx.filter_jit
+def _call(function, *args):
+    return function(*args)
+
+
+class AbstractTabulatedSpine(AbstractSpine):
+    """A spine evaluated through tables computed from its parameters (free-form spines).
+
+    Subclasses implement `_prepare()`, returning a `PreparedSpine`; every method delegates to it
+    (under `jit`, XLA drops the tables a method does not use).
+    """
+
+    @abc.abstractmethod
+    def _prepare(self) -> PreparedSpine:
+        """The spine with its tables computed."""
+
+    @property
+    def length(self) -> Array:
+        """The arc length of the spine (scalar, differentiable in its parameters)."""
+        return self._prepare().length
+
+    def _jet(self, s):
+        return self._prepare()._jet(s)
+
+    def _normals(self, s):
+        return self._prepare()._normals(s)
+
+    def _jet_and_normals(self, s):
+        return self._prepare()._jet_and_normals(s)
+
+    def _anchors(self, s):
+        return self._prepare()._anchors(s)
+
+    def _anchor_jets(self, s):
+        return self._prepare()._anchor_jets(s)
+
+    def _torsion(self, s):
+        return self._prepare()._torsion(s)
 
 
 def _pick(index: Array, candidates: list):

@@ -23,7 +23,11 @@ def _reference(points, knots, degree, panels=3000):
 
     Returns `(length, inverse)` where `inverse(s)` is the parameter of arc length `s`.
     """
-    q = degree * np.diff(points, axis=0) / (knots[degree + 1 : -1] - knots[1:-degree - 1])[:, None]
+    q = (
+        degree
+        * np.diff(points, axis=0)
+        / (knots[degree + 1 : -1] - knots[1 : -degree - 1])[:, None]
+    )
     x, w = np.polynomial.legendre.leggauss(16)
     edges = np.linspace(knots[degree], knots[-degree - 1], panels + 1)
     a, b = edges[:-1, None], edges[1:, None]
@@ -86,6 +90,7 @@ def test_speed_curvature_and_torsion(spline, jet_fn):
     assert np.max(np.abs(speed - 1)) < 1e-10
     np.testing.assert_allclose(derivatives[1], k, atol=1e-10)  # k = dT/ds
     assert np.max(np.abs(np.sum(np.asarray(t) * np.asarray(k), axis=-1))) < 1e-12
+
     # Torsion against the Frenet formula τ = (C' × C'')·C''' / |C' × C''|² in arc length.
     @jax.jit
     def torsions(s0):
