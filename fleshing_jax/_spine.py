@@ -13,6 +13,7 @@ from __future__ import annotations
 import abc
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike
 
@@ -106,21 +107,24 @@ class AbstractSpine(eqx.Module):
 
     def jet_and_normals(self, s: ArrayLike):
         """`((C, T, k), (I, J))` at any `s`: position, tangent, curvature vector, RMF normals."""
-        inner, t0, t1 = self._split(s)
-        zero = jnp.zeros_like(self.length)
-        # Continue from the end the point lies beyond (t = 0 inside: the identity).
-        anchors = [
-            (self._jet(inner), self._normals(inner)),
-            (self._jet(zero), self._normals(zero)),
-            (self._jet(self.length), self._normals(self.length)),
-        ]
-        select = jnp.where(t0 < 0, 1, jnp.where(t1 > 0, 2, 0))
-        jet, normals = _pick(select, anchors)
-        return _continue(jet, normals, t0 + t1)
+        return self._evaluate(s, with_normals=True)
 
     def jet(self, s: ArrayLike) -> tuple[Array, Array, Array]:
         """Position, unit tangent and curvature vector at `s`, each (3,)."""
-        return self.jet_and_normals(s)[0]
+        return self._evaluate(s, with_normals=False)[0]
+
+    def _evaluate(self, s: ArrayLike, with_normals: bool):
+        inner, t0, t1 = self._split(s)
+        zero = jnp.zeros_like(self.length)
+
+        def at(s):
+            return self._jet(s), (self._normals(s) if with_normals else ())
+
+        # Continue from the end the point lies beyond (t = 0 inside: the identity).
+        anchors = [at(inner), at(zero), at(self.length)]
+        select = jnp.where(t0 < 0, 1, jnp.where(t1 > 0, 2, 0))
+        jet, normals = _pick(select, anchors)
+        return _continue(jet, normals, t0 + t1)
 
     def __call__(self, s: ArrayLike) -> Array:
         """The point `C(s)`, (3,)."""
@@ -156,14 +160,8 @@ class AbstractSpine(eqx.Module):
 
 def _pick(index: Array, candidates: list):
     """Selects `candidates[index]` leaf by leaf (all candidates are finite: safe under grad)."""
-    first, *rest = candidates
-    out = first
-    for i, candidate in enumerate(rest, start=1):
-        out = _tree_where(index == i, candidate, out)
-    return out
 
+    def select(*leaves):
+        return jnp.select([index == i for i in range(len(leaves))], leaves)
 
-def _tree_where(condition, a, b):
-    if isinstance(a, tuple):
-        return tuple(_tree_where(condition, x, y) for x, y in zip(a, b))
-    return jnp.where(condition, a, b)
+    return jax.tree.map(select, *candidates)
