@@ -63,7 +63,10 @@ def test_point_cloud(small):
 def test_chunks_and_progress(small, bent):
     calls = []
     out, valid = fj.flesh_chunked(
-        np.asarray(small.vertices), SOURCE, TARGET, chunk_size=40,
+        np.asarray(small.vertices),
+        SOURCE,
+        TARGET,
+        chunk_size=40,
         progress=lambda done, total: calls.append((done, total)),
     )
     n = len(small.vertices)
@@ -128,4 +131,3 @@ def test_shapes_are_closed():
     np.testing.assert_allclose(np.asarray(fj.volume(cubes, faces)), 0.25**3)
     c = fj.creature()
     assert c.is_watertight and c.volume > 0
-

@@ -47,10 +47,22 @@ def test_quads_are_bilinear_and_diagonal_independent():
 
 def test_bilinear_quad_volume_matches_quadrature():
     # A hexahedron with one non-planar (bilinear) face: integrate x·n over the patch.
-    corners = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0],
-                        [0, 0, 1], [1, 0, 1.3], [1, 1, 0.8], [0, 1, 1.1]], float)
-    quads = np.array([[0, 3, 2, 1], [4, 5, 6, 7], [0, 1, 5, 4], [1, 2, 6, 5],
-                      [2, 3, 7, 6], [3, 0, 4, 7]])
+    corners = np.array(
+        [
+            [0, 0, 0],
+            [1, 0, 0],
+            [1, 1, 0],
+            [0, 1, 0],
+            [0, 0, 1],
+            [1, 0, 1.3],
+            [1, 1, 0.8],
+            [0, 1, 1.1],
+        ],
+        float,
+    )
+    quads = np.array(
+        [[0, 3, 2, 1], [4, 5, 6, 7], [0, 1, 5, 4], [1, 2, 6, 5], [2, 3, 7, 6], [3, 0, 4, 7]]
+    )
     total = 0.0
     x, w = np.polynomial.legendre.leggauss(6)
     x, w = 0.5 * (x + 1), 0.5 * w

@@ -12,7 +12,6 @@ is not given, so this setting is ours.) Volumes are those of the bilinear quads 
 
 from __future__ import annotations
 
-import numpy as np
 from _common import ALL_METHODS, figure_path, flesh_many, markdown_table, pyplot, render
 
 import fleshing_jax as fj
@@ -53,8 +52,10 @@ def run(size: float = 0.05, methods=ALL_METHODS):
 def main():
     v0, volumes, (vertices, quads), poses = run()
     print(f"genus-2 slab: {len(vertices)} vertices, {len(quads)} quads, volume {v0:.6f}")
-    rows = [(m, f"{a:.6f}", f"{100 * (a - v0) / v0:+.4f}%", f"{b:.6f}",
-             f"{100 * (b - v0) / v0:+.4f}%") for m, (a, b) in volumes.items()]
+    rows = [
+        (m, f"{a:.6f}", f"{100 * (a - v0) / v0:+.4f}%", f"{b:.6f}", f"{100 * (b - v0) / v0:+.4f}%")
+        for m, (a, b) in volumes.items()
+    ]
     print(markdown_table(("method", "after bend 1", "change", "after bend 2", "change"), rows))
     plt = pyplot()
     fig = plt.figure(figsize=(14, 6.4))

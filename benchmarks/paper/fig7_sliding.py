@@ -39,12 +39,16 @@ def run(frames: int = 12, segments: int = 64, around: int = 32, methods=ALL_METH
 
 def main():
     starts, deviations, poses, faces = run()
-    rows = [(f"{s:.1f}", *(f"{100 * deviations[m][i]:+.4f}%" for m in ALL_METHODS))
-            for i, s in enumerate(starts)]
+    rows = [
+        (f"{s:.1f}", *(f"{100 * deviations[m][i]:+.4f}%" for m in ALL_METHODS))
+        for i, s in enumerate(starts)
+    ]
     print("Volume deviation of the sliding creature, per frame (σ = start of C1 on the spiral)")
     print(markdown_table(("σ", *ALL_METHODS), rows))
-    print("max |deviation|: " + ", ".join(
-        f"{m} {100 * np.max(np.abs(deviations[m])):.4f}%" for m in ALL_METHODS))
+    print(
+        "max |deviation|: "
+        + ", ".join(f"{m} {100 * np.max(np.abs(deviations[m])):.4f}%" for m in ALL_METHODS)
+    )
     plt = pyplot()
     fig = plt.figure(figsize=(13, 4.2))
     ax = fig.add_subplot(1, 2, 1)

@@ -104,13 +104,17 @@ def plot_meshes(level, path):
 
 def main():
     errors, counts = resolution()
-    rows = [(d, n, *(f"{100 * errors[m][i]:+.5f}%" for m in ALL_METHODS))
-            for i, (d, n) in enumerate(zip(LEVELS, counts))]
+    rows = [
+        (d, n, *(f"{100 * errors[m][i]:+.5f}%" for m in ALL_METHODS))
+        for i, (d, n) in enumerate(zip(LEVELS, counts))
+    ]
     print("Fig. 8: relative volume error of the bent box against resolution")
     print(markdown_table(("d", "vertices", *ALL_METHODS), rows))
     cubes, cube_counts = cube_errors()
-    rows = [(s, n, *(f"{100 * cubes[m][i]:.5f}%" for m in ALL_METHODS))
-            for i, (s, n) in enumerate(zip(CUBE_SIZES, cube_counts))]
+    rows = [
+        (s, n, *(f"{100 * cubes[m][i]:.5f}%" for m in ALL_METHODS))
+        for i, (s, n) in enumerate(zip(CUBE_SIZES, cube_counts))
+    ]
     print("\nFigs. 9–10: mean absolute relative volume error per cube against cube size")
     print(markdown_table(("cube size", "cubes", *ALL_METHODS), rows))
     plot(LEVELS, counts, errors, CUBE_SIZES, cubes, cube_counts, figure_path("fig8_10_errors.png"))
