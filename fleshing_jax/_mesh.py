@@ -129,8 +129,8 @@ def deform_mesh(
 def load_mesh(path: str | os.PathLike):
     """Reads a mesh or point cloud with trimesh, keeping vertex count and order.
 
-    OBJ files keep the order of their `v` lines (quads are split in two triangles). Scenes with
-    several meshes are concatenated.
+    OBJ files keep their `v` lines as vertices, in order, whenever trimesh allows (quads are
+    split in two triangles). Scenes with several meshes are concatenated.
 
     **Returns:** a `trimesh.Trimesh` or `trimesh.PointCloud`. **Raises:** `FileNotFoundError`
     when `path` does not exist, `ValueError` when it holds no mesh or points.
@@ -138,9 +138,10 @@ def load_mesh(path: str | os.PathLike):
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"{path}: no such file")
-    kwargs = {"maintain_order": True} if path.suffix.lower() == ".obj" else {}
     try:
-        loaded = trimesh.load(str(path), process=False, **kwargs)
+        loaded = trimesh.load(str(path), process=False)
+        if path.suffix.lower() == ".obj" and isinstance(loaded, trimesh.Trimesh):
+            loaded = _obj_in_file_order(path, loaded)
     except Exception as error:  # trimesh raises many kinds for unreadable files
         raise ValueError(f"{path}: not a mesh trimesh can read ({error})") from error
     if isinstance(loaded, trimesh.Scene):
@@ -150,6 +151,22 @@ def load_mesh(path: str | os.PathLike):
         loaded = trimesh.util.concatenate(geometries)
     if not isinstance(loaded, trimesh.Trimesh | trimesh.PointCloud) or len(loaded.vertices) == 0:
         raise ValueError(f"{path}: contains no mesh or points")
+    return loaded
+
+
+def _obj_in_file_order(path: Path, loaded: trimesh.Trimesh) -> trimesh.Trimesh:
+    """The OBJ mesh with one vertex per `v` line, in file order, when trimesh can give it.
+
+    trimesh splits vertices along texture seams by default, and along normal seams with
+    `maintain_order=True`; one of the two keeps the file's vertices as they are.
+    """
+    with open(path, "rb") as file:
+        count = sum(1 for line in file if line.startswith(b"v "))
+    if len(loaded.vertices) == count:
+        return loaded
+    ordered = trimesh.load(str(path), process=False, maintain_order=True)
+    if isinstance(ordered, trimesh.Trimesh) and len(ordered.vertices) == count:
+        return ordered
     return loaded
 
 

@@ -38,6 +38,16 @@ def test_bunny_capped_volume_and_bending():
     assert flesh < 3e-3 and flesh * 100 < skin  # paper: < 0.3 %
 
 
+def test_load_mesh_keeps_obj_vertex_lines():
+    for name in ("stanford-bunny.obj", "spot.obj", "spot-quad.obj"):
+        path = DATA / name
+        if not path.is_file():
+            pytest.skip(f"{path} is absent")
+        lines = [ln for ln in path.read_text().splitlines() if ln.startswith("v ")]
+        positions = np.array([ln.split()[1:4] for ln in lines], float)
+        np.testing.assert_array_equal(fj.load_mesh(path).vertices, positions)
+
+
 def test_spot_merged_is_closed_and_volume_agrees():
     spot = _load("spot.obj")
     spot.merge_vertices(merge_tex=True, merge_norm=True)
