@@ -17,7 +17,7 @@ from jaxtyping import Array, ArrayLike, Bool, Float
 
 from ._frames import twist_normals
 from ._maps import BEND, UNBEND, check_method
-from ._misc import cast_floats, relative_tolerance
+from ._misc import as_float_array, cast_floats, relative_tolerance
 from ._projection import Registration, closest_arc_length, register_point
 from ._spine import AbstractSpine
 
@@ -83,14 +83,15 @@ class Fleshing(eqx.Module):
                 raise TypeError(f"`{name}` must be a spine (AbstractSpine), got {type(spine)}.")
         self.source, self.target = source, target
         self.method = check_method(method)
-        self.twist = jnp.asarray(twist, dtype=jnp.result_type(twist, float))
-        if self.twist.shape != ():
-            raise ValueError(f"`twist` must be a scalar, got shape {self.twist.shape}.")
+        self.twist = as_float_array(twist, "twist", ())
         self.check_projection = bool(check_projection)
 
     def apply(self, x: ArrayLike) -> tuple[Array, Array]:
         """`(M(x), valid)` for one point `x` (3,)."""
-        x = _check_points(x, "x", single=True)
+        return self._apply(_check_points(x, "x", single=True))
+
+    @eqx.filter_jit
+    def _apply(self, x):
         source, target, twist = cast_floats((self.source, self.target, self.twist), x.dtype)
         registration = register_point(source, x)
         return pose_point(registration, target, self.method, twist, self.check_projection)

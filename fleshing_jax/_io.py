@@ -83,7 +83,7 @@ def _check_field(path, kind: str, name: str, value):
         raise ValueError(f"{path}: field `{name}` must be {expected}, got {value!r}.")
 
     def is_number(v):
-        return isinstance(v, int | float) and not isinstance(v, bool)
+        return isinstance(v, int | float) and not isinstance(v, bool) and np.isfinite(v)
 
     if kind == "int":
         if not isinstance(value, int) or isinstance(value, bool):
@@ -109,13 +109,16 @@ def _check_field(path, kind: str, name: str, value):
 def load_spine(path: str | os.PathLike) -> AbstractSpine:
     """Reads a spine written by `save_spine` (or by hand) from the JSON file `path`.
 
-    Raises `ValueError` naming the file and the offending field for malformed files (invalid
-    JSON, unknown `type`, missing, unknown or ill-typed fields, or values the spine rejects).
+    Raises `FileNotFoundError` if `path` does not exist, and `ValueError` naming the file and the
+    offending field for malformed files (invalid JSON, unknown `type`, missing, unknown or
+    ill-typed fields, or values the spine rejects).
     """
+    if not os.path.isfile(path):
+        raise FileNotFoundError(f"{path}: no such spine file")
     try:
         with open(path) as file:
             data = json.load(file)
-    except json.JSONDecodeError as error:
+    except (json.JSONDecodeError, UnicodeDecodeError) as error:
         raise ValueError(f"{path}: not valid JSON ({error}).") from error
     if not isinstance(data, dict):
         raise ValueError(f"{path}: must hold a JSON object, got {type(data).__name__}.")

@@ -61,7 +61,7 @@ def closest_arc_length(spine: AbstractSpine, x: Array, samples: int | None = Non
         d = x_fixed - c
         f, slope = -jnp.dot(d, tangent), 1 - jnp.dot(k, d)
         # Outside the local reach Newton heads for a maximum: step downhill instead.
-        step = jnp.where(slope > 0.1, -f / jnp.where(slope > 0.1, slope, 1), -jnp.sign(f) * h)
+        step = jnp.where(slope > 0, -f / jnp.where(slope > 0, slope, 1), -jnp.sign(f) * h)
         step = jnp.where(jnp.abs(step) > h, jnp.sign(step) * h, step)
         return jnp.where(s + step < lo, lo, jnp.where(s + step > hi, hi, s + step))
 

@@ -15,6 +15,7 @@ from collections.abc import Callable
 from typing import NamedTuple
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike
 
@@ -126,19 +127,22 @@ class AbstractSpine(eqx.Module):
 
     def jet_and_normals(self, s: ArrayLike):
         """`((C, T, k), (I, J))` at any `s`: position, tangent, curvature vector, RMF normals."""
-        inner, t0, t1 = self._split(s)
-        # Continue from the end the point lies beyond (t = 0 inside: the identity).
-        anchors = self._anchors(inner)
-        select = jnp.where(t0 < 0, 1, jnp.where(t1 > 0, 2, 0))
-        jet, normals = _pick(select, anchors)
-        return _continue(jet, normals, t0 + t1)
+        return self._evaluate(s, with_normals=True)
 
     def jet(self, s: ArrayLike) -> tuple[Array, Array, Array]:
         """Position, unit tangent and curvature vector at `s`, each (3,)."""
+        return self._evaluate(s, with_normals=False)[0]
+
+    def _evaluate(self, s: ArrayLike, with_normals: bool):
         inner, t0, t1 = self._split(s)
-        anchors = self._anchor_jets(inner)
-        jet = _pick(jnp.where(t0 < 0, 1, jnp.where(t1 > 0, 2, 0)), anchors)
-        return _continue(jet, (), t0 + t1)[0]
+        if with_normals:
+            anchors = self._anchors(inner)
+        else:
+            anchors = [(jet, ()) for jet in self._anchor_jets(inner)]
+        # Continue from the end the point lies beyond (t = 0 inside: the identity).
+        select = jnp.where(t0 < 0, 1, jnp.where(t1 > 0, 2, 0))
+        jet, normals = _pick(select, anchors)
+        return _continue(jet, normals, t0 + t1)
 
     def __call__(self, s: ArrayLike) -> Array:
         """The point `C(s)`, (3,)."""
@@ -268,14 +272,8 @@ class AbstractTabulatedSpine(AbstractSpine):
 
 def _pick(index: Array, candidates: list):
     """Selects `candidates[index]` leaf by leaf (all candidates are finite: safe under grad)."""
-    first, *rest = candidates
-    out = first
-    for i, candidate in enumerate(rest, start=1):
-        out = _tree_where(index == i, candidate, out)
-    return out
 
+    def select(*leaves):
+        return jnp.select([index == i for i in range(len(leaves))], leaves)
 
-def _tree_where(condition, a, b):
-    if isinstance(a, tuple):
-        return tuple(_tree_where(condition, x, y) for x, y in zip(a, b))
-    return jnp.where(condition, a, b)
+    return jax.tree.map(select, *candidates)

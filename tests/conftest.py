@@ -1,3 +1,60 @@
+"""Shared test configuration and helpers.
+
+float64 is enabled here (never in the library); float32 behaviour is tested explicitly.
+"""
+
 import jax
+import numpy as np
+import pytest
 
 jax.config.update("jax_enable_x64", True)
+
+import fleshing_jax as fj  # noqa: E402
+
+
+def cloud(spine, n=32, radius=0.5, seed=0, overshoot=0.0):
+    """Random points in a tube of `radius` around `spine`, optionally past its ends.
+
+    Built from the spine's own frame so the tube follows the spine: (n, 3) numpy array. Tests
+    keep `n` at its default where they can, so that compiled functions are reused.
+    """
+    rng = np.random.default_rng(seed)
+    length = float(spine.length)
+    s = rng.uniform(-overshoot * length, (1 + overshoot) * length, n)
+    frames = np.asarray(jax.vmap(lambda t: fj.rotation_minimizing_frame(spine, t))(s))
+    angle = rng.uniform(0, 2 * np.pi, n)
+    r = radius * np.sqrt(rng.uniform(0, 1, n))
+    centre = np.asarray(jax.vmap(spine)(s))
+    return (
+        centre
+        + (r * np.cos(angle))[:, None] * frames[:, 1]
+        + (r * np.sin(angle))[:, None] * frames[:, 2]
+    )
+
+
+def central_difference(f, x, eps=1e-6):
+    """Central finite-difference derivative of `f` at scalar `x`."""
+    return (np.asarray(f(x + eps)) - np.asarray(f(x - eps))) / (2 * eps)
+
+
+# Pairs of spines used across the tests: (name, C0, C1). Each C1 is bent well inside the
+# valid space of a 0.5-radius tube.
+def _pairs():
+    return {
+        "line-arc": (fj.Line(4.0), fj.Arc(3.0, 4.0)),
+        "arc-helix": (
+            fj.Arc(2.5, 5.0, origin=(1.0, -1.0, 0.5), tangent=(0, 1, 0), normal=(1, 0, 1)),
+            fj.Helix(2.0, 1.5, 5.0),
+        ),
+        "helix-helix": (fj.Helix(2.0, 3.0, 8.0), fj.Helix(1.5, -2.5, 8.0)),
+        "arc-line": (fj.Arc(2.0, 3.0), fj.Line(3.0, origin=(1, 2, 3), tangent=(0, 0, 1))),
+        "unequal": (fj.Arc(3.0, 4.0), fj.Helix(2.0, 2.0, 6.0)),
+    }
+
+
+PAIRS = _pairs()
+
+
+@pytest.fixture(params=sorted(PAIRS))
+def pair(request):
+    return PAIRS[request.param]

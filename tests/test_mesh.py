@@ -1,0 +1,133 @@
+import numpy as np
+import pytest
+import trimesh
+
+import fleshing_jax as fj
+
+SOURCE = fj.Line(4.0)
+TARGET = fj.Arc(1.6, 4.0, normal=(0.0, 0.0, -1.0))
+
+
+@pytest.fixture(scope="module")
+def small():
+    return fj.creature(segments=12, around=8)
+
+
+@pytest.fixture(scope="module")
+def bent(small):
+    return fj.deform_mesh(small, SOURCE, TARGET, method="radial")
+
+
+def test_deform_mesh_keeps_faces_and_vertex_order(small, bent):
+    assert isinstance(bent, trimesh.Trimesh)
+    np.testing.assert_array_equal(bent.faces, small.faces)
+    assert bent.vertices.shape == small.vertices.shape
+    expected, valid = fj.flesh(np.asarray(small.vertices), SOURCE, TARGET, method="radial")
+    np.testing.assert_allclose(bent.vertices, np.asarray(expected), atol=1e-12)
+    assert bent.vertex_attributes["valid"].dtype == bool
+    np.testing.assert_array_equal(bent.vertex_attributes["valid"], np.asarray(valid))
+    assert bent.vertex_attributes["valid"].all()
+    assert not np.allclose(bent.vertices, small.vertices)  # it did bend
+    np.testing.assert_array_equal(small.vertices, fj.creature(segments=12, around=8).vertices)
+
+
+def test_deform_mesh_volume_preserved_vs_skinning(small, bent):
+    skinned = fj.deform_mesh(small, SOURCE, TARGET, method="skinning")
+    flesh_change = abs(float(fj.volume_change(small.vertices, bent.vertices, small.faces)))
+    skin_change = abs(float(fj.volume_change(small.vertices, skinned.vertices, small.faces)))
+    assert skin_change > 0.03
+    assert flesh_change < skin_change / 10  # a coarse mesh; the paper tests refine it
+
+
+def test_invalid_vertices_stay_in_place():
+    points = np.array([[1.0, 0.0, 0.1], [1.0, 0.0, -3.0], [1.0, 0.0, 0.0]])
+    tight = fj.Arc(1.0, 4.0, normal=(0.0, 0.0, -1.0))  # offset 3 is far outside its reach
+    cloud = fj.deform_mesh(points, SOURCE, tight)
+    assert isinstance(cloud, trimesh.PointCloud)
+    valid = cloud.metadata["valid"]
+    np.testing.assert_array_equal(valid, [True, False, True])
+    np.testing.assert_array_equal(cloud.vertices[1], points[1])
+
+
+def test_point_cloud(small):
+    cloud = trimesh.PointCloud(np.asarray(small.vertices))
+    out = fj.deform_mesh(cloud, SOURCE, TARGET, method="radial")
+    assert isinstance(out, trimesh.PointCloud)
+    expected = fj.deform_mesh(small, SOURCE, TARGET, method="radial").vertices
+    np.testing.assert_allclose(out.vertices, expected, atol=1e-12)
+    assert out.metadata["valid"].all()
+    with pytest.raises(TypeError, match="mesh"):
+        fj.deform_mesh("not a mesh", SOURCE, TARGET)
+
+
+def test_chunks_and_progress(small, bent):
+    calls = []
+    out, valid = fj.flesh_chunked(
+        np.asarray(small.vertices),
+        SOURCE,
+        TARGET,
+        chunk_size=40,
+        progress=lambda done, total: calls.append((done, total)),
+    )
+    n = len(small.vertices)
+    np.testing.assert_allclose(out, bent.vertices, atol=1e-12)
+    assert valid.all() and valid.shape == (n,)
+    assert [d for d, _ in calls] == list(range(40, n, 40)) + [n]
+    assert all(t == n for _, t in calls)
+
+
+def test_write_mesh_atomic(tmp_path, bent):
+    path = tmp_path / "bent.ply"
+    fj.write_mesh_atomic(bent, path)
+    back = trimesh.load(str(path), process=False)
+    np.testing.assert_array_equal(back.faces, bent.faces)
+    np.testing.assert_allclose(back.vertices, bent.vertices, rtol=1e-6)
+    assert "valid" in back.metadata["_ply_raw"]["vertex"]["data"].dtype.names
+    # A failed export leaves an existing file intact and no temporary file behind.
+    target = tmp_path / "keep.nosuchformat"
+    target.write_text("old")
+    with pytest.raises(Exception):
+        fj.write_mesh_atomic(bent, target)
+    assert target.read_text() == "old"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["bent.ply", "keep.nosuchformat"]
+
+
+def test_load_mesh(tmp_path, small):
+    path = tmp_path / "m.obj"
+    fj.write_mesh_atomic(small, path)
+    back = fj.load_mesh(path)
+    np.testing.assert_allclose(back.vertices, small.vertices, atol=1e-7)
+    np.testing.assert_array_equal(back.faces, small.faces)
+    with pytest.raises(FileNotFoundError):
+        fj.load_mesh(tmp_path / "missing.obj")
+    junk = tmp_path / "junk.obj"
+    junk.write_text("this is not a mesh\n")
+    with pytest.raises(ValueError, match="junk.obj"):
+        fj.load_mesh(junk)
+
+
+def test_cap_holes_closes_and_keeps_order():
+    closed = fj.extrusion(np.c_[np.cos(np.arange(12) / 2), np.sin(np.arange(12) / 2)], 2.0, 4)
+    m = len(closed.faces)
+    opened = trimesh.Trimesh(closed.vertices[:-2], closed.faces[: m - 24], process=False)
+    assert not opened.is_watertight
+    capped = fj.cap_holes(opened)
+    assert capped.is_watertight and capped.is_winding_consistent
+    np.testing.assert_array_equal(capped.vertices[: len(opened.vertices)], opened.vertices)
+    np.testing.assert_array_equal(capped.faces[: len(opened.faces)], opened.faces)
+    assert float(fj.volume(capped.vertices, capped.faces)) == pytest.approx(closed.volume)
+
+
+def test_shapes_are_closed():
+    for d in (1, 2, 5):
+        v, f = fj.box_grid([[0, 0, 0], [1, 1, 1]], d)
+        assert len(v) == 6 * d * d + 2
+        assert trimesh.Trimesh(v, f, process=False).is_watertight
+    v, q = fj.genus2_slab(size=0.1)
+    mesh = trimesh.Trimesh(v, fj.triangulate(q), process=False)
+    assert mesh.is_watertight and mesh.euler_number == -2  # genus 2
+    assert float(fj.volume(v, q)) == pytest.approx(mesh.volume) and mesh.volume > 0
+    cubes, faces = fj.cube_cloud([[0, 0, 0], [1, 1, 1]], 0.25)
+    np.testing.assert_allclose(np.asarray(fj.volume(cubes, faces)), 0.25**3)
+    c = fj.creature()
+    assert c.is_watertight and c.volume > 0
