@@ -31,8 +31,8 @@ def frame_errors():
                                   - exact)))
             for m in ("double_reflection", "projection")
         ]  # fmt: skip
-        orders = ["" if previous is None else f"{np.log2(p / e):.2f}"
-                  for p, e in zip(previous, errors)]  # fmt: skip
+        orders = [f"{np.log2(p / e):.2f}" for p, e in zip(previous or errors, errors)]
+        orders = orders if previous else ["", ""]
         print(f"| {n} | {errors[0]:.2e} | {orders[0]} | {errors[1]:.2e} | {orders[1]} |")
         previous = errors
     kappa = 1 / (1 + (1 / (2 * np.pi)) ** 2)
