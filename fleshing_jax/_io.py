@@ -80,7 +80,7 @@ def save_spine(spine: AbstractSpine, path: str | os.PathLike) -> None:
 
 def _check_field(path, kind: str, name: str, value):
     def fail(expected):
-        raise ValueError(f"{path}: field `{name}` must be {expected}, got {value!r}.")
+        raise ValueError(f"{path}: field '{name}' must be {expected}, got {value!r}.")
 
     def is_number(v):
         return isinstance(v, int | float) and not isinstance(v, bool) and np.isfinite(v)
@@ -124,17 +124,17 @@ def load_spine(path: str | os.PathLike) -> AbstractSpine:
         raise ValueError(f"{path}: must hold a JSON object, got {type(data).__name__}.")
     kind = data.get("type")
     if kind not in _SCHEMA:
-        raise ValueError(f"{path}: field `type` must be one of {sorted(_SCHEMA)}, got {kind!r}.")
+        raise ValueError(f"{path}: field 'type' must be one of {sorted(_SCHEMA)}, got {kind!r}.")
     cls, fields = _SCHEMA[kind]
     unknown = sorted(set(data) - set(fields) - {"type"})
     if unknown:
-        raise ValueError(f"{path}: unknown field `{unknown[0]}` for type {kind!r} "
+        raise ValueError(f"{path}: unknown field '{unknown[0]}' for type {kind!r} "
                          f"(expected some of {sorted(fields)}).")  # fmt: skip
     arguments = {}
     for name, (field_kind, required) in fields.items():
         if name not in data:
             if required:
-                raise ValueError(f"{path}: missing field `{name}` for type {kind!r}.")
+                raise ValueError(f"{path}: missing field '{name}' for type {kind!r}.")
             continue
         arguments[name] = _check_field(path, field_kind, name, data[name])
     names = list(fields)[: _POSITIONAL[kind]]
