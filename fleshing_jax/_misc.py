@@ -7,6 +7,7 @@ pattern feeds a harmless argument to the unsafe function and then selects the re
 
 from __future__ import annotations
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -78,3 +79,36 @@ def cast_floats(tree, dtype):
 def relative_tolerance(dtype) -> float:
     """A tolerance for "converged" checks: the square root of the dtype's epsilon."""
     return float(np.sqrt(np.finfo(dtype).eps))
+
+
+def check_points(points: ArrayLike, name: str, minimum: int, why: str) -> Array:
+    """Converts `points` to a float (N, 3) array and checks it is usable as spine data.
+
+    Raises `ValueError` naming `name` unless `N ≥ minimum` (`why` says where the minimum comes
+    from), and, when concrete, unless all values are finite and no two consecutive points
+    coincide. Traced inputs are checked for finiteness with `eqx.error_if`.
+    """
+    points = as_float_array(points, name)
+    if points.ndim != 2 or points.shape[-1] != 3:
+        raise ValueError(f"`{name}` must have shape (N, 3), got shape {points.shape}.")
+    if points.shape[0] < minimum:
+        raise ValueError(
+            f"`{name}` must have at least {why} = {minimum} rows, got {points.shape[0]}."
+        )
+    if not is_concrete(points):
+        return eqx.error_if(
+            points, ~jnp.all(jnp.isfinite(points)), f"`{name}` must be finite (found NaN or inf)."
+        )
+    p = np.asarray(points, dtype=np.float64)
+    bad = np.argwhere(~np.isfinite(p))
+    if bad.size:
+        raise ValueError(f"`{name}` must be finite, got {p[bad[0, 0]]} in row {bad[0, 0]}.")
+    gaps = np.linalg.norm(np.diff(p, axis=0), axis=-1)
+    scale = np.max(np.abs(p)) + np.max(gaps)
+    repeated = np.flatnonzero(gaps <= 16 * np.finfo(points.dtype).eps * scale)
+    if repeated.size:
+        i = int(repeated[0])
+        raise ValueError(
+            f"`{name}` has repeated consecutive points: rows {i} and {i + 1} coincide ({p[i]})."
+        )
+    return points

@@ -91,6 +91,15 @@ class AbstractSpine(eqx.Module):
     def _torsion(self, s: Array) -> Array:
         """Torsion at `s ∈ [0, length]` (0 where the spine is straight)."""
 
+    def _jet_and_normals(self, s: Array):
+        """`(self._jet(s), self._normals(s))` at `s ∈ [0, length]`."""
+        return self._jet(s), self._normals(s)
+
+    def _anchors(self, s: Array) -> list:
+        """`_jet_and_normals` at `s`, at 0 and at `length` (spines override it to share work)."""
+        zero = jnp.zeros_like(self.length)
+        return [self._jet_and_normals(x) for x in (s, zero, self.length)]
+
     def default_samples(self) -> int:
         """How many samples the coarse closest-point search uses on this spine (static)."""
         return 128
@@ -117,11 +126,11 @@ class AbstractSpine(eqx.Module):
         inner, t0, t1 = self._split(s)
         zero = jnp.zeros_like(self.length)
 
-        def at(s):
-            return self._jet(s), (self._normals(s) if with_normals else ())
-
+        if with_normals:  # spines may share work between the three anchors
+            anchors = self._anchors(inner)
+        else:
+            anchors = [(self._jet(x), ()) for x in (inner, zero, self.length)]
         # Continue from the end the point lies beyond (t = 0 inside: the identity).
-        anchors = [at(inner), at(zero), at(self.length)]
         select = jnp.where(t0 < 0, 1, jnp.where(t1 > 0, 2, 0))
         jet, normals = _pick(select, anchors)
         return _continue(jet, normals, t0 + t1)

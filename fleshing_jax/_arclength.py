@@ -1,0 +1,115 @@
+"""Piecewise-polynomial curves and their exact arc length: Gauss–Legendre tables, Newton inverse.
+
+A free-form curve is stored as polynomial pieces: on piece `i`, `P(u) = Σ_k a_ik u^k` for a local
+parameter `u ∈ [−1, 1]`, coefficients `a` of shape (S, d+1, 3). Each piece is cut in `K` equal
+sub-intervals; the length of each is a `GAUSS_NODES`-point Gauss–Legendre sum of the speed
+`|P'(u)|` (exact to round-off on these short, smooth sub-intervals), and their cumulative sums
+`σ_j` give `s(u) = σ_j + ∫_{u_j}^u |P'|` anywhere. The inverse `u(s)` is a Newton iteration inside
+the sub-interval that holds `s`, from the linear guess, clamped to it (the speed is the derivative
+of `s(u)`: quadratic convergence).
+
+Gradients: the iteration runs on stopped gradients, then one more Newton step with live ones,
+`u ← u − (s(u) − s)/|P'(u)|`. Since `s(u) ≈ s`, its derivative is the implicit-function one:
+`∂u/∂s = 1/|P'(u)|` and `∂u/∂θ = −(∂s(u)/∂θ)/|P'(u)|` for the curve's parameters `θ` (control
+points, knots), in forward and reverse mode.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array
+
+from ._misc import safe_divide
+
+GAUSS_NODES = 8
+NEWTON_STEPS = 5
+
+
+def monomials(u: Array, degree: int, order: int = 0) -> Array:
+    """The `order`-th derivative of `(1, u, …, u^degree)`, shape `u.shape + (degree + 1,)`."""
+    u = jnp.asarray(u)
+    powers = [jnp.ones_like(u)]
+    for _ in range(degree - order):
+        powers.append(powers[-1] * u)
+    factors = [float(np.prod(np.arange(k - order + 1, k + 1))) for k in range(order, degree + 1)]
+    columns = [jnp.zeros_like(u)] * min(order, degree + 1)
+    columns += [f * p for f, p in zip(factors, powers)]
+    return jnp.stack(columns, axis=-1)
+
+
+def fit_matrix(degree: int) -> tuple[np.ndarray, np.ndarray]:
+    """Chebyshev nodes `x` (d+1,) in `(−1, 1)` and the matrix taking values there to monomial
+    coefficients, (d+1, d+1): well conditioned for the low degrees of spine pieces."""
+    m = degree + 1
+    x = np.cos(np.pi * (np.arange(m) + 0.5) / m)[::-1]
+    return x, np.linalg.inv(np.vander(x, m, increasing=True))
+
+
+def piece_derivative(coefficients: Array, u: Array, order: int) -> Array:
+    """`d^order P/du^order` of one piece (coefficients (d+1, 3)) at `u` (any shape), (..., 3)."""
+    degree = coefficients.shape[-2] - 1
+    return monomials(u, degree, order) @ coefficients
+
+
+def _gauss(parts: int, dtype):
+    x, w = np.polynomial.legendre.leggauss(GAUSS_NODES)
+    # The nodes of sub-interval k of [−1, 1], (K, Q), and the weights for `du`.
+    width = 2.0 / parts
+    nodes = -1 + width * (np.arange(parts)[:, None] + (x[None, :] + 1) / 2)
+    return jnp.asarray(nodes, dtype), jnp.asarray(w * width / 2, dtype)
+
+
+def cumulative_lengths(coefficients: Array, parts: int) -> Array:
+    """Arc length from the start to every sub-interval break, (S·parts + 1,), from 0."""
+    nodes, weights = _gauss(parts, coefficients.dtype)
+    derivative = jnp.einsum("kqd,sdc->skqc", monomials(nodes, coefficients.shape[-2] - 1, 1),
+                            coefficients)
+    lengths = jnp.linalg.norm(derivative, axis=-1) @ weights
+    return jnp.concatenate([jnp.zeros((1,), coefficients.dtype), jnp.cumsum(lengths.reshape(-1))])
+
+
+def _partial(coefficients: Array, a: Array, u: Array) -> Array:
+    x, w = np.polynomial.legendre.leggauss(GAUSS_NODES)
+    nodes = a + (u - a) * jnp.asarray((x + 1) / 2, u.dtype)
+    speed = jnp.linalg.norm(piece_derivative(coefficients, nodes, 1), axis=-1)
+    return (u - a) * jnp.dot(jnp.asarray(w / 2, u.dtype), speed)
+
+
+def locate(cumulative: Array, s: Array) -> Array:
+    """Index `j` of the sub-interval with `σ_j ≤ s ≤ σ_{j+1}` (clamped to the valid range)."""
+    j = jnp.searchsorted(cumulative, s, side="right", method="compare_all") - 1
+    return jnp.clip(j, 0, cumulative.shape[0] - 2)
+
+
+def inverse(coefficients: Array, cumulative: Array, parts: int, s: Array):
+    """The piece `i` and local parameter `u ∈ [−1, 1]` with `s(u) = s`, for `s ∈ [0, σ_M]`.
+
+    **Arguments:** `coefficients` (S, d+1, 3) and `cumulative` (S·parts + 1,) from
+    `cumulative_lengths` (both live: gradients flow through the final step); `parts`: static
+    sub-intervals per piece; `s`: scalar.
+
+    **Returns:** `(i, u, j)`: piece index, local parameter (differentiable), sub-interval index.
+    """
+    fixed_coefficients, fixed_cumulative, s_fixed = jax.lax.stop_gradient(
+        (coefficients, cumulative, s)
+    )
+    j = locate(fixed_cumulative, s_fixed)
+    i = j // parts
+    a = -1 + 2 * (j % parts).astype(s.dtype) / parts
+    b = a + 2.0 / parts
+    sa, sb = fixed_cumulative[j], fixed_cumulative[j + 1]
+    piece = fixed_coefficients[i]
+    u = a + safe_divide(s_fixed - sa, sb - sa) * (b - a)
+
+    def newton(_, u):
+        residual = sa + _partial(piece, a, u) - s_fixed
+        speed = jnp.linalg.norm(piece_derivative(piece, u, 1))
+        u = u - safe_divide(residual, speed)
+        return jnp.where(u < a, a, jnp.where(u > b, b, u))
+
+    u = jax.lax.stop_gradient(jax.lax.fori_loop(0, NEWTON_STEPS, newton, u))
+    live = coefficients[i]
+    residual = cumulative[j] + _partial(live, a, u) - s
+    return i, u - safe_divide(residual, jnp.linalg.norm(piece_derivative(live, u, 1))), j

@@ -1,0 +1,180 @@
+"""The shared base of free-form spines made of polynomial pieces (B-spline, polynomial).
+
+A subclass provides its pieces: `_piece_values(x)`, the curve at local parameters `x ∈ (−1, 1)`
+of every piece, and the static `piece_degree`. This base fits each piece's monomial coefficients
+exactly (Chebyshev nodes), makes the curve an exact arc-length spine (`_arclength`), and derives:
+
+- `T = P'/|P'|` and `k = (P'' − (P''·T)T)/|P'|²` (exactly `dT/ds`, orthogonal to `T`, zero at
+  inflections without any division by the curvature);
+- torsion `τ = (P' × P'')·P‴ / |P' × P''|²` (0 where the curvature vanishes);
+- rotation-minimising normals: double-reflection frames at the sub-interval breaks (`_rmf`),
+  evaluated anywhere by one more double-reflection step from the break at or before `s`.
+
+Nothing is cached: coefficients and tables are functions of the (differentiable) curve
+parameters, computed once per `jit`/`vmap` call (they do not depend on the points being
+fleshed), so gradients with respect to control points flow through lengths, parameters and
+frames alike.
+"""
+
+from __future__ import annotations
+
+import abc
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array
+
+from . import _arclength as arclength
+from ._misc import safe_divide
+from ._rmf import double_reflection, propagate
+from ._spine import AbstractSpine, initial_normal
+
+RMF_NODES_PER_RADIAN = 24  # double-reflection error ~1e-10 over a 12-unit helix (benchmarks/)
+
+
+class AbstractParametricSpine(AbstractSpine):
+    """A spine made of smooth polynomial pieces, exactly reparameterised by arc length.
+
+    Subclasses implement `_piece_values(x)` and provide three static ints: `piece_degree`,
+    `subdivisions` (equal parts per piece for quadrature and frame nodes) and `samples` (for the
+    closest-point search); see `static_sizes`.
+    """
+
+    piece_degree: eqx.AbstractVar[int]
+    subdivisions: eqx.AbstractVar[int]
+    samples: eqx.AbstractVar[int]
+
+    @abc.abstractmethod
+    def _piece_values(self, x: np.ndarray) -> Array:
+        """The curve at local parameters `x` (m,) in `(−1, 1)` of every piece, (S, m, 3)."""
+
+    def _coefficients(self) -> Array:
+        """Monomial coefficients of each piece in its local parameter `u ∈ [−1, 1]`, (S, d+1, 3)."""
+        x, fit = arclength.fit_matrix(self.piece_degree)
+        values = self._piece_values(x)
+        return jnp.einsum("kq,sqc->skc", jnp.asarray(fit, values.dtype), values)
+
+    @property
+    def length(self) -> Array:
+        """The arc length of the curve (scalar, differentiable in its parameters)."""
+        return _length(self)
+
+    def _jet(self, s):
+        return _jet(self, s)
+
+    def _normals(self, s):
+        return _evaluate(self, s)[0][1]
+
+    def _jet_and_normals(self, s):
+        return _evaluate(self, s)[0]
+
+    def _anchors(self, s):
+        return _evaluate(self, s)
+
+    def _torsion(self, s):
+        return _torsion(self, s)
+
+    def default_samples(self) -> int:
+        return self.samples
+
+
+def _jet_of(coefficients: Array, u: Array, order: int = 2):
+    """Position, unit tangent and curvature vector of a piece at `u`, and the derivatives in `u`."""
+    c, c1, c2, *rest = (arclength.piece_derivative(coefficients, u, m) for m in range(order + 1))
+    speed = jnp.linalg.norm(c1, axis=-1, keepdims=True)
+    tangent = c1 / speed
+    k = (c2 - jnp.sum(c2 * tangent, axis=-1, keepdims=True) * tangent) / speed**2
+    return (c, tangent, k), (c1, c2, *rest)
+
+
+def _locate(spine: AbstractParametricSpine, s: Array):
+    coefficients = spine._coefficients()
+    cumulative = arclength.cumulative_lengths(coefficients, spine.subdivisions)
+    i, u, j = arclength.inverse(coefficients, cumulative, spine.subdivisions, s)
+    return coefficients, i, u, j
+
+
+# Jitted entry points: eager calls (e.g. `spine.length`) compile once per spine structure;
+# inside an outer `jit` they are inlined.
+@eqx.filter_jit
+def _length(spine):
+    return arclength.cumulative_lengths(spine._coefficients(), spine.subdivisions)[-1]
+
+
+@eqx.filter_jit
+def _jet(spine, s):
+    coefficients, i, u, _ = _locate(spine, s)
+    return _jet_of(coefficients[i], u)[0]
+
+
+@eqx.filter_jit
+def _evaluate(spine, s):
+    """Jet and normals at `s`, and at both ends (the anchors of the continuations)."""
+    coefficients, i, u, j = _locate(spine, s)
+    jet = _jet_of(coefficients[i], u)[0]
+    # Frame nodes: the sub-interval breaks, at static local parameters of every piece.
+    x = jnp.asarray(np.linspace(-1.0, 1.0, spine.subdivisions + 1)[:-1], s.dtype)
+    (c, t, k), _ = jax.vmap(lambda a: _jet_of(a, x))(coefficients)
+    last, _ = _jet_of(coefficients[-1], jnp.ones((), s.dtype))
+    c, t, k = (jnp.concatenate([v.reshape(-1, 3), e[None]]) for v, e in zip((c, t, k), last))
+    normals = propagate(c, t, k, initial_normal(t[0]), "double_reflection")
+    normal = double_reflection(c[j], t[j], normals[j], jet[0], jet[1], k[j])
+    ends = [((c[e], t[e], k[e]), (normals[e], jnp.cross(t[e], normals[e]))) for e in (0, -1)]
+    return [(jet, (normal, jnp.cross(jet[1], normal)))] + ends
+
+
+@eqx.filter_jit
+def _torsion(spine, s):
+    coefficients, i, u, _ = _locate(spine, s)
+    _, (c1, c2, c3) = _jet_of(coefficients[i], u, order=3)
+    b = jnp.cross(c1, c2)
+    return safe_divide(jnp.dot(b, c3), jnp.dot(b, b))
+
+
+def static_sizes(point_np, span_breaks, spans: int, subdivisions: int | None, name: str):
+    """`(subdivisions, samples)` for a parametric spine, and a check that it never stops.
+
+    `point_np` evaluates the curve on a NumPy array of parameters, (G,) → (G, 3), or is `None`
+    when the curve is traced (then nothing is checked); `span_breaks`: the (S+1,) span ends
+    (`None` if traced); `spans`: S. Frame nodes are
+    placed at `RMF_NODES_PER_RADIAN` per radian of the most-turning span (at least 8 per span,
+    at most 512), and closest-point samples at 32 per radian of total turning (at least 128, and
+    16 per span). Traced curves (built inside `jit` from traced parameters) get 16 subdivisions
+    and `max(256, 64 · spans)` samples. Raises `ValueError` naming `name` where a concrete curve
+    stops (zero speed: a cusp).
+    """
+    if point_np is None:
+        return (16 if subdivisions is None else subdivisions), max(256, 64 * spans)
+    breaks = np.asarray(span_breaks, dtype=np.float64)
+    fractions = np.arange(64) / 64
+    grid = (breaks[:-1, None] + np.diff(breaks)[:, None] * fractions).reshape(-1)
+    grid = np.append(grid, breaks[-1])
+    with np.errstate(all="ignore"):
+        positions = np.asarray(point_np(grid), dtype=np.float64)
+        h = 1e-6 * (breaks[-1] - breaks[0])
+        lo, hi = np.maximum(grid - h, breaks[0]), np.minimum(grid + h, breaks[-1])
+        speed = np.linalg.norm(point_np(hi) - point_np(lo), axis=-1) / (hi - lo)
+    chords = np.diff(positions, axis=0)
+    length = np.sum(np.linalg.norm(chords, axis=-1))
+    if not np.all(np.isfinite(speed)) or speed.min() <= 1e-6 * length / (breaks[-1] - breaks[0]):
+        raise ValueError(
+            f"`{name}` define a curve that stops (zero speed, a cusp) near parameter "
+            f"t = {grid[np.argmin(speed)]:.6g}: a spine needs a tangent everywhere."
+        )
+    units = chords / np.maximum(np.linalg.norm(chords, axis=-1, keepdims=True), 1e-300)
+    cosines = np.clip(np.sum(units[1:] * units[:-1], axis=-1), -1.0, 1.0)
+    turning = np.concatenate([[0.0], np.arccos(cosines)]).reshape(spans, 64).sum(axis=-1)
+    if subdivisions is None:
+        subdivisions = int(np.clip(np.ceil(RMF_NODES_PER_RADIAN * turning.max()), 8, 512))
+    samples = int(np.clip(32 * turning.sum(), max(128, 16 * spans), 8192))
+    return subdivisions, samples
+
+
+def check_subdivisions(subdivisions) -> None:
+    """Raises `ValueError` unless `subdivisions` is `None` or a positive int."""
+    if subdivisions is not None and (
+        isinstance(subdivisions, bool) or not isinstance(subdivisions, int) or subdivisions < 1
+    ):
+        raise ValueError(f"`subdivisions` must be a positive int, got {subdivisions!r}.")
