@@ -28,8 +28,10 @@ from ._fit_common import (
     Parameters,
     Regularizers,
     check_cloud,
-    default_tolerance,
+    default_solver,
+    final_pose,
     prepare,
+    solve,
 )
 from ._projection import Registration
 
@@ -136,28 +138,23 @@ def fit_spine_to_points(
         check_projection=bool(check_projection),
     )
     if solver is None:
-        tol = default_tolerance(dtype)
-        solver = optx.BFGS(rtol=tol if rtol is None else rtol, atol=tol if atol is None else atol)
-    return _solve(problem, solver, setup.y0, int(max_steps), bool(throw))
+        solver = default_solver("minimise", dtype, rtol, atol)
+    return _result(problem, solve(problem, solver, setup.y0, int(max_steps), bool(throw)))
 
 
-@eqx.filter_jit
-def _solve(problem: Chamfer, solver, y0, max_steps: int, throw: bool) -> FitResult:
-    solution = optx.least_squares(problem, solver, y0, max_steps=max_steps, throw=throw)
-    y = solution.value
-    loss = sum(jnp.sum(r**2) for r in jax.tree.leaves(problem(y)))
-    images, valid = problem.images(y, check_projection=True)
+def _result(problem: Chamfer, solution) -> FitResult:
+    spine, twist, loss, result, stats = solution
+    images, valid = final_pose(problem, spine, twist)
     forward, backward, used = problem.distances(images, valid)
     n = jnp.maximum(jnp.sum(used), 1)
     chamfer = jnp.sum(forward**2) / n + jnp.mean(jnp.sum(backward**2, axis=-1))
-    spine, twist = problem.spine_and_twist(y)
     return FitResult(
         spine=spine,
         twist=twist,
         rms=jnp.sqrt(chamfer / 2),
         valid=valid,
-        result=solution.result,
-        num_steps=solution.stats["num_steps"],
+        result=result,
+        num_steps=stats["num_steps"],
         loss=loss,
-        stats=solution.stats,
+        stats=stats,
     )

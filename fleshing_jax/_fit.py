@@ -12,7 +12,6 @@ from __future__ import annotations
 from collections.abc import Callable, Sequence
 
 import equinox as eqx
-import jax
 import jax.numpy as jnp
 import numpy as np
 import optimistix as optx
@@ -24,8 +23,10 @@ from ._fit_common import (
     Parameters,
     Regularizers,
     check_cloud,
-    default_tolerance,
+    default_solver,
+    final_pose,
     prepare,
+    solve,
 )
 from ._projection import Registration
 
@@ -165,11 +166,8 @@ def fit_spine(
         check_projection=bool(check_projection),
     )
     if solver is None:
-        tol = default_tolerance(dtype)
-        solver = optx.LevenbergMarquardt(
-            rtol=tol if rtol is None else rtol, atol=tol if atol is None else atol
-        )
-    return _solve(problem, solver, setup.y0, int(max_steps), bool(throw))
+        solver = default_solver("least_squares", dtype, rtol, atol)
+    return _result(problem, solve(problem, solver, setup.y0, int(max_steps), bool(throw)))
 
 
 def _check_weights(weights, n: int, dtype) -> Array:
@@ -186,22 +184,17 @@ def _check_weights(weights, n: int, dtype) -> Array:
     return jnp.asarray(weights, dtype)
 
 
-@eqx.filter_jit
-def _solve(problem: Correspondence, solver, y0, max_steps: int, throw: bool) -> FitResult:
-    solution = optx.least_squares(problem, solver, y0, max_steps=max_steps, throw=throw)
-    y = solution.value
-    loss = sum(jnp.sum(r**2) for r in jax.tree.leaves(problem(y)))
-    images, valid = problem.images(y, check_projection=True)
+def _result(problem: Correspondence, solution) -> FitResult:
+    spine, twist, loss, result, stats = solution
+    images, valid = final_pose(problem, spine, twist)
     counted = valid if problem.invalid == "exclude" else jnp.ones_like(valid)
-    rms = weighted_rms(images - problem.target, problem.weights, counted)
-    spine, twist = problem.spine_and_twist(y)
     return FitResult(
         spine=spine,
         twist=twist,
-        rms=rms,
+        rms=weighted_rms(images - problem.target, problem.weights, counted),
         valid=valid,
-        result=solution.result,
-        num_steps=solution.stats["num_steps"],
+        result=result,
+        num_steps=stats["num_steps"],
         loss=loss,
-        stats=solution.stats,
+        stats=stats,
     )

@@ -21,7 +21,7 @@ import optimistix as optx
 from jaxtyping import Array, ArrayLike, Bool, Float
 
 from ._analytic import Arc, Helix, Line
-from ._fleshing import pose_point, register
+from ._fleshing import pose, pose_point, register
 from ._maps import check_method
 from ._misc import as_float_array, cast_floats
 from ._projection import Registration
@@ -172,6 +172,30 @@ def check_options(invalid: str, length, smoothness) -> tuple[Array | None, float
 def default_tolerance(dtype) -> float:
     """Solver tolerance: 1e-10 in float64, 1e-5 in float32."""
     return 1e-10 if jnp.dtype(dtype) == jnp.float64 else 1e-5
+
+
+class _TrustRegion(optx.ClassicalTrustRegion):
+    """optimistix's classical trust region, with its step size in the dtype of `y`.
+
+    The stock one starts from a default-float step size, which under `jax_enable_x64` turns
+    the damped system of a float32 fit into float64 and breaks the linear solve.
+    """
+
+    def init(self, y, f_info_struct):
+        state = super().init(y, f_info_struct)
+        dtype = jnp.result_type(*jax.tree.leaves(y))
+        return eqx.tree_at(lambda s: s.step_size, state, state.step_size.astype(dtype))
+
+
+def default_solver(kind: str, dtype, rtol: float | None, atol: float | None):
+    """`LevenbergMarquardt` (`kind="least_squares"`) or `BFGS` (`"minimise"`), with tolerances
+    from the dtype unless given."""
+    tol = default_tolerance(dtype)
+    rtol, atol = (tol if rtol is None else rtol), (tol if atol is None else atol)
+    if kind == "minimise":
+        return optx.BFGS(rtol=rtol, atol=atol)
+    solver = optx.LevenbergMarquardt(rtol=rtol, atol=atol)
+    return eqx.tree_at(lambda s: s.search, solver, _TrustRegion())
 
 
 class Regularizers(eqx.Module):
@@ -332,3 +356,23 @@ def prepare(
     extra = () if regularizers is None else tuple(regularizers)
     regs = make_regularizers(source_spine.length, length_weight, smoothness, extra, dtype)
     return Setup(registration, parameters, y0, twist, regs, method)
+
+
+@eqx.filter_jit
+def solve(problem: AbstractPoseProblem, solver, y0, max_steps: int, throw: bool):
+    """Runs `optimistix.least_squares` on `problem`.
+
+    **Returns:** `(spine, twist, loss, result, stats)`, `loss` the final sum of squared
+    residuals. The final validity check runs outside, through the public (jitted) `pose`, whose
+    compilation is shared with ordinary fleshing of the same spine type.
+    """
+    solution = optx.least_squares(problem, solver, y0, max_steps=max_steps, throw=throw)
+    y = solution.value
+    loss = sum(jnp.sum(r**2) for r in jax.tree.leaves(problem(y)))
+    spine, twist = problem.spine_and_twist(y)
+    return spine, twist, loss, solution.result, solution.stats
+
+
+def final_pose(problem: AbstractPoseProblem, spine, twist) -> tuple[Array, Array]:
+    """`(images, valid)` of the source on the fitted spine, with the full projection check."""
+    return pose(problem.registration, spine, method=problem.method, twist=twist)
