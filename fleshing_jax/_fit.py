@@ -129,6 +129,17 @@ def fit_spine(
     **Returns:** a `FitResult`. Its `rms` is the weighted root-mean-square distance between
     the fleshed source and `target` over all points (`"penalize"`) or over the valid ones
     (`"exclude"`).
+
+    Notes:
+
+    - The fitted spine keeps the static configuration of `init`: a straight B-spline guess
+      gets the coarse arc-length/frame resolution of a straight curve, which limits the rms
+      it can reach on a strongly bent target (about 1e-7 here); pass
+      `BSpline(..., subdivisions=...)` sized for the expected bend.
+    - `"exclude"` lets the solver lower the loss by making points invalid; with a poor guess it
+      can drift there. `"penalize"` (the default) cannot.
+    - Parameters are unconstrained: an `Arc`'s radius could in principle cross zero. Fix what
+      must not move, and start from a reasonable guess.
     """
     source = check_cloud(source, "source")
     target = jnp.asarray(target)
