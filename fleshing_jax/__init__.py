@@ -6,6 +6,9 @@ An implementation of "Fleshing: Spine-driven Bending with Local Volume Preservat
 
 from ._analytic import Arc as Arc, Helix as Helix, Line as Line
 from ._bspline import BSpline as BSpline
+from ._chamfer import fit_spine_to_points as fit_spine_to_points
+from ._fit import fit_spine as fit_spine
+from ._fit_common import FitResult as FitResult
 from ._fleshing import (
     Fleshing as Fleshing,
     flesh as flesh,

@@ -25,12 +25,18 @@ from ._misc import safe_sqrt
 def initial_normal(tangent: Array) -> Array:
     """The fixed rule that picks the first normal of a twist-compensated frame.
 
-    The coordinate axis least aligned with `tangent` (the first one on ties), made orthogonal to
-    it and normalised. Two spines that start with the same tangent thus start with the same frame.
+    The coordinate axis least aligned with `tangent` (the first one on ties, within 1e-4), made
+    orthogonal to it and normalised. Two spines that start with the same tangent thus start with
+    the same frame.
 
     **Arguments:** `tangent`: (3,) unit vector. **Returns:** (3,) unit vector orthogonal to it.
     """
-    axis = jnp.eye(3, dtype=tangent.dtype)[jnp.argmin(jnp.abs(tangent))]
+    # Ties are broken with a small margin, so that round-off in an axis-aligned tangent (common:
+    # computed tangents such as (1, 6e-17, 2e-17)) cannot flip the choice and rotate the whole
+    # frame by 90°. Any such rule jumps somewhere on the sphere; the margin moves the jump away
+    # from the axes, where fits and straight rest spines live.
+    margin = jnp.asarray([0.0, 1e-4, 2e-4], tangent.dtype)
+    axis = jnp.eye(3, dtype=tangent.dtype)[jnp.argmin(jnp.abs(tangent) + margin)]
     normal = axis - jnp.dot(axis, tangent) * tangent
     return normal / jnp.linalg.norm(normal)
 

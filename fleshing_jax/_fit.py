@@ -1,0 +1,211 @@
+"""Fitting a spine to target positions of corresponding points (nonlinear least squares).
+
+Given the rest shape `source` around its spine `C₀` and where its points should go, `target`,
+find the bent spine `C₁` minimising `Σᵢ wᵢ |M(xᵢ) − yᵢ|²` (plus regularisers), where `M` is the
+fleshing from `C₀` to `C₁`. The source is registered on `C₀` once; each residual evaluation is
+then one pose, differentiable with respect to `C₁`'s parameters and the twist (through the
+frames, the arc-length reparameterisation and the closed-form maps).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+
+import equinox as eqx
+import jax.numpy as jnp
+import numpy as np
+import optimistix as optx
+from jaxtyping import Array, ArrayLike
+
+from ._fit_common import (
+    AbstractPoseProblem,
+    FitResult,
+    Parameters,
+    Regularizers,
+    check_cloud,
+    default_solver,
+    final_pose,
+    prepare,
+    solve,
+)
+from ._projection import Registration
+
+
+def weighted_rms(diff: Array, weights: Array, counted: Array) -> Array:
+    """`√(Σ wᵢ|dᵢ|² / Σ wᵢ)` over the counted points (NaN when none is counted)."""
+    w = jnp.where(counted, weights, 0)
+    total = jnp.sum(w)
+    squared = jnp.sum(w * jnp.sum(jnp.where(counted[:, None], diff, 0) ** 2, axis=-1))
+    return jnp.where(total > 0, jnp.sqrt(squared / jnp.where(total > 0, total, 1)), jnp.nan)
+
+
+class Correspondence(AbstractPoseProblem):
+    """The residual function `y -> (data residuals, *regularisers)` of `fit_spine`.
+
+    Data residuals are `√(wᵢ/Σw) (M(xᵢ) − yᵢ)`, flattened (3N,): their sum of squares is the
+    weighted mean squared distance. Invalid images are zeroed (`invalid="exclude"`) or kept as
+    the unmoved source point (`"penalize"`, what `flesh` returns for them).
+    """
+
+    parameters: Parameters
+    registration: Registration
+    target: Array
+    weights: Array
+    twist: Array
+    regularizers: Regularizers
+    method: str = eqx.field(static=True)
+    invalid: str = eqx.field(static=True)
+    check_projection: bool = eqx.field(static=True)
+
+    def __call__(self, y, args=None):
+        images, valid = self.images(y)
+        diff = images - self.target
+        if self.invalid == "exclude":
+            diff = jnp.where(valid[:, None], diff, 0)
+        scale = jnp.sqrt(self.weights / jnp.sum(self.weights))
+        data = (scale[:, None] * diff).reshape(-1)
+        return (data, *self.regularizers(self.spine_and_twist(y)[0]))
+
+
+def fit_spine(
+    source_spine,
+    init,
+    source: ArrayLike,
+    target: ArrayLike,
+    *,
+    method: str = "radial",
+    twist: ArrayLike = 0.0,
+    fit_twist: bool = False,
+    params: Callable | None = None,
+    fixed=None,
+    length="free",
+    smoothness: float = 0.0,
+    regularizers: Sequence[Callable] | None = None,
+    weights: ArrayLike | None = None,
+    invalid: str = "penalize",
+    check_projection: bool = False,
+    solver: optx.AbstractLeastSquaresSolver | optx.AbstractMinimiser | None = None,
+    rtol: float | None = None,
+    atol: float | None = None,
+    max_steps: int = 256,
+    throw: bool = False,
+) -> FitResult:
+    """Fits the bent spine `C₁` that fleshes `source[i]` (around `C₀`) onto `target[i]`.
+
+    Nonlinear least squares over the free parameters of `init` (and optionally the twist),
+    solved with optimistix (Levenberg–Marquardt by default). Non-convergence is reported in
+    `result`/`converged`, never raised (unless `throw=True`) and never hidden.
+
+    **Arguments:**
+
+    - `source_spine`: the rest spine `C₀` (any `AbstractSpine`).
+    - `init`: the initial guess for `C₁` (any `AbstractSpine`; the fit returns the same type).
+    - `source`: (N, 3) rest points (finite), registered once on `C₀`.
+    - `target`: (N, 3) where each source point should go (finite).
+    - `method`: `"radial"`, `"normal"`, `"binormal"` or `"skinning"`.
+    - `twist`: scalar twist in radians (the initial guess when `fit_twist`).
+    - `fit_twist`: also fit the twist.
+    - `params`: function `spine -> leaf or tuple of leaves` (as for `eqx.tree_at`) selecting
+      the array leaves to fit; default: the shape parameters (control points of a free-form
+      spine; `radius, length` of an `Arc`; `radius, pitch, length` of a `Helix`).
+    - `fixed`: boolean mask(s) of entries held at their `init` value: one per parameter leaf
+      (a tuple), or a single one when there is one parameter leaf. Each mask's shape is a
+      prefix of its leaf's shape: `(K,)` fixes whole rows of `(K, 3)` control points (e.g.
+      the first two: the root position and direction of a limb).
+    - `length`: `"free"`; `"fixed"` (stiff penalty `10⁶ (L₁ − L₀)²`, `L₀ = C₀.length`); or a
+      weight `w` for the penalty `w (L₁ − L₀)²`.
+    - `smoothness`: weight of the bending energy `∫|k₁|² ds` of the fitted spine.
+    - `regularizers`: extra callables `spine -> residual array`, whose squares are added.
+    - `weights`: optional (N,) non-negative per-point weights.
+    - `invalid`: how points outside the valid space of the current `C₁` count: `"penalize"`
+      (as the unmoved point, which is what `flesh` returns) or `"exclude"` (not at all).
+    - `check_projection`: use the global projection check inside the objective (slower, and
+      piecewise); the final `valid` and `rms` always use it.
+    - `solver`: any optimistix least-squares solver or minimiser; default
+      `LevenbergMarquardt(rtol, atol)` with tolerances from the dtype (1e-10 in float64,
+      1e-5 in float32).
+    - `max_steps`, `throw`: passed to `optimistix.least_squares`.
+
+    **Returns:** a `FitResult`. Its `rms` is the weighted root-mean-square distance between
+    the fleshed source and `target` over all points (`"penalize"`) or over the valid ones
+    (`"exclude"`).
+
+    Notes:
+
+    - The fitted spine keeps the static configuration of `init`: a straight B-spline guess
+      gets the coarse arc-length/frame resolution of a straight curve, which limits the rms
+      it can reach on a strongly bent target (about 1e-7 here); pass
+      `BSpline(..., subdivisions=...)` sized for the expected bend.
+    - `"exclude"` lets the solver lower the loss by making points invalid; with a poor guess it
+      can drift there. `"penalize"` (the default) cannot.
+    - Parameters are unconstrained: an `Arc`'s radius could in principle cross zero. Fix what
+      must not move, and start from a reasonable guess.
+    """
+    source = check_cloud(source, "source")
+    target = jnp.asarray(target)
+    if target.shape != source.shape:
+        raise ValueError(
+            f"`source` and `target` must have the same shape (N, 3): got `source` of shape "
+            f"{source.shape} and `target` of shape {target.shape}."
+        )
+    dtype = source.dtype
+    target = check_cloud(target, "target").astype(dtype)
+    weights = _check_weights(weights, source.shape[0], dtype)
+    setup = prepare(
+        source_spine,
+        init,
+        source,
+        method=method,
+        twist=twist,
+        fit_twist=fit_twist,
+        params=params,
+        fixed=fixed,
+        length=length,
+        smoothness=smoothness,
+        regularizers=regularizers,
+        invalid=invalid,
+    )
+    problem = Correspondence(
+        parameters=setup.parameters,
+        registration=setup.registration,
+        target=target,
+        weights=weights,
+        twist=setup.twist,
+        regularizers=setup.regularizers,
+        method=setup.method,
+        invalid=invalid,
+        check_projection=bool(check_projection),
+    )
+    if solver is None:
+        solver = default_solver("least_squares", dtype, rtol, atol)
+    return _result(problem, solve(problem, solver, setup.y0, int(max_steps), bool(throw)))
+
+
+def _check_weights(weights, n: int, dtype) -> Array:
+    if weights is None:
+        return jnp.ones((n,), dtype)
+    weights = np.asarray(weights, dtype=np.float64)
+    if weights.shape != (n,) or not np.isfinite(weights).all() or (weights < 0).any():
+        raise ValueError(
+            f"`weights` must be a finite non-negative (N,) = ({n},) array, got shape "
+            f"{weights.shape}."
+        )
+    if weights.sum() <= 0:
+        raise ValueError("`weights` must not all be zero.")
+    return jnp.asarray(weights, dtype)
+
+
+def _result(problem: Correspondence, solution) -> FitResult:
+    spine, twist, loss, result, stats = solution
+    images, valid = final_pose(problem, spine, twist)
+    counted = valid if problem.invalid == "exclude" else jnp.ones_like(valid)
+    return FitResult(
+        spine=spine,
+        twist=twist,
+        rms=weighted_rms(images - problem.target, problem.weights, counted),
+        valid=valid,
+        result=result,
+        num_steps=stats["num_steps"],
+        loss=loss,
+        stats=stats,
+    )

@@ -1,0 +1,378 @@
+"""What every spine fit shares: the parameterisation, the regularisers and the result.
+
+A fit optimises some array leaves of an initial spine `init` (by default its shape parameters:
+the control points of a free-form spine, the radius and length of an arc, …), with some entries
+optionally held at their initial values (`fixed`), and optionally the global twist. Only the
+free entries enter the optimiser; the spine is rebuilt from them with `eqx.tree_at`, so fixed
+entries stay *exactly* at their initial values and everything else about `init` (its type, its
+static configuration) is kept.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optimistix as optx
+from jaxtyping import Array, ArrayLike, Bool, Float
+
+from ._analytic import Arc, Helix, Line
+from ._fleshing import pose, pose_point, register
+from ._maps import check_method
+from ._misc import as_float_array, cast_floats
+from ._projection import Registration
+from ._spine import AbstractSpine
+
+INVALID_MODES = ("penalize", "exclude")
+SMOOTHNESS_SAMPLES = 16  # midpoint samples of the bending energy ∫|k|² ds
+
+
+@dataclasses.dataclass(frozen=True)
+class Fields:
+    """The `where` function `spine -> (spine.<name>, ...)`: hashable, so fits of the same
+    configuration reuse their compilation."""
+
+    names: tuple[str, ...]
+
+    def __call__(self, spine) -> tuple:
+        return tuple(getattr(spine, name) for name in self.names)
+
+
+def _floating_leaves(spine) -> tuple:
+    return tuple(jax.tree.leaves(eqx.filter(spine, eqx.is_inexact_array)))
+
+
+def default_parameters(spine: AbstractSpine) -> Callable:
+    """The leaves a fit optimises unless told otherwise (a `where` function, as `eqx.tree_at`).
+
+    The shape parameters that keep the spine well formed, with its placement kept: `(length,)`
+    for a `Line`, `(radius, length)` for an `Arc`, `(radius, pitch, length)` for a `Helix`,
+    the control points (`control_points`, else `points`) of a free-form spine, and every
+    floating array leaf of any other spine.
+    """
+    if isinstance(spine, Line):
+        return Fields(("length",))
+    if isinstance(spine, Arc):
+        return Fields(("radius", "length"))
+    if isinstance(spine, Helix):
+        return Fields(("radius", "pitch", "length"))
+    for name in ("control_points", "points"):
+        if isinstance(getattr(spine, name, None), jax.Array | np.ndarray):
+            return Fields((name,))
+    return _floating_leaves
+
+
+def _as_tuple(value) -> tuple:
+    return tuple(value) if isinstance(value, tuple | list) else (value,)
+
+
+class Parameters(eqx.Module):
+    """The free entries of a spine's parameter leaves (and the twist), as an optimiser's `y`.
+
+    `y = (values, twist)`: `values` is a tuple with one flat (F_i,) array per parameter leaf
+    (its free entries), `twist` a scalar or `None` when the twist is not fitted.
+    """
+
+    base: AbstractSpine
+    free: tuple[Array, ...]  # flat indices of the free entries of each parameter leaf
+    where: Callable = eqx.field(static=True)
+
+    def initial(self, twist: Array | None):
+        leaves = _as_tuple(self.where(self.base))
+        return tuple(leaf.reshape(-1)[i] for leaf, i in zip(leaves, self.free)), twist
+
+    def spine(self, y) -> AbstractSpine:
+        leaves = _as_tuple(self.where(self.base))
+        new = tuple(
+            leaf.reshape(-1).at[i].set(v).reshape(leaf.shape)
+            for leaf, i, v in zip(leaves, self.free, y[0])
+        )
+        return eqx.tree_at(lambda s: _as_tuple(self.where(s)), self.base, new)
+
+
+def make_parameters(init: AbstractSpine, params, fixed) -> Parameters:
+    """Validates `params`/`fixed` (see `fit_spine`) and builds the `Parameters`."""
+    where = default_parameters(init) if params is None else params
+    if not callable(where):
+        raise TypeError("`params` must be a function `spine -> leaf or tuple of leaves`.")
+    leaves = _as_tuple(where(init))
+    for leaf in leaves:
+        if not (isinstance(leaf, jax.Array) and jnp.issubdtype(leaf.dtype, jnp.floating)):
+            raise TypeError(f"`params` must select floating array leaves of `init`, got {leaf!r}.")
+    if fixed is None:
+        masks = (False,) * len(leaves)
+    elif isinstance(fixed, tuple | list):
+        masks = tuple(fixed)
+    else:
+        masks = (fixed,)
+    if len(masks) != len(leaves):
+        raise ValueError(
+            f"`fixed` must give one mask per parameter leaf ({len(leaves)} selected by "
+            f"`params`), got {len(masks)}."
+        )
+    free = []
+    for leaf, mask in zip(leaves, masks):
+        mask = np.asarray(mask)
+        if mask.dtype != bool or mask.shape != leaf.shape[: mask.ndim]:
+            raise ValueError(
+                "each mask in `fixed` must be a boolean array whose shape is a prefix of its "
+                f"leaf's shape {leaf.shape} (e.g. (K,) for (K, 3) control points), got "
+                f"{mask.dtype} of shape {mask.shape}."
+            )
+        mask = mask.reshape(mask.shape + (1,) * (leaf.ndim - mask.ndim))
+        mask = np.broadcast_to(mask, leaf.shape)
+        free.append(jnp.asarray(np.flatnonzero(~mask.reshape(-1)), dtype=jnp.int32))
+    return Parameters(init, tuple(free), where)
+
+
+def check_spine(spine, name: str) -> None:
+    """Raises `TypeError` unless `spine` is an `AbstractSpine`."""
+    if not isinstance(spine, AbstractSpine):
+        raise TypeError(f"`{name}` must be a spine (AbstractSpine), got {type(spine)}.")
+
+
+def check_cloud(points: ArrayLike, name: str) -> Array:
+    """A finite (N, 3) floating array, else `ValueError` naming `name`."""
+    points = jnp.asarray(points)
+    if not jnp.issubdtype(points.dtype, jnp.floating):
+        points = points.astype(jnp.result_type(float))
+    if points.ndim != 2 or points.shape[-1] != 3 or points.shape[0] == 0:
+        raise ValueError(f"`{name}` must have shape (N, 3) with N ≥ 1, got shape {points.shape}.")
+    bad = ~np.isfinite(np.asarray(points)).all(axis=-1)
+    if bad.any():
+        raise ValueError(
+            f"`{name}` must be finite: {int(bad.sum())} of its points hold NaN or inf "
+            f"(first at index {int(np.flatnonzero(bad)[0])})."
+        )
+    return points
+
+
+def check_options(invalid: str, length, smoothness) -> tuple[Array | None, float]:
+    """Validates `invalid`, `length` and `smoothness`; returns the length-penalty weight."""
+    if invalid not in INVALID_MODES:
+        raise ValueError(f"`invalid` must be one of {INVALID_MODES}, got {invalid!r}.")
+    if isinstance(length, str):
+        if length not in ("free", "fixed"):
+            raise ValueError(f"`length` must be 'free', 'fixed' or a weight ≥ 0, got {length!r}.")
+        weight = None if length == "free" else 1e6
+    else:
+        weight = float(length)
+        if not np.isfinite(weight) or weight < 0:
+            raise ValueError(f"`length` must be 'free', 'fixed' or a weight ≥ 0, got {length!r}.")
+    smoothness = float(smoothness)
+    if not np.isfinite(smoothness) or smoothness < 0:
+        raise ValueError(f"`smoothness` must be a finite weight ≥ 0, got {smoothness!r}.")
+    return weight, smoothness
+
+
+def default_tolerance(dtype) -> float:
+    """Solver tolerance: 1e-10 in float64, 1e-5 in float32."""
+    return 1e-10 if jnp.dtype(dtype) == jnp.float64 else 1e-5
+
+
+class _TrustRegion(optx.ClassicalTrustRegion):
+    """optimistix's classical trust region, with its step size in the dtype of `y`.
+
+    The stock one starts from a default-float step size, which under `jax_enable_x64` turns
+    the damped system of a float32 fit into float64 and breaks the linear solve.
+    """
+
+    def init(self, y, f_info_struct):
+        state = super().init(y, f_info_struct)
+        dtype = jnp.result_type(*jax.tree.leaves(y))
+        return eqx.tree_at(lambda s: s.step_size, state, state.step_size.astype(dtype))
+
+
+def default_solver(kind: str, dtype, rtol: float | None, atol: float | None):
+    """`LevenbergMarquardt` (`kind="least_squares"`) or `BFGS` (`"minimise"`), with tolerances
+    from the dtype unless given."""
+    tol = default_tolerance(dtype)
+    rtol, atol = (tol if rtol is None else rtol), (tol if atol is None else atol)
+    if kind == "minimise":
+        return optx.BFGS(rtol=rtol, atol=atol)
+    solver = optx.LevenbergMarquardt(rtol=rtol, atol=atol)
+    return eqx.tree_at(lambda s: s.search, solver, _TrustRegion())
+
+
+class Regularizers(eqx.Module):
+    """The residuals added to a fit's data term, for the spine being fitted.
+
+    - length: `√w (L − L₀)` when a length weight `w` is given;
+    - smoothness: the bending energy `w ∫|k|² ds` as `SMOOTHNESS_SAMPLES` midpoint residuals;
+    - `extra`: user callables `spine -> array of residuals`.
+    """
+
+    reference_length: Array
+    length_weight: Array | None
+    smoothness: Array | None
+    extra: tuple[Callable, ...] = eqx.field(static=True)
+
+    def __call__(self, spine: AbstractSpine) -> list[Array]:
+        out = []
+        if self.length_weight is not None:
+            out.append(jnp.sqrt(self.length_weight) * (spine.length - self.reference_length)[None])
+        if self.smoothness is not None:
+            m = SMOOTHNESS_SAMPLES
+            s = (jnp.arange(m, dtype=spine.length.dtype) + 0.5) * (spine.length / m)
+            k = jax.vmap(spine.curvature_vector)(s)
+            out.append(jnp.sqrt(self.smoothness * spine.length / m) * k.reshape(-1))
+        out.extend(jnp.ravel(jnp.asarray(f(spine))) for f in self.extra)
+        return out
+
+
+def make_regularizers(reference_length, length_weight, smoothness, extra, dtype) -> Regularizers:
+    extra = tuple(extra)
+    if not all(callable(f) for f in extra):
+        raise TypeError("`regularizers` must be a sequence of callables `spine -> residuals`.")
+
+    def weight(w):
+        return None if w is None or w == 0 else jnp.asarray(w, dtype)
+
+    return Regularizers(
+        jnp.asarray(reference_length, dtype), weight(length_weight), weight(smoothness), extra
+    )
+
+
+class FitResult(eqx.Module):
+    """The outcome of a spine fit.
+
+    **Fields:**
+
+    - `spine`: the fitted spine (same type and static configuration as `init`).
+    - `twist`: scalar twist (fitted, or the one given).
+    - `rms`: root-mean-square distance between the fleshed `source` and the target (see each
+      fitting function for exactly which points count), with the full projection check.
+    - `valid`: (N,) bool, which source points map validly onto the fitted spine.
+    - `result`: the `optimistix.RESULTS` of the solve; `converged` tells whether it succeeded.
+    - `num_steps`: number of solver steps taken.
+    - `loss`: the final value of the objective (sum of squared residuals, regularisers included).
+    - `stats`: the solver's statistics dictionary.
+    """
+
+    spine: AbstractSpine
+    twist: Float[Array, ""]
+    rms: Float[Array, ""]
+    valid: Bool[Array, " N"]
+    result: optx.RESULTS
+    num_steps: Array
+    loss: Float[Array, ""]
+    stats: dict
+
+    @property
+    def converged(self) -> bool:
+        """Whether the solver reported success (never trust `spine` when this is False)."""
+        return bool(self.result == optx.RESULTS.successful)
+
+    @property
+    def num_invalid(self) -> int:
+        """How many source points do not map validly onto the fitted spine."""
+        return int(jnp.sum(~self.valid))
+
+    @property
+    def message(self) -> str:
+        """The optimistix message for `result` ("" on success)."""
+        return optx.RESULTS[self.result]
+
+
+_AXES = Registration(points=0, arc_length=0, offset=0, curvature=0, valid=0, length=None)
+
+
+def pose_all(registration: Registration, spine, method: str, twist: Array, check: bool):
+    """`(images (N, 3), valid (N,))`: the un-jitted batched pose, for use inside a solve."""
+
+    def one(reg):
+        return pose_point(reg, spine, method, twist, check)
+
+    return jax.vmap(one, in_axes=(_AXES,))(registration)
+
+
+class AbstractPoseProblem(eqx.Module):
+    """A fit's residual function `y -> residuals`: poses the registered source on the spine
+    rebuilt from `y = (free values, twist or None)`.
+
+    Subclasses also hold the static fields `method: str`, `invalid: str` and
+    `check_projection: bool`.
+    """
+
+    parameters: eqx.AbstractVar[Parameters]
+    registration: eqx.AbstractVar[Registration]
+    twist: eqx.AbstractVar[Array]
+    regularizers: eqx.AbstractVar[Regularizers]
+
+    def spine_and_twist(self, y) -> tuple[AbstractSpine, Array]:
+        return self.parameters.spine(y), (self.twist if y[1] is None else y[1])
+
+    def images(self, y, check_projection: bool | None = None) -> tuple[Array, Array]:
+        spine, twist = self.spine_and_twist(y)
+        check = self.check_projection if check_projection is None else check_projection
+        return pose_all(self.registration, spine, self.method, twist, check)
+
+
+class Setup(eqx.Module):
+    """Everything `prepare` checks and builds for a fit."""
+
+    registration: Registration
+    parameters: Parameters
+    y0: tuple
+    twist: Array
+    regularizers: Regularizers
+    method: str = eqx.field(static=True)
+
+
+def prepare(
+    source_spine,
+    init,
+    source,
+    *,
+    method,
+    twist,
+    fit_twist,
+    params,
+    fixed,
+    length,
+    smoothness,
+    regularizers,
+    invalid,
+) -> Setup:
+    """The checks and set-up shared by the fits of a posed spine (`source` already checked)."""
+    check_spine(source_spine, "source_spine")
+    check_spine(init, "init")
+    method = check_method(method)
+    length_weight, smoothness = check_options(invalid, length, smoothness)
+    dtype = source.dtype
+    source_spine, init = cast_floats((source_spine, init), dtype)
+    parameters = make_parameters(init, params, fixed)
+    twist = as_float_array(twist, "twist", ()).astype(dtype)
+    y0 = parameters.initial(twist if fit_twist else None)
+    if sum(v.size for v in y0[0]) == 0 and not fit_twist:
+        raise ValueError("nothing to fit: every parameter is `fixed` and `fit_twist` is False.")
+    registration = register(source, source_spine)
+    if not bool(jnp.any(registration.valid)):
+        raise ValueError("no point of `source` lies in the valid space of `source_spine`.")
+    extra = () if regularizers is None else tuple(regularizers)
+    regs = make_regularizers(source_spine.length, length_weight, smoothness, extra, dtype)
+    return Setup(registration, parameters, y0, twist, regs, method)
+
+
+@eqx.filter_jit
+def solve(problem: AbstractPoseProblem, solver, y0, max_steps: int, throw: bool):
+    """Runs `optimistix.least_squares` on `problem`.
+
+    **Returns:** `(spine, twist, loss, result, stats)`, `loss` the final sum of squared
+    residuals. The final validity check runs outside, through the public (jitted) `pose`, whose
+    compilation is shared with ordinary fleshing of the same spine type.
+    """
+    solution = optx.least_squares(problem, solver, y0, max_steps=max_steps, throw=throw)
+    y = solution.value
+    loss = sum(jnp.sum(r**2) for r in jax.tree.leaves(problem(y)))
+    spine, twist = problem.spine_and_twist(y)
+    return spine, twist, loss, solution.result, solution.stats
+
+
+def final_pose(problem: AbstractPoseProblem, spine, twist) -> tuple[Array, Array]:
+    """`(images, valid)` of the source on the fitted spine, with the full projection check."""
+    return pose(problem.registration, spine, method=problem.method, twist=twist)

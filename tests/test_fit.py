@@ -1,0 +1,244 @@
+"""Spine fitting: recovery of known bends, fixed points, noise, twist, length, invalid points,
+gradients against finite differences, the Chamfer fit and bad input.
+
+Every configuration is a separate compilation (seconds each): the tests share as few as they
+can, with 32 points throughout.
+"""
+
+import jax
+import jax.flatten_util
+import jax.numpy as jnp
+import numpy as np
+import optimistix as optx
+import pytest
+from conftest import cloud
+
+import fleshing_jax as fj
+from fleshing_jax._fit import Correspondence
+
+BSpline = getattr(fj, "BSpline", None)
+if BSpline is None:  # until the free-form spines are exported
+    try:
+        from fleshing_jax._bspline import BSpline
+    except ImportError:
+        BSpline = None
+needs_bspline = pytest.mark.skipif(BSpline is None, reason="B-spline spines not available")
+
+LINE = fj.Line(4.0)
+TRUTH = fj.Arc(3.0, 4.0)
+NEARLY_STRAIGHT = fj.Arc(100.0, 4.0)  # a Line cannot bend: start from a very flat arc
+SOURCE = cloud(LINE)
+
+
+def _curve_error(spine, truth, n=21):
+    s = np.linspace(0, 1, n)
+    a = jax.vmap(spine)(s * spine.length)
+    b = jax.vmap(truth)(s * truth.length)
+    return float(np.abs(a - b).max())
+
+
+@pytest.mark.parametrize("method, twist", [("radial", 0.0), ("normal", 0.0), ("binormal", 0.3)])
+def test_recovers_known_bend(method, twist):
+    target, valid = fj.flesh(SOURCE, LINE, TRUTH, method=method, twist=twist)
+    assert bool(valid.all())
+    fit = fj.fit_spine(LINE, NEARLY_STRAIGHT, SOURCE, target, method=method, fit_twist=twist != 0)
+    assert fit.converged, fit.message
+    assert isinstance(fit.spine, fj.Arc)
+    assert float(fit.rms) < 1e-6
+    np.testing.assert_allclose([fit.spine.radius, fit.spine.length], [3.0, 4.0], atol=1e-8)
+    np.testing.assert_allclose(fit.twist, twist, atol=1e-8)
+    assert fit.valid.all() and fit.num_invalid == 0
+    # Placement is not a default parameter of an arc: kept exactly.
+    np.testing.assert_array_equal(fit.spine.origin, NEARLY_STRAIGHT.origin)
+
+
+_STRAIGHT = np.stack([np.linspace(0, 4, 6), np.zeros(6), np.zeros(6)], -1)
+_BENT = _STRAIGHT.copy()
+_BENT[2:, 1] = [0.3, 0.9, 1.6, 2.4]
+_BENT[3:, 2] = [0.2, 0.5, 0.9]
+
+
+def _bsplines():
+    """Straight rest spine, bent truth, and a straight guess with the truth's resolution."""
+    rest, truth = BSpline(_STRAIGHT, degree=3), BSpline(_BENT, degree=3)
+    # The guess keeps its static resolution: give it the one the bent spine needs.
+    return rest, truth, BSpline(_STRAIGHT, degree=3, subdivisions=truth.subdivisions)
+
+
+def test_fixed_length_and_smoothness():
+    target, _ = fj.flesh(SOURCE, LINE, TRUTH)
+    init = fj.Arc(100.0, 3.0)  # too short
+    fit = fj.fit_spine(LINE, init, SOURCE, target, length="fixed", smoothness=0.05)
+    assert fit.converged, fit.message
+    assert abs(float(fit.spine.length) - 4.0) < 1e-5  # inextensible: L₁ = L₀
+    # The bending energy pulls towards straight: a flatter arc than the data's, a worse fit.
+    assert 3.01 < float(fit.spine.radius) < 10
+    assert 1e-4 < float(fit.rms) < 0.2
+
+
+def test_invalid_points_excluded():
+    line = fj.Line(2.0)
+    source = cloud(line)
+    truth = fj.Arc(0.7, 2.0)  # too tight for the outer side of the 0.5-radius tube
+    target, valid = fj.flesh(source, line, truth)
+    assert int((~valid).sum()) == 2
+    fit = fj.fit_spine(line, fj.Arc(2.0, 2.0), source, target, invalid="exclude")
+    assert fit.converged, fit.message
+    np.testing.assert_allclose(fit.spine.radius, 0.7, atol=1e-8)
+    assert float(fit.rms) < 1e-6  # over the valid points
+    assert fit.num_invalid == 2
+
+
+def _problem(rest, init, source, target, **kwargs):
+    """The residual function `fit_spine` would solve, with its initial `y`."""
+    from fleshing_jax._fit_common import prepare
+
+    options = dict(
+        method="radial",
+        twist=0.0,
+        fit_twist=False,
+        params=None,
+        fixed=None,
+        length="free",
+        smoothness=0.0,
+        regularizers=None,
+        invalid="penalize",
+    )
+    options.update(kwargs)
+    setup = prepare(rest, init, jnp.asarray(source), **options)
+    problem = Correspondence(
+        parameters=setup.parameters,
+        registration=setup.registration,
+        target=jnp.asarray(target),
+        weights=jnp.ones(len(source)),
+        twist=setup.twist,
+        regularizers=setup.regularizers,
+        method=setup.method,
+        invalid=options["invalid"],
+        check_projection=False,
+    )
+    return problem, setup.y0
+
+
+def _check_gradient(problem, y0, eps=1e-6):
+    def loss(y):
+        return sum(jnp.sum(r**2) for r in jax.tree.leaves(problem(y)))
+
+    loss_and_grad = jax.jit(jax.value_and_grad(loss))  # one compilation for both
+    flat, unravel = jax.flatten_util.ravel_pytree(y0)
+    expected = []
+    for i in range(flat.size):
+        step = np.zeros(flat.size)
+        step[i] = eps
+        plus, minus = (loss_and_grad(unravel(flat + sign * step))[0] for sign in (1, -1))
+        expected.append((plus - minus) / (2 * eps))
+    actual = jax.flatten_util.ravel_pytree(loss_and_grad(y0)[1])[0]
+    np.testing.assert_allclose(actual, expected, rtol=1e-5, atol=1e-7)
+
+
+def test_loss_gradient_matches_finite_differences_arc_twist():
+    target, _ = fj.flesh(SOURCE, LINE, TRUTH, method="normal", twist=0.3)
+    problem, y0 = _problem(
+        LINE,
+        fj.Arc(4.0, 3.5),
+        SOURCE,
+        target,
+        method="normal",
+        twist=0.1,
+        fit_twist=True,
+        smoothness=0.01,
+        length=0.5,
+    )
+    _check_gradient(problem, y0)
+
+
+@needs_bspline
+def test_bspline_gradient_and_recovery_from_straight_with_fixed_root_and_noise():
+    # One test, so that the B-spline compilations are shared.
+    rest, truth, init = _bsplines()
+    source = cloud(rest, radius=0.4)
+    target, valid = fj.flesh(source, rest, truth)
+    assert bool(valid.all())
+    fixed = np.array([True, True, False, False, False, False])  # root position and direction
+
+    # The loss gradient against finite differences, at a bent and twisted guess. Its start
+    # tangent is axis-aligned up to round-off: the frame must not jump there.
+    guess = _BENT.copy()
+    guess[2:, 2] += [0.3, -0.2, 0.4, 0.1]
+    problem, y0 = _problem(rest, BSpline(guess, degree=3), source, target, fixed=fixed)
+    _check_gradient(problem, y0)
+
+    # Recovery from a straight guess, the root held exactly.
+    fit = fj.fit_spine(rest, init, source, target, fixed=fixed)
+    assert fit.converged, fit.message
+    assert float(fit.rms) < 1e-6
+    np.testing.assert_array_equal(fit.spine.control_points[:2], _STRAIGHT[:2])
+    np.testing.assert_allclose(fit.spine.control_points, _BENT, atol=1e-6)
+
+    # Noisy targets: the rms is the noise's, the spine stays close.
+    noise = 0.01
+    noisy = target + noise * np.random.default_rng(1).normal(size=target.shape)
+    fit = fj.fit_spine(rest, init, source, noisy, fixed=fixed)  # same compilation
+    assert fit.converged, fit.message
+    expected = noise * np.sqrt(3)  # rms of the noise vectors themselves
+    assert 0.6 * expected < float(fit.rms) < expected
+    assert _curve_error(fit.spine, truth) < 3 * noise
+    np.testing.assert_array_equal(fit.spine.control_points[:2], _STRAIGHT[:2])
+
+
+def test_chamfer_fit_without_correspondences():
+    target, _ = fj.flesh(SOURCE, LINE, TRUTH)
+    scan = np.asarray(target)[np.random.default_rng(2).permutation(len(target))]
+    fit = fj.fit_spine_to_points(LINE, fj.Arc(6.0, 3.5), SOURCE, scan)
+    assert fit.converged, fit.message
+    assert float(fit.rms) < 1e-6
+    np.testing.assert_allclose([fit.spine.radius, fit.spine.length], [3.0, 4.0], atol=1e-6)
+
+
+def test_non_convergence_is_reported():
+    target, _ = fj.flesh(SOURCE, LINE, TRUTH)
+    fit = fj.fit_spine(LINE, NEARLY_STRAIGHT, SOURCE, target, max_steps=3)
+    assert not fit.converged
+    assert fit.result == optx.RESULTS.nonlinear_max_steps_reached
+    assert "steps" in fit.message
+    assert int(fit.num_steps) == 3
+
+
+def test_float32():
+    source = SOURCE.astype(np.float32)
+    target, _ = fj.flesh(source, LINE, TRUTH)
+    fit = fj.fit_spine(LINE, NEARLY_STRAIGHT, source, target)
+    assert fit.converged, fit.message
+    assert fit.spine.radius.dtype == jnp.float32 and fit.rms.dtype == jnp.float32
+    assert float(fit.rms) < 1e-4
+    np.testing.assert_allclose(fit.spine.radius, 3.0, rtol=1e-3)
+
+
+def test_bad_input():
+    target = np.asarray(SOURCE) + 1.0
+    with pytest.raises(ValueError, match="`source` and `target` must have the same shape"):
+        fj.fit_spine(LINE, TRUTH, SOURCE, target[:-1])
+    nan = target.copy()
+    nan[3, 1] = np.nan
+    with pytest.raises(ValueError, match="`target` must be finite.*index 3"):
+        fj.fit_spine(LINE, TRUTH, SOURCE, nan)
+    with pytest.raises(ValueError, match="`cloud` must be finite"):
+        fj.fit_spine_to_points(LINE, TRUTH, SOURCE, nan)
+    with pytest.raises(ValueError, match="`source` must have shape"):
+        fj.fit_spine(LINE, TRUTH, SOURCE[:, :2], target[:, :2])
+    with pytest.raises(TypeError, match="`init` must be a spine"):
+        fj.fit_spine(LINE, np.zeros((4, 3)), SOURCE, target)
+    with pytest.raises(TypeError, match="`source_spine` must be a spine"):
+        fj.fit_spine("line", TRUTH, SOURCE, target)
+    with pytest.raises(ValueError, match="`method`"):
+        fj.fit_spine(LINE, TRUTH, SOURCE, target, method="bend")
+    with pytest.raises(ValueError, match="`invalid`"):
+        fj.fit_spine(LINE, TRUTH, SOURCE, target, invalid="ignore")
+    with pytest.raises(ValueError, match="`length`"):
+        fj.fit_spine(LINE, TRUTH, SOURCE, target, length="rigid")
+    with pytest.raises(ValueError, match="`fixed`"):
+        fj.fit_spine(LINE, TRUTH, SOURCE, target, fixed=np.array([True, False, True]))
+    with pytest.raises(ValueError, match="nothing to fit"):
+        fj.fit_spine(LINE, TRUTH, SOURCE, target, fixed=(True, True))
+    with pytest.raises(ValueError, match="`weights`"):
+        fj.fit_spine(LINE, TRUTH, SOURCE, target, weights=-np.ones(len(SOURCE)))
