@@ -1,13 +1,27 @@
 """Shared test configuration and helpers.
 
 float64 is enabled here (never in the library); float32 behaviour is tested explicitly.
+
+The suite's time is almost all XLA compilation, so the tests ask XLA for cheap compiles (the
+tests check values, not speed) and share compiled programs between the pytest-xdist workers
+through JAX's persistent compilation cache.
 """
 
-import jax
-import numpy as np
-import pytest
+import os
+from pathlib import Path
+
+os.environ.setdefault(
+    "XLA_FLAGS", "--xla_backend_optimization_level=0 --xla_llvm_disable_expensive_passes=true"
+)
+
+import jax  # noqa: E402
+import numpy as np  # noqa: E402
+import pytest  # noqa: E402
 
 jax.config.update("jax_enable_x64", True)
+_CACHE = Path(__file__).resolve().parents[1] / ".pytest_cache" / "jax-compilation-cache"
+jax.config.update("jax_compilation_cache_dir", str(_CACHE))
+jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.2)
 
 import fleshing_jax as fj  # noqa: E402
 
