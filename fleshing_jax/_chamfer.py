@@ -29,9 +29,8 @@ from ._fit_common import (
     Regularizers,
     check_cloud,
     default_solver,
-    final_pose,
+    fit,
     prepare,
-    solve,
 )
 from ._projection import Registration
 
@@ -70,6 +69,13 @@ class Chamfer(AbstractPoseProblem):
         k = self.cloud.shape[0]
         residuals = (forward.reshape(-1) / jnp.sqrt(n), backward.reshape(-1) / k**0.5)
         return (*residuals, *self.regularizers(self.spine_and_twist(y)[0]))
+
+    def rms(self, images, valid):
+        """`√(Chamfer distance / 2)`: nearest-neighbour distances averaged both ways."""
+        forward, backward, used = self.distances(images, valid)
+        n = jnp.maximum(jnp.sum(used), 1)
+        chamfer = jnp.sum(forward**2) / n + jnp.mean(jnp.sum(backward**2, axis=-1))
+        return jnp.sqrt(chamfer / 2)
 
 
 def fit_spine_to_points(
@@ -139,22 +145,4 @@ def fit_spine_to_points(
     )
     if solver is None:
         solver = default_solver("minimise", dtype, rtol, atol)
-    return _result(problem, solve(problem, solver, setup.y0, int(max_steps), bool(throw)))
-
-
-def _result(problem: Chamfer, solution) -> FitResult:
-    spine, twist, loss, result, stats = solution
-    images, valid = final_pose(problem, spine, twist)
-    forward, backward, used = problem.distances(images, valid)
-    n = jnp.maximum(jnp.sum(used), 1)
-    chamfer = jnp.sum(forward**2) / n + jnp.mean(jnp.sum(backward**2, axis=-1))
-    return FitResult(
-        spine=spine,
-        twist=twist,
-        rms=jnp.sqrt(chamfer / 2),
-        valid=valid,
-        result=result,
-        num_steps=stats["num_steps"],
-        loss=loss,
-        stats=stats,
-    )
+    return fit(problem, solver, setup.y0, max_steps, throw)

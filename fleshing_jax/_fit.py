@@ -24,9 +24,8 @@ from ._fit_common import (
     Regularizers,
     check_cloud,
     default_solver,
-    final_pose,
+    fit,
     prepare,
-    solve,
 )
 from ._projection import Registration
 
@@ -65,6 +64,10 @@ class Correspondence(AbstractPoseProblem):
         scale = jnp.sqrt(self.weights / jnp.sum(self.weights))
         data = (scale[:, None] * diff).reshape(-1)
         return (data, *self.regularizers(self.spine_and_twist(y)[0]))
+
+    def rms(self, images, valid):
+        counted = valid if self.invalid == "exclude" else jnp.ones_like(valid)
+        return weighted_rms(images - self.target, self.weights, counted)
 
 
 def fit_spine(
@@ -178,7 +181,7 @@ def fit_spine(
     )
     if solver is None:
         solver = default_solver("least_squares", dtype, rtol, atol)
-    return _result(problem, solve(problem, solver, setup.y0, int(max_steps), bool(throw)))
+    return fit(problem, solver, setup.y0, max_steps, throw)
 
 
 def _check_weights(weights, n: int, dtype) -> Array:
@@ -193,19 +196,3 @@ def _check_weights(weights, n: int, dtype) -> Array:
     if weights.sum() <= 0:
         raise ValueError("`weights` must not all be zero.")
     return jnp.asarray(weights, dtype)
-
-
-def _result(problem: Correspondence, solution) -> FitResult:
-    spine, twist, loss, result, stats = solution
-    images, valid = final_pose(problem, spine, twist)
-    counted = valid if problem.invalid == "exclude" else jnp.ones_like(valid)
-    return FitResult(
-        spine=spine,
-        twist=twist,
-        rms=weighted_rms(images - problem.target, problem.weights, counted),
-        valid=valid,
-        result=result,
-        num_steps=stats["num_steps"],
-        loss=loss,
-        stats=stats,
-    )

@@ -10,6 +10,7 @@ static configuration) is kept.
 
 from __future__ import annotations
 
+import abc
 import dataclasses
 from collections.abc import Callable
 
@@ -311,6 +312,10 @@ class AbstractPoseProblem(eqx.Module):
         check = self.check_projection if check_projection is None else check_projection
         return pose_all(self.registration, spine, self.method, twist, check)
 
+    @abc.abstractmethod
+    def rms(self, images: Array, valid: Array) -> Array:
+        """The fit's reported root-mean-square distance for final `images` (N, 3)."""
+
 
 class Setup(eqx.Module):
     """Everything `prepare` checks and builds for a fit."""
@@ -373,6 +378,17 @@ def solve(problem: AbstractPoseProblem, solver, y0, max_steps: int, throw: bool)
     return spine, twist, loss, solution.result, solution.stats
 
 
-def final_pose(problem: AbstractPoseProblem, spine, twist) -> tuple[Array, Array]:
-    """`(images, valid)` of the source on the fitted spine, with the full projection check."""
-    return pose(problem.registration, spine, method=problem.method, twist=twist)
+def fit(problem: AbstractPoseProblem, solver, y0, max_steps: int, throw: bool) -> FitResult:
+    """Solves `problem` and reports the fit, validity checked with the full projection test."""
+    spine, twist, loss, result, stats = solve(problem, solver, y0, int(max_steps), bool(throw))
+    images, valid = pose(problem.registration, spine, method=problem.method, twist=twist)
+    return FitResult(
+        spine=spine,
+        twist=twist,
+        rms=problem.rms(images, valid),
+        valid=valid,
+        result=result,
+        num_steps=stats["num_steps"],
+        loss=loss,
+        stats=stats,
+    )
