@@ -134,14 +134,8 @@ def fit_spine_to_points(
         invalid=invalid,
     )
     problem = Chamfer(
-        parameters=setup.parameters,
-        registration=setup.registration,
         cloud=cloud,
-        twist=setup.twist,
-        regularizers=setup.regularizers,
-        method=setup.method,
-        invalid=invalid,
-        check_projection=bool(check_projection),
+        **setup.problem_fields(invalid, check_projection),
     )
     if solver is None:
         solver = default_solver("minimise", dtype, rtol, atol)

@@ -169,15 +169,9 @@ def fit_spine(
         invalid=invalid,
     )
     problem = Correspondence(
-        parameters=setup.parameters,
-        registration=setup.registration,
         target=target,
         weights=weights,
-        twist=setup.twist,
-        regularizers=setup.regularizers,
-        method=setup.method,
-        invalid=invalid,
-        check_projection=bool(check_projection),
+        **setup.problem_fields(invalid, check_projection),
     )
     if solver is None:
         solver = default_solver("least_squares", dtype, rtol, atol)

@@ -327,6 +327,18 @@ class Setup(eqx.Module):
     regularizers: Regularizers
     method: str = eqx.field(static=True)
 
+    def problem_fields(self, invalid: str, check_projection: bool) -> dict:
+        """The keyword arguments every `AbstractPoseProblem` takes from this set-up."""
+        return dict(
+            parameters=self.parameters,
+            registration=self.registration,
+            twist=self.twist,
+            regularizers=self.regularizers,
+            method=self.method,
+            invalid=invalid,
+            check_projection=bool(check_projection),
+        )
+
 
 def prepare(
     source_spine,
