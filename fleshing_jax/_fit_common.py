@@ -22,7 +22,7 @@ import optimistix as optx
 from jaxtyping import Array, ArrayLike, Bool, Float
 
 from ._analytic import Arc, Helix, Line
-from ._fleshing import pose, pose_point, register
+from ._fleshing import pose, pose_points, register
 from ._maps import check_method
 from ._misc import as_float_array, cast_floats
 from ._projection import Registration
@@ -279,18 +279,6 @@ class FitResult(eqx.Module):
         return optx.RESULTS[self.result]
 
 
-_AXES = Registration(points=0, arc_length=0, offset=0, curvature=0, valid=0, length=None)
-
-
-def pose_all(registration: Registration, spine, method: str, twist: Array, check: bool):
-    """`(images (N, 3), valid (N,))`: the un-jitted batched pose, for use inside a solve."""
-
-    def one(reg):
-        return pose_point(reg, spine, method, twist, check)
-
-    return jax.vmap(one, in_axes=(_AXES,))(registration)
-
-
 class AbstractPoseProblem(eqx.Module):
     """A fit's residual function `y -> residuals`: poses the registered source on the spine
     rebuilt from `y = (free values, twist or None)`.
@@ -310,7 +298,7 @@ class AbstractPoseProblem(eqx.Module):
     def images(self, y, check_projection: bool | None = None) -> tuple[Array, Array]:
         spine, twist = self.spine_and_twist(y)
         check = self.check_projection if check_projection is None else check_projection
-        return pose_all(self.registration, spine, self.method, twist, check)
+        return pose_points(self.registration, spine, self.method, twist, check)
 
     @abc.abstractmethod
     def rms(self, images: Array, valid: Array) -> Array:

@@ -15,11 +15,42 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike, Bool, Float
 
+from ._compact import update_where
 from ._frames import twist_normals
 from ._maps import BEND, UNBEND, check_method
 from ._misc import as_float_array, cast_floats, relative_tolerance
-from ._projection import Registration, closest_arc_length, register_point
+from ._projection import Registration, closest_arc_length, register_point, register_points
+from ._reach import reach_lower_bound, search_range
 from ._spine import AbstractSpine
+
+
+def bend_point(
+    registration: Registration, target: AbstractSpine, method: str, twist: Array
+) -> tuple[Array, Array, Array, Array]:
+    """Unbends, transfers and bends one registered point onto `target`, without the global
+    projection check: `(image (3,), valid, s₁, |d₁|)` (the image lies at offset `d₁` from
+    `C₁(s₁)`, in its normal plane)."""
+    reg = registration
+    target = target._prepare()
+    stretch = target.length / reg.length
+    s1 = stretch * reg.arc_length
+    straight, unbent = UNBEND[method](reg.offset, reg.curvature)
+    if method != "skinning":  # skinning is the uncorrected baseline: offsets carried rigidly
+        straight = straight / jnp.sqrt(stretch)
+    (c1, _, k1), normals = target.jet_and_normals(s1)
+    i1, j1 = twist_normals(normals, twist)
+    k1_2d = jnp.stack([jnp.dot(k1, i1), jnp.dot(k1, j1)])
+    d1, bent = BEND[method](straight, k1_2d)
+    image = c1 + d1[0] * i1 + d1[1] * j1
+    valid = reg.valid & unbent & bent & (1 - jnp.dot(k1_2d, d1) > 0)
+    return image, valid, s1, jnp.linalg.norm(d1)
+
+
+def projects_back(target: AbstractSpine, image: Array, s1: Array, distance: Array) -> Array:
+    """Whether `image` (3,) projects on `target` at `s₁` (the global reach test, one point)."""
+    back, converged = closest_arc_length(target, image)
+    tol = relative_tolerance(image.dtype) * (target.length + distance)
+    return converged & (jnp.abs(back - s1) <= tol)
 
 
 def pose_point(
@@ -34,24 +65,39 @@ def pose_point(
     Invalid points are returned unchanged (their image is computed from safe values and
     discarded, so that neither values nor gradients of other points are affected).
     """
-    reg = registration
-    target = target._prepare()
-    stretch = target.length / reg.length
-    s1 = stretch * reg.arc_length
-    straight, unbent = UNBEND[method](reg.offset, reg.curvature)
-    if method != "skinning":  # skinning is the uncorrected baseline: offsets carried rigidly
-        straight = straight / jnp.sqrt(stretch)
-    (c1, _, k1), normals = target.jet_and_normals(s1)
-    i1, j1 = twist_normals(normals, twist)
-    k1_2d = jnp.stack([jnp.dot(k1, i1), jnp.dot(k1, j1)])
-    d1, bent = BEND[method](straight, k1_2d)
-    image = c1 + d1[0] * i1 + d1[1] * j1
-    valid = reg.valid & unbent & bent & (1 - jnp.dot(k1_2d, d1) > 0)
+    image, valid, s1, distance = bend_point(registration, target, method, twist)
     if check_projection:
-        back, converged = closest_arc_length(target, image)
-        tol = relative_tolerance(image.dtype) * (target.length + jnp.linalg.norm(d1))
-        valid = valid & converged & (jnp.abs(back - s1) <= tol)
-    return jnp.where(valid, image, reg.points), valid
+        valid = valid & projects_back(target, image, s1, distance)
+    return jnp.where(valid, image, registration.points), valid
+
+
+def pose_points(
+    registration: Registration,
+    target: AbstractSpine,
+    method: str,
+    twist: Array,
+    check_projection: bool = True,
+) -> tuple[Array, Array]:
+    """`pose_point` for a batch of registered points: `(images (N, 3), valid (N,))`.
+
+    The projection check is certified without a search for the images closer to the target
+    than a lower bound of its reach (`_reach`); only the others run the global search.
+    """
+    target = target._prepare()
+    axes = Registration(points=0, arc_length=0, offset=0, curvature=0, valid=0, length=None)
+    bend = jax.vmap(lambda reg: bend_point(reg, target, method, twist), in_axes=(axes,))
+    image, valid, s1, distance = bend(registration)
+    if check_projection:
+        lo, hi = search_range(target)
+        reach = reach_lower_bound(target)
+        certified = valid & (distance < reach) & (s1 > lo) & (s1 < hi)
+        check = valid & ~certified
+
+        def full(args):
+            return projects_back(target, *args)
+
+        valid = update_where(check, full, certified, (image, s1, distance))
+    return jnp.where(valid[:, None], image, registration.points), valid
 
 
 class Fleshing(eqx.Module):
@@ -144,8 +190,7 @@ def register(points: ArrayLike, source: AbstractSpine, *, samples: int | None = 
 
 @eqx.filter_jit
 def _register(points, source, samples):
-    registration = jax.vmap(lambda x: register_point(source, x, samples))(points)
-    return eqx.tree_at(lambda r: r.length, registration, source.length)
+    return register_points(source, points, samples)
 
 
 def pose(
@@ -176,12 +221,7 @@ def pose(
 
 @eqx.filter_jit
 def _pose(registration, target, method, twist, check_projection):
-    def one(reg):
-        return pose_point(reg, target, method, twist, check_projection)
-
-    # Per-point leaves are batched; the source length is shared.
-    axes = Registration(points=0, arc_length=0, offset=0, curvature=0, valid=0, length=None)
-    return jax.vmap(one, in_axes=(axes,))(registration)
+    return pose_points(registration, target, method, twist, check_projection)
 
 
 def flesh(

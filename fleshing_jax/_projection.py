@@ -9,16 +9,125 @@ in forward and reverse mode alike.
 
 from __future__ import annotations
 
+import math
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike, Bool, Float
 
+from ._compact import update_where
 from ._misc import relative_tolerance, safe_divide
+from ._reach import reach_lower_bound, search_range
 from ._spine import AbstractSpine
 
 NEWTON_STEPS = 8
-CANDIDATES = 3  # Newton starts: the best local minima of the sampled distance
+FAST_STEPS = 3  # Newton steps of the certified fast path (from a sample at most h away)
+CANDIDATES = 3  # Newton starts of the global search: the best local minima of the distance
+COARSE, BRANCH = 16, 4  # the fast path's coarse-to-fine levels: 16 spans, then 4× finer each
+
+
+class _Search(eqx.Module):
+    """What the closest-point search of one spine needs, computed once for many points."""
+
+    spine: AbstractSpine  # prepared, gradients stopped
+    lo: Array
+    hi: Array
+    grid: Array  # (G,) sample arc lengths on [lo, hi], G = COARSE·BRANCH^levels + 1
+    positions: Array  # (G, 3) the spine there
+    levels: int = eqx.field(static=True)
+
+    @property
+    def h(self):
+        return (self.hi - self.lo) / (self.grid.shape[0] - 1)
+
+    def descend(self, x: Array, s: Array, steps: int) -> Array:
+        """Safeguarded Newton steps on `f(s) = (C(s) − x)·T(s)` from `s`."""
+        h = self.h
+
+        def newton(_, s):
+            c, tangent, k = self.spine.jet(s)
+            d = x - c
+            f, slope = -jnp.dot(d, tangent), 1 - jnp.dot(k, d)
+            # Outside the local reach Newton heads for a maximum: step downhill instead.
+            step = jnp.where(slope > 0, -f / jnp.where(slope > 0, slope, 1), -jnp.sign(f) * h)
+            step = jnp.where(jnp.abs(step) > h, jnp.sign(step) * h, step)
+            s = s + step
+            return jnp.where(s < self.lo, self.lo, jnp.where(s > self.hi, self.hi, s))
+
+        return jax.lax.fori_loop(0, steps, newton, s)
+
+    def global_start(self, x: Array) -> tuple[Array, Array]:
+        """Newton from the best local minima of the sampled distance: `(s, unique)`."""
+        distances = jnp.sum((self.positions - x) ** 2, axis=-1)
+        inf = jnp.asarray(jnp.inf, distances.dtype)
+        before = jnp.concatenate([inf[None], distances[:-1]])
+        after = jnp.concatenate([distances[1:], inf[None]])
+        minima = jnp.where((distances <= before) & (distances <= after), distances, inf)
+        _, index = jax.lax.top_k(-minima, min(CANDIDATES, self.grid.shape[0]))
+        candidate = jnp.isfinite(minima[index]).at[0].set(True)
+
+        def solve(s):
+            s = self.descend(x, s, NEWTON_STEPS)
+            d = x - self.spine(s)
+            return s, jnp.dot(d, d)
+
+        starts, distance = jax.vmap(solve)(self.grid[index])
+        distance = jnp.where(candidate, distance, inf)
+        best = jnp.argmin(distance)
+        s = starts[best]
+        # Another candidate, elsewhere on the spine, as close as the best one: no unique
+        # projection.
+        tol = relative_tolerance(distance.dtype)
+        elsewhere = jnp.abs(starts - s) > self.h
+        tie = candidate & elsewhere & (distance - distance[best] <= tol * (1 + distance[best]))
+        return s, ~jnp.any(tie)
+
+    def nearby_sample(self, x: Array) -> Array:
+        """Index of a sample near `x`, coarse to fine: the nearest of the `COARSE + 1` coarsest
+        samples, then at each level the nearest of the `2·BRANCH + 1` finer samples around it
+        (logarithmic in the resolution; not always the nearest sample, which is not needed:
+        `fast_start` certifies its result independently of where it started)."""
+        last = self.grid.shape[0] - 1
+        coarse = self.positions[:: BRANCH**self.levels]
+        best = jnp.argmin(jnp.sum((coarse - x) ** 2, axis=-1))
+        offsets = jnp.arange(-BRANCH, BRANCH + 1)
+        for level in range(1, self.levels + 1):
+            stride = BRANCH ** (self.levels - level)
+            index = jnp.clip(best * BRANCH + offsets, 0, last // stride) * stride
+            best = index[jnp.argmin(jnp.sum((self.positions[index] - x) ** 2, axis=-1))] // stride
+        return best
+
+    def fast_start(self, x: Array, reach: Array) -> tuple[Array, Array]:
+        """Newton from a nearby sample: `(s, certified)`, certified when the foot is closer
+        than the `reach` lower bound (then it is the unique closest point, see `_reach`)."""
+        s = self.descend(x, self.grid[self.nearby_sample(x)], FAST_STEPS)
+        c, tangent, _ = self.spine.jet(s)
+        d = x - c
+        distance = jnp.linalg.norm(d)
+        stationary = jnp.abs(jnp.dot(d, tangent)) <= relative_tolerance(x.dtype) * (1 + distance)
+        return s, stationary & (distance < reach) & (s > self.lo) & (s < self.hi)
+
+
+def _search(spine: AbstractSpine, samples: int) -> _Search:
+    fixed = jax.lax.stop_gradient(spine)
+    lo, hi = search_range(fixed)
+    levels = max(0, math.ceil(math.log(max(samples - 1, 1) / COARSE, BRANCH)))
+    grid = jnp.linspace(lo, hi, COARSE * BRANCH**levels + 1)
+    # Sample positions do not depend on the points: computed once per spine.
+    return _Search(fixed, lo, hi, grid, jax.vmap(fixed)(grid), levels)
+
+
+def _polish(spine: AbstractSpine, search: _Search, x: Array, s: Array) -> tuple[Array, Array]:
+    """One Newton step with live gradients (the implicit-function derivative), and whether `s`
+    is a stationary point strictly inside the searched range."""
+    c, tangent, k = spine.jet(s)
+    d = x - c
+    f, slope = -jnp.dot(d, tangent), 1 - jnp.dot(k, d)
+    s = s - safe_divide(f, jnp.where(slope > 0, slope, 0))
+    tol = relative_tolerance(x.dtype)
+    converged = (jnp.abs(f) <= tol * (1 + jnp.linalg.norm(d))) & (s > search.lo) & (s < search.hi)
+    return s, converged
 
 
 def closest_arc_length(spine: AbstractSpine, x: Array, samples: int | None = None):
@@ -39,51 +148,28 @@ def closest_arc_length(spine: AbstractSpine, x: Array, samples: int | None = Non
     """
     samples = spine.default_samples() if samples is None else samples
     spine = spine._prepare()
-    fixed = jax.lax.stop_gradient(spine)
-    x_fixed = jax.lax.stop_gradient(x)
-    e0, e1 = fixed.extension()
-    lo, hi = -e0, fixed.length + e1
-    grid = jnp.linspace(lo, hi, samples)
-    # Sample positions do not depend on x: under vmap they are computed once per spine.
-    positions = jax.vmap(fixed)(grid)
-    distances = jnp.sum((positions - x_fixed) ** 2, axis=-1)
-    inf = jnp.asarray(jnp.inf, distances.dtype)
-    before = jnp.concatenate([inf[None], distances[:-1]])
-    after = jnp.concatenate([distances[1:], inf[None]])
-    minima = jnp.where((distances <= before) & (distances <= after), distances, inf)
-    count = min(CANDIDATES, samples)
-    _, index = jax.lax.top_k(-minima, count)
-    candidate = jnp.isfinite(minima[index]).at[0].set(True)
-    h = (hi - lo) / (samples - 1)
+    search = _search(spine, samples)
+    s, unique = search.global_start(jax.lax.stop_gradient(x))
+    s, converged = _polish(spine, search, x, jax.lax.stop_gradient(s))
+    return s, converged & unique
 
-    def newton(_, s):
-        c, tangent, k = fixed.jet(s)
-        d = x_fixed - c
-        f, slope = -jnp.dot(d, tangent), 1 - jnp.dot(k, d)
-        # Outside the local reach Newton heads for a maximum: step downhill instead.
-        step = jnp.where(slope > 0, -f / jnp.where(slope > 0, slope, 1), -jnp.sign(f) * h)
-        step = jnp.where(jnp.abs(step) > h, jnp.sign(step) * h, step)
-        return jnp.where(s + step < lo, lo, jnp.where(s + step > hi, hi, s + step))
 
-    def solve(s):
-        s = jax.lax.fori_loop(0, NEWTON_STEPS, newton, s)
-        d = x_fixed - fixed(s)
-        return s, jnp.dot(d, d)
+def closest_arc_lengths(spine: AbstractSpine, points: Array, samples: int | None = None):
+    """`closest_arc_length` for many points (N, 3) at once: `(s (N,), converged (N,))`.
 
-    starts, distance = jax.vmap(solve)(grid[index])
-    distance = jnp.where(candidate, distance, inf)
-    best = jnp.argmin(distance)
-    s = jax.lax.stop_gradient(starts[best])
-    # Another candidate, elsewhere on the spine, as close as the best one: no unique projection.
-    tol = relative_tolerance(distance.dtype)
-    elsewhere = jnp.abs(starts - s) > h
-    tie = candidate & elsewhere & (distance - distance[best] <= tol * (1 + distance[best]))
-    c, tangent, k = spine.jet(s)
-    d = x - c
-    f, slope = -jnp.dot(d, tangent), 1 - jnp.dot(k, d)
-    s = s - safe_divide(f, jnp.where(slope > 0, slope, 0))
-    converged = (jnp.abs(f) <= tol * (1 + jnp.linalg.norm(d))) & (s > lo) & (s < hi)
-    return s, converged & ~jnp.any(tie)
+    Same results, less work: each point first runs Newton from its nearest sample, and the
+    result is certified global when the point is closer to its foot than a lower bound of the
+    spine's reach (`_reach`); only the other points run the global multi-candidate search.
+    """
+    samples = spine.default_samples() if samples is None else samples
+    spine = spine._prepare()
+    search = _search(spine, samples)
+    fixed = jax.lax.stop_gradient(points)
+    reach = reach_lower_bound(spine)
+    s, certified = jax.vmap(lambda x: search.fast_start(x, reach))(fixed)
+    s, unique = update_where(~certified, search.global_start, (s, certified), fixed)
+    s, converged = jax.vmap(lambda x, s: _polish(spine, search, x, s))(points, s)
+    return s, converged & unique
 
 
 class Registration(eqx.Module):
@@ -111,11 +197,27 @@ class Registration(eqx.Module):
 
 
 def register_point(spine: AbstractSpine, x: ArrayLike, samples: int | None = None) -> Registration:
-    """Registers one point (3,) on `spine`; see `register` for the batched version."""
+    """Registers one point (3,) on `spine`; see `register_points` for many."""
     x = jnp.asarray(x)
     spine = spine._prepare()
     finite = jnp.all(jnp.isfinite(x))
     s, converged = closest_arc_length(spine, jnp.where(finite, x, 0), samples)
+    return _local_coordinates(spine, x, s, converged)
+
+
+def register_points(spine: AbstractSpine, points: Array, samples: int | None = None):
+    """Registers points (N, 3) on `spine` (batched projection, see `closest_arc_lengths`)."""
+    spine = spine._prepare()
+    finite = jnp.all(jnp.isfinite(points), axis=-1)
+    safe = jnp.where(finite[:, None], points, 0)
+    s, converged = closest_arc_lengths(spine, safe, samples)
+    registration = jax.vmap(lambda *a: _local_coordinates(spine, *a))(points, s, converged)
+    return eqx.tree_at(lambda r: r.length, registration, spine.length)
+
+
+def _local_coordinates(spine: AbstractSpine, x: Array, s: Array, converged: Array):
+    """The registration of `x` (3,) at its projection `s`."""
+    finite = jnp.all(jnp.isfinite(x))
     (c, _, k), (i, j) = spine.jet_and_normals(s)
     d = jnp.where(finite, x, 0) - c
     offset = jnp.stack([jnp.dot(d, i), jnp.dot(d, j)])

@@ -1,0 +1,99 @@
+"""The batched paths (`register`, `pose`, `flesh`) against the one-point global ones.
+
+The batched paths certify most projections with a lower bound of the spine's reach and run the
+global search only on the other points; results must be those of the one-point path.
+"""
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import fleshing_jax as fj
+from fleshing_jax._compact import update_where
+from fleshing_jax._projection import closest_arc_lengths
+from fleshing_jax._reach import reach_lower_bound
+
+U_TURN = [[0, 0, 0], [4, 0, 0], [5, 0, 0], [5.5, 0.5, 0], [5, 1, 0], [4, 1, 0], [0, 1, 0]]
+
+
+def _coil():
+    angle = np.linspace(0, 6 * np.pi, 40)
+    return fj.BSpline(np.stack([np.cos(angle), np.sin(angle), 0.1 * angle], -1), degree=5)
+
+
+def test_reach_lower_bound():
+    assert np.isinf(float(reach_lower_bound(fj.Line(3.0))))
+    arc = float(reach_lower_bound(fj.Arc(3.0, 4.0)))
+    assert 0.5 < arc <= 3.0  # the reach of an arc is its radius
+    helix = fj.Helix(1.0, 1.0, 12.0)
+    assert (
+        0.1
+        < float(reach_lower_bound(helix))
+        <= 1 / float(jnp.linalg.norm(helix.curvature_vector(0.0)))
+    )
+    # The U-turn's tightest bend has curvature 4: the reach is at most 1/4. The bound is within
+    # a factor of about 6 of it (near the bend chords are as short as the arcs, and the sampling
+    # costs a margin of one spacing twice).
+    u_turn = fj.BSpline(U_TURN, degree=3)
+    s = jnp.linspace(0.0, u_turn.length, 4001)
+    kappa = jnp.max(jnp.linalg.norm(jax.vmap(u_turn.curvature_vector)(s), axis=-1))
+    assert 1 / (8 * kappa) < float(reach_lower_bound(u_turn)) <= 1 / kappa
+
+
+@pytest.mark.parametrize("shape", ["u_turn", "coil"])
+def test_batched_projection_equals_global_search(shape):
+    spine = fj.BSpline(U_TURN, degree=3) if shape == "u_turn" else _coil()
+    rng = np.random.default_rng(2)
+    lo, hi = np.min(spine.control_points, 0) - 0.4, np.max(spine.control_points, 0) + 0.4
+    box = rng.uniform(lo, hi, (300, 3))
+    # And points very near the spine, most of them inside the certified reach bound.
+    near = jax.vmap(spine)(jnp.asarray(rng.uniform(0, float(spine.length), 100)))
+    points = jnp.concatenate([jnp.asarray(box), near + rng.normal(0, 0.01, (100, 3))])
+    single = jax.jit(jax.vmap(lambda x: fj.closest_arc_length(spine, x)))(points)
+    batched = eqx.filter_jit(closest_arc_lengths)(spine, points)
+    ok = np.asarray(single[1])
+    np.testing.assert_array_equal(np.asarray(batched[1]), ok)
+    np.testing.assert_allclose(np.asarray(batched[0])[ok], np.asarray(single[0])[ok], atol=1e-9)
+    # Both paths ran: some points certified by the reach bound, others searched globally.
+    distance = np.linalg.norm(np.asarray(points - jax.vmap(spine)(single[0])), axis=-1)
+    reach = float(reach_lower_bound(spine))
+    assert np.any(ok & (distance < reach)) and np.any(ok & (distance > reach))
+
+
+@pytest.mark.parametrize("method", ["radial", "binormal"])
+def test_flesh_onto_u_turn_flags_images_near_the_other_branch(method):
+    target = fj.BSpline(U_TURN, degree=3)
+    source = fj.Line(float(target.length))
+    rng = np.random.default_rng(3)
+    n = 400
+    s = rng.uniform(0.0, float(target.length), n)
+    radius, angle = rng.uniform(0.0, 0.8, n), rng.uniform(0, 2 * np.pi, n)
+    points = jnp.asarray(np.stack([s, radius * np.cos(angle), radius * np.sin(angle)], -1))
+    out, valid = fj.flesh(points, source, target, method=method, twist=0.4)
+    fleshing = fj.Fleshing(source, target, method=method, twist=0.4)
+    out_one, valid_one = jax.jit(jax.vmap(fleshing.apply))(points)
+    np.testing.assert_array_equal(np.asarray(valid), np.asarray(valid_one))
+    np.testing.assert_allclose(np.asarray(out), np.asarray(out_one), atol=1e-10)
+    # Images that would land closer to the other branch are flagged; the rest map.
+    assert 0.2 < float(jnp.mean(valid)) < 0.95
+    registration = fj.register(points, source)
+    unchecked = fj.pose(registration, target, method=method, twist=0.4, check_projection=False)
+    assert np.any(np.asarray(unchecked[1]) & ~np.asarray(valid))
+
+
+@pytest.mark.parametrize("n", [0, 1, 7, 1000])
+def test_update_where(n):
+    rng = np.random.default_rng(n)
+    needed = jnp.asarray(rng.uniform(size=n) < 0.3)
+    inputs = (jnp.asarray(rng.normal(size=(n, 2))), jnp.arange(n))
+    values = jnp.zeros(n)
+
+    def function(args):
+        x, i = args
+        return jnp.sum(x) + i
+
+    out = jax.jit(lambda v, w, i: update_where(w, function, v, i, chunk=64))(values, needed, inputs)
+    expected = np.where(np.asarray(needed), np.sum(np.asarray(inputs[0]), -1) + np.arange(n), 0)
+    np.testing.assert_allclose(np.asarray(out), expected)
