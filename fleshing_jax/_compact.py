@@ -14,7 +14,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, PyTree
 
-CHUNK = 512
+CHUNK = 32
 
 
 def update_where(

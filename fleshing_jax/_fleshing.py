@@ -2,7 +2,9 @@
 
 Written for one point and batched with `vmap`. Registration depends only on the source spine,
 so `register` runs once per shape and `pose` is the per-frame path: O(1) work per point plus,
-by default, the global check that each image projects back where it should.
+by default, the check that each image projects back where it should (certified for most points
+by a lower bound of the target's reach, `_reach`; the global search runs on the others only).
+The batched paths (`Registrar`, `Poser`) run in chunks of points (`_chunks`).
 
 Unequal lengths: with `λ = L₁/L₀`, the cross-section at `s` goes to `s₁ = λ s` and its
 straightened offset is scaled by `1/√λ`, so that `ds₁ dA₁ = ds dA` (`det J = 1` still).
@@ -15,11 +17,19 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike, Bool, Float
 
+from . import _chunks
+from ._chunks import map_chunks
 from ._compact import update_where
 from ._frames import twist_normals
 from ._maps import BEND, UNBEND, check_method
 from ._misc import as_float_array, cast_floats, relative_tolerance
-from ._projection import Registration, closest_arc_length, register_point, register_points
+from ._projection import (
+    Registrar,
+    Registration,
+    closest_arc_length,
+    register_point,
+    register_points,
+)
 from ._reach import reach_lower_bound, search_range
 from ._spine import AbstractSpine
 
@@ -71,6 +81,43 @@ def pose_point(
     return jnp.where(valid, image, registration.points), valid
 
 
+class Poser(eqx.Module):
+    """A target spine prepared for batched posing: its search range and a lower bound of its
+    reach (for the projection check), computed once for all points."""
+
+    target: AbstractSpine  # prepared
+    method: str = eqx.field(static=True)
+    twist: Array
+    check_projection: bool = eqx.field(static=True)
+    reach: Array
+    lo: Array
+    hi: Array
+
+    def __init__(self, target, method, twist, check_projection=True):
+        self.target = target._prepare()
+        self.method, self.twist, self.check_projection = method, twist, check_projection
+        self.lo, self.hi = search_range(self.target)
+        self.reach = reach_lower_bound(self.target)
+
+    def pose(self, registration: Registration) -> tuple[Array, Array]:
+        """`pose_point` for a batch of registered points (`length` repeated per point):
+        `(images (n, 3), valid (n,))`.
+
+        The projection check is certified without a search for the images closer to the target
+        than the lower bound of its reach (`_reach`); only the others run the global search.
+        """
+        bend = jax.vmap(lambda reg: bend_point(reg, self.target, self.method, self.twist))
+        image, valid, s1, distance = bend(registration)
+        if self.check_projection:
+            certified = valid & (distance < self.reach) & (s1 > self.lo) & (s1 < self.hi)
+
+            def full(args):
+                return projects_back(self.target, *args)
+
+            valid = update_where(valid & ~certified, full, certified, (image, s1, distance))
+        return jnp.where(valid[:, None], image, registration.points), valid
+
+
 def pose_points(
     registration: Registration,
     target: AbstractSpine,
@@ -78,26 +125,28 @@ def pose_points(
     twist: Array,
     check_projection: bool = True,
 ) -> tuple[Array, Array]:
-    """`pose_point` for a batch of registered points: `(images (N, 3), valid (N,))`.
+    """`pose_point` for registered points: `(images (N, 3), valid (N,))`, in chunks."""
+    n = registration.arc_length.shape[0]
+    per_point = eqx.tree_at(
+        lambda r: r.length, registration, jnp.broadcast_to(registration.length, (n,))
+    )
+    return map_chunks(Poser(target, method, twist, check_projection).pose, per_point)
 
-    The projection check is certified without a search for the images closer to the target
-    than a lower bound of its reach (`_reach`); only the others run the global search.
-    """
-    target = target._prepare()
-    axes = Registration(points=0, arc_length=0, offset=0, curvature=0, valid=0, length=None)
-    bend = jax.vmap(lambda reg: bend_point(reg, target, method, twist), in_axes=(axes,))
-    image, valid, s1, distance = bend(registration)
-    if check_projection:
-        lo, hi = search_range(target)
-        reach = reach_lower_bound(target)
-        certified = valid & (distance < reach) & (s1 > lo) & (s1 < hi)
-        check = valid & ~certified
 
-        def full(args):
-            return projects_back(target, *args)
-
-        valid = update_where(check, full, certified, (image, s1, distance))
-    return jnp.where(valid[:, None], image, registration.points), valid
+def flesh_points(
+    points: Array,
+    source: AbstractSpine,
+    target: AbstractSpine,
+    method: str,
+    twist: Array,
+    check_projection: bool = True,
+    samples: int | None = None,
+) -> tuple[Array, Array]:
+    """`register_points` then `pose_points`, chunk by chunk: the registration of all points is
+    never held in memory at once."""
+    registrar = Registrar(source, samples)
+    poser = Poser(target, method, twist, check_projection)
+    return map_chunks(lambda chunk: poser.pose(registrar.register(chunk)), points)
 
 
 class Fleshing(eqx.Module):
@@ -124,9 +173,8 @@ class Fleshing(eqx.Module):
     check_projection: bool = eqx.field(static=True)
 
     def __init__(self, source, target, *, method="radial", twist=0.0, check_projection=True):
-        for name, spine in (("source", source), ("target", target)):
-            if not isinstance(spine, AbstractSpine):
-                raise TypeError(f"`{name}` must be a spine (AbstractSpine), got {type(spine)}.")
+        _check_spine(source, "source")
+        _check_spine(target, "target")
         self.source, self.target = source, target
         self.method = check_method(method)
         self.twist = as_float_array(twist, "twist", ())
@@ -172,6 +220,11 @@ def _check_points(points: ArrayLike, name: str, single: bool = False) -> Array:
     return points
 
 
+def _check_spine(spine, name: str) -> None:
+    if not isinstance(spine, AbstractSpine):
+        raise TypeError(f"`{name}` must be a spine (AbstractSpine), got {type(spine)}.")
+
+
 def register(points: ArrayLike, source: AbstractSpine, *, samples: int | None = None):
     """Registers `points` on the spine `source` (closest projection and local coordinates).
 
@@ -182,8 +235,7 @@ def register(points: ArrayLike, source: AbstractSpine, *, samples: int | None = 
     posed on any number of target spines with `pose`.
     """
     points = _check_points(points, "points")
-    if not isinstance(source, AbstractSpine):
-        raise TypeError(f"`source` must be a spine (AbstractSpine), got {type(source)}.")
+    _check_spine(source, "source")
     samples = source.default_samples() if samples is None else int(samples)
     return _register(points, cast_floats(source, points.dtype), samples)
 
@@ -212,8 +264,7 @@ def pose(
     """
     if not isinstance(registration, Registration):
         raise TypeError(f"`registration` must come from `register`, got {type(registration)}.")
-    if not isinstance(target, AbstractSpine):
-        raise TypeError(f"`target` must be a spine (AbstractSpine), got {type(target)}.")
+    _check_spine(target, "target")
     dtype = registration.points.dtype
     target, twist = cast_floats((target, jnp.asarray(twist, dtype)), dtype)
     return _pose(registration, target, check_method(method), twist, bool(check_projection))
@@ -246,11 +297,22 @@ def flesh(
     **Returns:** `(deformed (N, 3), valid (N,) bool)`. Invalid points (outside the valid space,
     or not finite) are returned unchanged and flagged `False`; they never raise.
     """
-    check_method(method)
-    return pose(
-        register(points, source),
-        target,
-        method=method,
-        twist=twist,
-        check_projection=check_projection,
-    )
+    points = _check_points(points, "points")
+    _check_spine(source, "source")
+    _check_spine(target, "target")
+    method, check_projection = check_method(method), bool(check_projection)
+    if points.shape[0] <= _chunks.CHUNK_POINTS:
+        # One chunk: nothing to fuse. Compiled apart, the registration is compiled once for
+        # all the methods and targets a shape is fleshed onto.
+        registration = register(points, source)
+        return pose(
+            registration, target, method=method, twist=twist, check_projection=check_projection
+        )
+    samples = source.default_samples()
+    source, target, twist = cast_floats((source, target, jnp.asarray(twist)), points.dtype)
+    return _flesh(points, source, target, method, twist, check_projection, samples)
+
+
+@eqx.filter_jit
+def _flesh(points, source, target, method, twist, check_projection, samples):
+    return flesh_points(points, source, target, method, twist, check_projection, samples)

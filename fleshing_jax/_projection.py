@@ -16,6 +16,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike, Bool, Float
 
+from ._chunks import map_chunks
 from ._compact import update_where
 from ._misc import relative_tolerance, safe_divide
 from ._reach import reach_lower_bound, search_range
@@ -154,22 +155,44 @@ def closest_arc_length(spine: AbstractSpine, x: Array, samples: int | None = Non
     return s, converged & unique
 
 
+class Registrar(eqx.Module):
+    """A spine prepared for batched registration: its search samples and a lower bound of its
+    reach, computed once for all points (see `closest_arc_lengths`)."""
+
+    spine: AbstractSpine  # prepared
+    search: _Search
+    reach: Array
+
+    def __init__(self, spine: AbstractSpine, samples: int | None = None):
+        samples = spine.default_samples() if samples is None else samples
+        self.spine = spine._prepare()
+        self.search = _search(self.spine, samples)
+        self.reach = reach_lower_bound(self.spine)
+
+    def closest(self, points: Array) -> tuple[Array, Array]:
+        """`(s (n,), converged (n,))` for a batch of finite points (n, 3)."""
+        fixed = jax.lax.stop_gradient(points)
+        s, certified = jax.vmap(lambda x: self.search.fast_start(x, self.reach))(fixed)
+        s, unique = update_where(~certified, self.search.global_start, (s, certified), fixed)
+        s, converged = jax.vmap(lambda x, s: _polish(self.spine, self.search, x, s))(points, s)
+        return s, converged & unique
+
+    def register(self, points: Array) -> Registration:
+        """The registration of a batch of points (n, 3); its `length` is repeated per point."""
+        finite = jnp.all(jnp.isfinite(points), axis=-1)
+        s, converged = self.closest(jnp.where(finite[:, None], points, 0))
+        return jax.vmap(lambda *a: _local_coordinates(self.spine, *a))(points, s, converged)
+
+
 def closest_arc_lengths(spine: AbstractSpine, points: Array, samples: int | None = None):
     """`closest_arc_length` for many points (N, 3) at once: `(s (N,), converged (N,))`.
 
-    Same results, less work: each point first runs Newton from its nearest sample, and the
-    result is certified global when the point is closer to its foot than a lower bound of the
-    spine's reach (`_reach`); only the other points run the global multi-candidate search.
+    Same results, less work: each point first runs Newton from a nearby sample, and the result
+    is certified global when the point is closer to its foot than a lower bound of the spine's
+    reach (`_reach`); only the other points run the global multi-candidate search. Points are
+    processed in chunks (`_chunks`), so memory does not grow with intermediates per point.
     """
-    samples = spine.default_samples() if samples is None else samples
-    spine = spine._prepare()
-    search = _search(spine, samples)
-    fixed = jax.lax.stop_gradient(points)
-    reach = reach_lower_bound(spine)
-    s, certified = jax.vmap(lambda x: search.fast_start(x, reach))(fixed)
-    s, unique = update_where(~certified, search.global_start, (s, certified), fixed)
-    s, converged = jax.vmap(lambda x, s: _polish(spine, search, x, s))(points, s)
-    return s, converged & unique
+    return map_chunks(Registrar(spine, samples).closest, points)
 
 
 class Registration(eqx.Module):
@@ -206,13 +229,11 @@ def register_point(spine: AbstractSpine, x: ArrayLike, samples: int | None = Non
 
 
 def register_points(spine: AbstractSpine, points: Array, samples: int | None = None):
-    """Registers points (N, 3) on `spine` (batched projection, see `closest_arc_lengths`)."""
-    spine = spine._prepare()
-    finite = jnp.all(jnp.isfinite(points), axis=-1)
-    safe = jnp.where(finite[:, None], points, 0)
-    s, converged = closest_arc_lengths(spine, safe, samples)
-    registration = jax.vmap(lambda *a: _local_coordinates(spine, *a))(points, s, converged)
-    return eqx.tree_at(lambda r: r.length, registration, spine.length)
+    """Registers points (N, 3) on `spine` (batched projection in chunks, see
+    `closest_arc_lengths`)."""
+    registrar = Registrar(spine, samples)
+    registration = map_chunks(registrar.register, points)
+    return eqx.tree_at(lambda r: r.length, registration, registrar.spine.length)
 
 
 def _local_coordinates(spine: AbstractSpine, x: Array, s: Array, converged: Array):

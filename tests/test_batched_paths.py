@@ -1,7 +1,8 @@
 """The batched paths (`register`, `pose`, `flesh`) against the one-point global ones.
 
-The batched paths certify most projections with a lower bound of the spine's reach and run the
-global search only on the other points; results must be those of the one-point path.
+The batched paths certify most projections with a lower bound of the spine's reach, run the
+global search only on the other points, and work in chunks of points; results must be those of
+the one-point path.
 """
 
 import equinox as eqx
@@ -11,6 +12,8 @@ import numpy as np
 import pytest
 
 import fleshing_jax as fj
+from fleshing_jax import _chunks as chunks
+from fleshing_jax._chunks import map_chunks
 from fleshing_jax._compact import update_where
 from fleshing_jax._projection import closest_arc_lengths
 from fleshing_jax._reach import reach_lower_bound
@@ -97,3 +100,44 @@ def test_update_where(n):
     out = jax.jit(lambda v, w, i: update_where(w, function, v, i, chunk=64))(values, needed, inputs)
     expected = np.where(np.asarray(needed), np.sum(np.asarray(inputs[0]), -1) + np.arange(n), 0)
     np.testing.assert_allclose(np.asarray(out), expected)
+
+
+def test_map_chunks_equals_one_batch_with_gradients():
+    rng = np.random.default_rng(4)
+    inputs = {"x": jnp.asarray(rng.normal(size=(37, 3))), "w": jnp.asarray(rng.normal(size=37))}
+
+    def function(batch):  # per-point work, batched
+        return jnp.sin(batch["x"]).sum(-1) * batch["w"], batch["x"] ** 2
+
+    for chunk in (5, 37, 64):  # padded chunks, one exact chunk, one call
+        out = jax.jit(lambda i, c=chunk: map_chunks(function, i, chunk=c))(inputs)
+        jax.tree.map(np.testing.assert_allclose, out, function(inputs))
+    grad = jax.grad(lambda i: map_chunks(function, i, chunk=8)[0].sum())(inputs)
+    jax.tree.map(np.testing.assert_allclose, grad, jax.grad(lambda i: function(i)[0].sum())(inputs))
+
+
+def test_flesh_in_chunks_equals_one_point_path(monkeypatch):
+    # Chunks of 64 points: 397 points make 7 chunks, the last one padded.
+    monkeypatch.setattr(chunks, "CHUNK_POINTS", 64)
+    jax.clear_caches()  # the chunk size is read when tracing
+    target = fj.BSpline(U_TURN, degree=3)
+    source = fj.Line(float(target.length))
+    rng = np.random.default_rng(5)
+    n = 397
+    points = np.column_stack(
+        [rng.uniform(-0.3, float(target.length) + 0.3, n), rng.uniform(-0.6, 0.6, (n, 2))]
+    )
+    points[::50] = np.nan  # invalid points stay invalid, without disturbing the others
+    points = jnp.asarray(points)
+    fleshing = fj.Fleshing(source, target, method="normal", twist=0.2)
+    expected = jax.jit(jax.vmap(fleshing.apply))(points)
+    registration = fj.register(points, source)
+    for out, valid in (
+        fj.flesh(points, source, target, method="normal", twist=0.2),
+        fj.pose(registration, target, method="normal", twist=0.2),
+    ):
+        np.testing.assert_array_equal(np.asarray(valid), np.asarray(expected[1]))
+        np.testing.assert_allclose(np.asarray(out), np.asarray(expected[0]), atol=1e-10)
+    assert 0.3 < float(jnp.mean(expected[1])) < 0.99
+    monkeypatch.undo()
+    jax.clear_caches()

@@ -20,6 +20,7 @@ SCRIPT = textwrap.dedent(
     from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
     import fleshing_jax as fj
+    from fleshing_jax import _chunks as chunks
 
     devices = jax.devices()
     assert len(devices) == 4, devices
@@ -47,7 +48,11 @@ SCRIPT = textwrap.dedent(
         ("line-arc", "radial", True),
         ("bspline-bspline", "binormal", False),
     ]
-    for name, method, check in configurations:
+    # And in chunks of 16 points, fewer than the 64 points (the large-input path).
+    runs = [(chunks.CHUNK_POINTS, c) for c in configurations] + [(16, configurations[0])]
+    for chunk_size, (name, method, check) in runs:
+        chunks.CHUNK_POINTS = chunk_size
+        jax.clear_caches()  # the chunk size is read when tracing
         source, target = pairs[name]
         kwargs = dict(method=method, twist=0.3, check_projection=check)
         expected = fj.flesh(local, source, target, **kwargs)
