@@ -11,7 +11,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike
 
-from ._misc import as_float_array, check_positive, is_concrete, unit
+from ._misc import as_float_array, check_positive, dot, is_concrete, unit
 from ._spine import AbstractSpine, initial_normal
 
 
@@ -78,7 +78,7 @@ class Arc(AbstractSpine):
         self.origin = as_float_array(origin, "origin", (3,))
         t = unit(as_float_array(tangent, "tangent", (3,)), "tangent")
         n = as_float_array(normal, "normal", (3,))
-        n = unit(n - jnp.dot(n, t) * t, "normal (its part orthogonal to tangent)")
+        n = unit(n - dot(n, t) * t, "normal (its part orthogonal to tangent)")
         self.start_tangent, self.start_normal = t, n
         check_positive(self.radius, "radius")
         check_positive(self.length, "length")
@@ -97,7 +97,7 @@ class Arc(AbstractSpine):
         i0 = initial_normal(t)
         phi = s / self.radius
         principal = jnp.cos(phi) * n - jnp.sin(phi) * t  # the Frenet normal N(s)
-        normal = jnp.dot(i0, n) * principal + jnp.dot(i0, b) * b
+        normal = dot(i0, n) * principal + dot(i0, b) * b
         return normal, jnp.cross(jnp.cos(phi) * t + jnp.sin(phi) * n, normal)
 
     def _torsion(self, s):
@@ -157,7 +157,7 @@ class Helix(AbstractSpine):
         _, tangent0, normal0, binormal0 = self._frenet(jnp.zeros_like(s))
         _, tangent, normal, binormal = self._frenet(s)
         i0 = initial_normal(tangent0)
-        a, b = jnp.dot(i0, normal0), jnp.dot(i0, binormal0)
+        a, b = dot(i0, normal0), dot(i0, binormal0)
         angle = self._torsion(s) * s  # the RMF turns by −∫τ ds relative to Frenet
         cos, sin = jnp.cos(angle), jnp.sin(angle)
         normal_out = (a * cos + b * sin) * normal + (b * cos - a * sin) * binormal

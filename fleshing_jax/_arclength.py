@@ -21,7 +21,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array
 
-from ._misc import safe_divide
+from ._misc import dot, norm, safe_divide
 
 GAUSS_NODES = 8
 NEWTON_STEPS = 5
@@ -75,7 +75,7 @@ def _partial(coefficients: Array, a: Array, u: Array) -> Array:
     x, w = np.polynomial.legendre.leggauss(GAUSS_NODES)
     nodes = a + (u - a) * jnp.asarray((x + 1) / 2, u.dtype)
     speed = jnp.linalg.norm(piece_derivative(coefficients, nodes, 1), axis=-1)
-    return (u - a) * jnp.dot(jnp.asarray(w / 2, u.dtype), speed)
+    return (u - a) * dot(jnp.asarray(w / 2, u.dtype), speed)
 
 
 def locate(cumulative: Array, s: Array) -> Array:
@@ -106,11 +106,11 @@ def inverse(coefficients: Array, cumulative: Array, parts: int, s: Array):
 
     def newton(_, u):
         residual = sa + _partial(piece, a, u) - s_fixed
-        speed = jnp.linalg.norm(piece_derivative(piece, u, 1))
+        speed = norm(piece_derivative(piece, u, 1))
         u = u - safe_divide(residual, speed)
         return jnp.where(u < a, a, jnp.where(u > b, b, u))
 
     u = jax.lax.stop_gradient(jax.lax.fori_loop(0, NEWTON_STEPS, newton, u))
     live = coefficients[i]
     residual = cumulative[j] + _partial(live, a, u) - s
-    return i, u - safe_divide(residual, jnp.linalg.norm(piece_derivative(live, u, 1))), j
+    return i, u - safe_divide(residual, norm(piece_derivative(live, u, 1))), j

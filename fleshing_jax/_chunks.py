@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 from jaxtyping import PyTree
@@ -22,7 +23,8 @@ def map_chunks(function: Callable, inputs: PyTree, chunk: int | None = None) -> 
 
     **Arguments:** `function`: a batch of inputs (leading axis `n`) → a batch of outputs (same
     leading axis); it must treat points independently. `inputs`: pytree of arrays with leading
-    axis N. `chunk`: points per chunk (default `CHUNK_POINTS`).
+    axis N, and scalars shared by all points (passed to every chunk as they are). `chunk`:
+    points per chunk (default `CHUNK_POINTS`).
 
     **Returns:** the outputs, leading axis N, equal to `function(inputs)`. Batches of at most
     one chunk call `function` directly. Otherwise the batch is padded to whole chunks with
@@ -30,9 +32,10 @@ def map_chunks(function: Callable, inputs: PyTree, chunk: int | None = None) -> 
     padding dropped from the outputs. Differentiable (`lax.map` is a `scan`).
     """
     chunk = CHUNK_POINTS if chunk is None else int(chunk)
+    inputs, shared = per_point(inputs)
     n = jax.tree.leaves(inputs)[0].shape[0]
     if n <= chunk:
-        return function(inputs)
+        return function(eqx.combine(inputs, shared))
     count = -(-n // chunk)
 
     # Chunk `j` holds the points `j, j + count, j + 2 count, …`: strided, so that points sharded
@@ -47,4 +50,16 @@ def map_chunks(function: Callable, inputs: PyTree, chunk: int | None = None) -> 
     def join(a):
         return jnp.swapaxes(a, 0, 1).reshape(count * chunk, *a.shape[2:])[:n]
 
-    return jax.tree.map(join, jax.lax.map(function, jax.tree.map(split, inputs)))
+    outputs = jax.lax.map(lambda c: function(eqx.combine(c, shared)), jax.tree.map(split, inputs))
+    return jax.tree.map(join, outputs)
+
+
+def per_point(tree: PyTree) -> tuple[PyTree, PyTree]:
+    """`tree` split into its per-point arrays and its scalars (shared by all points), as by
+    `eqx.partition`; `eqx.combine` joins them again."""
+    return eqx.partition(tree, lambda leaf: jnp.ndim(leaf) > 0)
+
+
+def batch_axes(tree: PyTree) -> PyTree:
+    """`vmap` axes for `tree`: 0 for per-point arrays, `None` for shared scalars."""
+    return jax.tree.map(lambda leaf: 0 if jnp.ndim(leaf) > 0 else None, tree)

@@ -10,9 +10,12 @@ from __future__ import annotations
 
 from collections.abc import Callable
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, PyTree
+
+from ._chunks import per_point
 
 CHUNK = 32
 
@@ -27,8 +30,9 @@ def update_where(
     """`values` with entry `i` replaced by `function(inputs[i])` wherever `needed[i]`.
 
     **Arguments:** `needed`: (N,) bool; `function`: one point's inputs → one point's values;
-    `values`, `inputs`: pytrees of arrays with leading axis N. No gradients flow through the
-    update (use it for searches and flags).
+    `values`, `inputs`: pytrees of arrays with leading axis N (scalar leaves of `inputs` are
+    shared by all points). No gradients flow through the update (use it for searches and flags).
+    Nothing runs when no point needs it.
 
     **Returns:** the updated `values`.
     """
@@ -37,18 +41,22 @@ def update_where(
         return values
     chunk = min(chunk, n)
     padded = -(-n // chunk) * chunk
-    inputs = jax.lax.stop_gradient(inputs)
-    # Indices of the needed points first; the padding points at n (dropped when scattering).
-    (index,) = jnp.nonzero(needed, size=padded, fill_value=n)
-    count = jnp.sum(needed)
+    inputs, shared = per_point(jax.lax.stop_gradient(inputs))
 
-    def body(state):
-        start, values = state
-        where = jax.lax.dynamic_slice(index, (start,), (chunk,))
-        batch = jax.tree.map(lambda a: a.at[where].get(mode="clip"), inputs)
-        result = jax.vmap(function)(batch)
-        values = jax.tree.map(lambda v, r: v.at[where].set(r, mode="drop"), values, result)
-        return start + chunk, values
+    def run(values):
+        # Indices of the needed points first; the padding points at n (dropped when scattering).
+        (index,) = jnp.nonzero(needed, size=padded, fill_value=n)
+        count = jnp.sum(needed)
 
-    _, values = jax.lax.while_loop(lambda state: state[0] < count, body, (0, values))
-    return values
+        def body(state):
+            start, values = state
+            where = jax.lax.dynamic_slice(index, (start,), (chunk,))
+            batch = jax.tree.map(lambda a: a.at[where].get(mode="clip"), inputs)
+            result = jax.vmap(lambda b: function(eqx.combine(b, shared)))(batch)
+            values = jax.tree.map(lambda v, r: v.at[where].set(r, mode="drop"), values, result)
+            return start + chunk, values
+
+        return jax.lax.while_loop(lambda state: state[0] < count, body, (0, values))[1]
+
+    # Usually no point needs it: skip even the search for the indices.
+    return jax.lax.cond(jnp.any(needed), run, lambda values: values, values)

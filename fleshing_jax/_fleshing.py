@@ -18,11 +18,11 @@ import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike, Bool, Float
 
 from . import _chunks
-from ._chunks import map_chunks
+from ._chunks import batch_axes, map_chunks
 from ._compact import update_where
 from ._frames import twist_normals
 from ._maps import BEND, UNBEND, check_method
-from ._misc import as_float_array, cast_floats, relative_tolerance
+from ._misc import as_float_array, cast_floats, dot, norm, relative_tolerance
 from ._projection import (
     Registrar,
     Registration,
@@ -32,6 +32,7 @@ from ._projection import (
 )
 from ._reach import reach_lower_bound, search_range
 from ._spine import AbstractSpine
+from ._table import SpineTable, fast_evaluator
 
 
 def bend_point(
@@ -39,9 +40,11 @@ def bend_point(
 ) -> tuple[Array, Array, Array, Array]:
     """Unbends, transfers and bends one registered point onto `target`, without the global
     projection check: `(image (3,), valid, s₁, |d₁|)` (the image lies at offset `d₁` from
-    `C₁(s₁)`, in its normal plane)."""
+    `C₁(s₁)`, in its normal plane). Valid requires `s₁` inside the target's search range (its
+    ends continued a quarter turn at most), as the registration requires on the source."""
     reg = registration
     target = target._prepare()
+    lo, hi = search_range(target)
     stretch = target.length / reg.length
     s1 = stretch * reg.arc_length
     straight, unbent = UNBEND[method](reg.offset, reg.curvature)
@@ -49,11 +52,11 @@ def bend_point(
         straight = straight / jnp.sqrt(stretch)
     (c1, _, k1), normals = target.jet_and_normals(s1)
     i1, j1 = twist_normals(normals, twist)
-    k1_2d = jnp.stack([jnp.dot(k1, i1), jnp.dot(k1, j1)])
+    k1_2d = jnp.stack([dot(k1, i1), dot(k1, j1)])
     d1, bent = BEND[method](straight, k1_2d)
     image = c1 + d1[0] * i1 + d1[1] * j1
-    valid = reg.valid & unbent & bent & (1 - jnp.dot(k1_2d, d1) > 0)
-    return image, valid, s1, jnp.linalg.norm(d1)
+    valid = reg.valid & unbent & bent & (1 - dot(k1_2d, d1) > 0) & (s1 > lo) & (s1 < hi)
+    return image, valid, s1, norm(d1)
 
 
 def projects_back(target: AbstractSpine, image: Array, s1: Array, distance: Array) -> Array:
@@ -82,40 +85,57 @@ def pose_point(
 
 
 class Poser(eqx.Module):
-    """A target spine prepared for batched posing: its search range and a lower bound of its
-    reach (for the projection check), computed once for all points."""
+    """A target spine prepared for batched posing: its fast evaluator (`_table`) and a lower
+    bound of its reach (for the projection check), computed once for all points.
 
-    target: AbstractSpine  # prepared
+    Points are bent chunk by chunk (`bend`); the projection check is certified on the way for
+    the images closer to the target than the lower bound of its reach (`_reach`), and the few
+    others run the global search afterwards, all at once (`check`).
+    """
+
+    target: AbstractSpine | SpineTable  # what the points are bent with: `fast_evaluator`
     method: str = eqx.field(static=True)
     twist: Array
     check_projection: bool = eqx.field(static=True)
     reach: Array
-    lo: Array
-    hi: Array
 
     def __init__(self, target, method, twist, check_projection=True):
-        self.target = target._prepare()
+        self.target = fast_evaluator(target)
         self.method, self.twist, self.check_projection = method, twist, check_projection
-        self.lo, self.hi = search_range(self.target)
         self.reach = reach_lower_bound(self.target)
 
-    def pose(self, registration: Registration) -> tuple[Array, Array]:
-        """`pose_point` for a batch of registered points (`length` repeated per point):
-        `(images (n, 3), valid (n,))`.
+    def bend(self, registration: Registration) -> tuple[Array, ...]:
+        """`bend_point` for a batch of registered points (`length` shared or repeated per
+        point): `(images (n, 3), valid (n,))`, and with the projection check also
+        `(pending, s₁, |d₁|)`, each (n,): `valid` is then certified, `pending` marks the valid
+        images that still need the global search."""
 
-        The projection check is certified without a search for the images closer to the target
-        than the lower bound of its reach (`_reach`); only the others run the global search.
-        """
-        bend = jax.vmap(lambda reg: bend_point(reg, self.target, self.method, self.twist))
-        image, valid, s1, distance = bend(registration)
+        def bend(reg):
+            return bend_point(reg, self.target, self.method, self.twist)
+
+        axes = batch_axes(registration)
+        image, valid, s1, distance = jax.vmap(bend, in_axes=(axes,))(registration)
+        if not self.check_projection:
+            return image, valid
+        certified = valid & (distance < self.reach)
+        return image, certified, valid & ~certified, s1, distance
+
+    def check(self, image, certified, pending, s1, distance) -> Array:
+        """The validity of bent images (N,), from the outputs of `bend`: the global search
+        for the pending ones."""
+
+        def full(args):
+            return projects_back(self.target, *args)
+
+        return update_where(pending, full, certified, (image, s1, distance))
+
+    def finish(self, points: Array, bent: tuple[Array, ...]) -> tuple[Array, Array]:
+        """`(images (N, 3), valid (N,))` from the outputs of `bend` for all points; invalid
+        points are returned unchanged."""
+        image, valid = bent[:2]
         if self.check_projection:
-            certified = valid & (distance < self.reach) & (s1 > self.lo) & (s1 < self.hi)
-
-            def full(args):
-                return projects_back(self.target, *args)
-
-            valid = update_where(valid & ~certified, full, certified, (image, s1, distance))
-        return jnp.where(valid[:, None], image, registration.points), valid
+            valid = self.check(*bent)
+        return jnp.where(valid[:, None], image, points), valid
 
 
 def pose_points(
@@ -126,11 +146,8 @@ def pose_points(
     check_projection: bool = True,
 ) -> tuple[Array, Array]:
     """`pose_point` for registered points: `(images (N, 3), valid (N,))`, in chunks."""
-    n = registration.arc_length.shape[0]
-    per_point = eqx.tree_at(
-        lambda r: r.length, registration, jnp.broadcast_to(registration.length, (n,))
-    )
-    return map_chunks(Poser(target, method, twist, check_projection).pose, per_point)
+    poser = Poser(target, method, twist, check_projection)
+    return poser.finish(registration.points, map_chunks(poser.bend, registration))
 
 
 def flesh_points(
@@ -146,7 +163,7 @@ def flesh_points(
     never held in memory at once."""
     registrar = Registrar(source, samples)
     poser = Poser(target, method, twist, check_projection)
-    return map_chunks(lambda chunk: poser.pose(registrar.register(chunk)), points)
+    return poser.finish(points, map_chunks(lambda c: poser.bend(registrar.register(c)), points))
 
 
 class Fleshing(eqx.Module):

@@ -6,7 +6,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike
 
-from ._misc import safe_sqrt
+from ._misc import dot, safe_sqrt
 from ._rmf import METHODS, propagate
 from ._spine import AbstractSpine
 
@@ -80,7 +80,7 @@ def frenet_frame(spine: AbstractSpine, s: ArrayLike) -> tuple[Array, Array]:
     the rotation-minimising normals instead, so that the array never holds NaN.
     """
     _, tangent, k = spine.jet(s)
-    kappa = safe_sqrt(jnp.dot(k, k))
+    kappa = safe_sqrt(dot(k, k))
     defined = kappa > 0
     i, j = spine.jet_and_normals(s)[1]
     normal = jnp.where(defined, k / jnp.where(defined, kappa, 1), i)

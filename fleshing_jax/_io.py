@@ -31,8 +31,9 @@ _SCHEMA = {
     "helix": (Helix, {"radius": ("scalar", True), "pitch": ("scalar", True),
                       "length": ("scalar", True)}),
     "bspline": (BSpline, {"control_points": ("points", True), "degree": ("int", False),
-                          "knots": ("array_or_none", False)}),
-    "interpolatingpolynomial": (InterpolatingPolynomial, {"points": ("points", True)}),
+                          "knots": ("array_or_none", False), "subdivisions": ("int", False)}),
+    "interpolatingpolynomial": (InterpolatingPolynomial, {"points": ("points", True),
+                                                          "subdivisions": ("int", False)}),
     "polyline": (Polyline, {"points": ("points", True), "step": ("scalar_or_none", False)}),
 }  # fmt: skip
 _POSITIONAL = {"line": 1, "arc": 2, "helix": 3, "bspline": 1, "interpolatingpolynomial": 1,
@@ -57,9 +58,9 @@ def _arguments(spine: AbstractSpine) -> dict:
                 "length": tolist(spine.length)}  # fmt: skip
     if isinstance(spine, BSpline):
         return {"control_points": tolist(spine.control_points), "degree": spine.degree,
-                "knots": tolist(spine.knots)}  # fmt: skip
+                "knots": tolist(spine.knots), "subdivisions": spine.subdivisions}  # fmt: skip
     if isinstance(spine, InterpolatingPolynomial):
-        return {"points": tolist(spine.points)}
+        return {"points": tolist(spine.points), "subdivisions": spine.subdivisions}
     if isinstance(spine, Polyline):
         return {"points": tolist(spine.points), "step": spine.step}
     raise TypeError(f"`spine` must be one of {[c.__name__ for c, _ in _SCHEMA.values()]}, "

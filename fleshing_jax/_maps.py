@@ -18,7 +18,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array
 
-from ._misc import safe_divide, safe_sqrt
+from ._misc import dot, safe_divide, safe_sqrt
 
 METHODS = ("radial", "normal", "binormal", "skinning")
 _A = 2.0 / (3.0 * 3.0**0.5)  # the branch point of μ³ − μ = α
@@ -30,8 +30,8 @@ def _normal_part(d: Array, k: Array) -> tuple[Array, Array]:
     `x N = p k/κ²`; it vanishes as `κ → 0` (straight spines, inflections), where `N` is
     undefined: the safe division gives 0 there, with finite derivatives.
     """
-    p = jnp.dot(k, d)
-    return p, safe_divide(p, jnp.dot(k, k)) * k
+    p = dot(k, d)
+    return p, safe_divide(p, dot(k, k)) * k
 
 
 @jax.custom_jvp
@@ -67,13 +67,13 @@ def _cubic_root_jvp(primals, tangents):
 
 def radial_unbend(d: Array, k: Array) -> tuple[Array, Array]:
     """Radial unbending (eq. 7): `d* = d √(1 − (2/3) k·d)`."""
-    arg = 1 - (2.0 / 3.0) * jnp.dot(k, d)
+    arg = 1 - (2.0 / 3.0) * dot(k, d)
     return d * safe_sqrt(arg), arg > 0
 
 
 def radial_bend(d: Array, k: Array) -> tuple[Array, Array]:
     """Radial bending (eqs. 8–9): `d₁ = d/μ`, `μ³ − μ = α = −(2/3) k·d`; needs `α > −a`."""
-    alpha = -(2.0 / 3.0) * jnp.dot(k, d)
+    alpha = -(2.0 / 3.0) * dot(k, d)
     mu = cubic_root(alpha)
     return d / mu, alpha > -_A
 

@@ -53,6 +53,31 @@ def unit(vector: Array, name: str) -> Array:
     return vector / jnp.linalg.norm(vector)
 
 
+def dot(a: Array, b: Array) -> Array:
+    """`a·b` over the last axis (leading axes broadcast), as an explicit sum of products.
+
+    Not `jnp.dot`: batched by `vmap`, that becomes a reduction over a minor axis of length 3,
+    which XLA's CPU backend runs about 7× slower than these fused multiply-adds
+    (`benchmarks/README.md`). The per-point code of the batched paths uses this throughout.
+    """
+    return sum(a[..., i] * b[..., i] for i in range(a.shape[-1]))
+
+
+def norm(a: Array) -> Array:
+    """`|a|` over the last axis (see `dot`)."""
+    return jnp.sqrt(dot(a, a))
+
+
+def argmin(values: Array) -> Array:
+    """Index of the smallest entry along a short last axis (the first on ties), unrolled as
+    comparisons for the reason given in `dot`."""
+    best, index = values[..., 0], jnp.zeros(values.shape[:-1], jnp.int32)
+    for i in range(1, values.shape[-1]):
+        better = values[..., i] < best
+        best, index = jnp.where(better, values[..., i], best), jnp.where(better, i, index)
+    return index
+
+
 def safe_sqrt(x: Array) -> Array:
     """`sqrt(x)` for `x > 0`, and 0 (with zero derivative) for `x <= 0`."""
     positive = x > 0

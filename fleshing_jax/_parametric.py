@@ -27,7 +27,7 @@ import numpy as np
 from jaxtyping import Array
 
 from . import _arclength as arclength
-from ._misc import safe_divide
+from ._misc import dot, safe_divide
 from ._rmf import double_reflection, propagate
 from ._spine import AbstractTabulatedSpine, Evaluators, PreparedSpine, initial_normal
 
@@ -132,7 +132,7 @@ def torsion_at(tab: Tables, s):
     i, u, _ = _locate(tab, s)
     _, (c1, c2, c3) = _jet_of(tab.coefficients[i], u, order=3)
     b = jnp.cross(c1, c2)
-    return safe_divide(jnp.dot(b, c3), jnp.dot(b, b))
+    return safe_divide(dot(b, c3), dot(b, b))
 
 
 def length_of(tab: Tables):

@@ -25,7 +25,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike
 
-from ._misc import check_points, is_concrete, safe_divide, safe_sqrt
+from ._misc import check_points, dot, is_concrete, norm, safe_divide, safe_sqrt
 from ._rmf import propagate, reflect_twice
 from ._spine import AbstractTabulatedSpine, Evaluators, PreparedSpine, initial_normal
 
@@ -104,13 +104,13 @@ class Polyline(AbstractTabulatedSpine):
         if self.edges == 1:
             tangents = jnp.concatenate([units, units])
         else:  # ends: the next vertex tangent reflected about the end edge (exact on circles)
-            first = 2 * jnp.dot(units[0], inner[0]) * units[0] - inner[0]
-            last = 2 * jnp.dot(units[-1], inner[-1]) * units[-1] - inner[-1]
+            first = 2 * dot(units[0], inner[0]) * units[0] - inner[0]
+            last = 2 * dot(units[-1], inner[-1]) * units[-1] - inner[-1]
             tangents = jnp.concatenate([first[None], inner, last[None]])
         return v, cumulative, lengths, units, tangents
 
     def _prepare(self) -> PreparedSpine:
-        return PreparedSpine(_tables(self), EVALUATORS, self.samples)
+        return PreparedSpine(_tables(self), EVALUATORS, self.samples, tabulable=False)
 
     def default_samples(self) -> int:
         return self.samples
@@ -127,10 +127,10 @@ def _on_edge(table, s):
     a = (s - cumulative[k]) / lengths[k]
     position = v[k] + a * lengths[k] * units[k]
     blend = (1 - a) * tangents[k] + a * tangents[k + 1]
-    norm = jnp.linalg.norm(blend)
-    tangent = blend / norm
-    slope = (tangents[k + 1] - tangents[k]) / (norm * lengths[k])
-    curvature = slope - jnp.dot(slope, tangent) * tangent
+    size = norm(blend)
+    tangent = blend / size
+    slope = (tangents[k + 1] - tangents[k]) / (size * lengths[k])
+    curvature = slope - dot(slope, tangent) * tangent
     return k, (position, tangent, curvature)
 
 
@@ -162,9 +162,9 @@ def _torsion(tab, s):
     inside = (k >= 1) & (k <= lengths.shape[0] - 2)
     b0 = binormals[jnp.clip(k - 1, 0, binormals.shape[0] - 1)]
     b1 = binormals[jnp.clip(k, 0, binormals.shape[0] - 1)]
-    sin = jnp.dot(jnp.cross(b0, b1), units[k])
-    cos = jnp.dot(b0, b1)
-    defined = inside & (safe_sqrt(jnp.dot(b0, b0) * jnp.dot(b1, b1)) > 0) & (sin**2 + cos**2 > 0)
+    sin = dot(jnp.cross(b0, b1), units[k])
+    cos = dot(b0, b1)
+    defined = inside & (safe_sqrt(dot(b0, b0) * dot(b1, b1)) > 0) & (sin**2 + cos**2 > 0)
     angle = jnp.arctan2(jnp.where(defined, sin, 0), jnp.where(defined, cos, 1))
     return jnp.where(defined, safe_divide(angle, lengths[k]), 0)
 

@@ -18,9 +18,10 @@ from jaxtyping import Array, ArrayLike, Bool, Float
 
 from ._chunks import map_chunks
 from ._compact import update_where
-from ._misc import relative_tolerance, safe_divide
+from ._misc import argmin, dot, norm, relative_tolerance, safe_divide
 from ._reach import reach_lower_bound, search_range
 from ._spine import AbstractSpine
+from ._table import SpineTable, fast_evaluator
 
 NEWTON_STEPS = 8
 FAST_STEPS = 3  # Newton steps of the certified fast path (from a sample at most h away)
@@ -49,7 +50,7 @@ class _Search(eqx.Module):
         def newton(_, s):
             c, tangent, k = self.spine.jet(s)
             d = x - c
-            f, slope = -jnp.dot(d, tangent), 1 - jnp.dot(k, d)
+            f, slope = -dot(d, tangent), 1 - dot(k, d)
             # Outside the local reach Newton heads for a maximum: step downhill instead.
             step = jnp.where(slope > 0, -f / jnp.where(slope > 0, slope, 1), -jnp.sign(f) * h)
             step = jnp.where(jnp.abs(step) > h, jnp.sign(step) * h, step)
@@ -60,7 +61,7 @@ class _Search(eqx.Module):
 
     def global_start(self, x: Array) -> tuple[Array, Array]:
         """Newton from the best local minima of the sampled distance: `(s, unique)`."""
-        distances = jnp.sum((self.positions - x) ** 2, axis=-1)
+        distances = dot(self.positions - x, self.positions - x)
         inf = jnp.asarray(jnp.inf, distances.dtype)
         before = jnp.concatenate([inf[None], distances[:-1]])
         after = jnp.concatenate([distances[1:], inf[None]])
@@ -71,7 +72,7 @@ class _Search(eqx.Module):
         def solve(s):
             s = self.descend(x, s, NEWTON_STEPS)
             d = x - self.spine(s)
-            return s, jnp.dot(d, d)
+            return s, dot(d, d)
 
         starts, distance = jax.vmap(solve)(self.grid[index])
         distance = jnp.where(candidate, distance, inf)
@@ -91,12 +92,14 @@ class _Search(eqx.Module):
         `fast_start` certifies its result independently of where it started)."""
         last = self.grid.shape[0] - 1
         coarse = self.positions[:: BRANCH**self.levels]
-        best = jnp.argmin(jnp.sum((coarse - x) ** 2, axis=-1))
+        best = argmin(dot(coarse - x, coarse - x))
         offsets = jnp.arange(-BRANCH, BRANCH + 1)
+        columns = self.positions.T  # gathered one coordinate at a time: fast on XLA's CPU
         for level in range(1, self.levels + 1):
             stride = BRANCH ** (self.levels - level)
             index = jnp.clip(best * BRANCH + offsets, 0, last // stride) * stride
-            best = index[jnp.argmin(jnp.sum((self.positions[index] - x) ** 2, axis=-1))] // stride
+            distance = sum((column[index] - xi) ** 2 for column, xi in zip(columns, x))
+            best = index[argmin(distance)] // stride
         return best
 
     def fast_start(self, x: Array, reach: Array) -> tuple[Array, Array]:
@@ -105,8 +108,8 @@ class _Search(eqx.Module):
         s = self.descend(x, self.grid[self.nearby_sample(x)], FAST_STEPS)
         c, tangent, _ = self.spine.jet(s)
         d = x - c
-        distance = jnp.linalg.norm(d)
-        stationary = jnp.abs(jnp.dot(d, tangent)) <= relative_tolerance(x.dtype) * (1 + distance)
+        distance = norm(d)
+        stationary = jnp.abs(dot(d, tangent)) <= relative_tolerance(x.dtype) * (1 + distance)
         return s, stationary & (distance < reach) & (s > self.lo) & (s < self.hi)
 
 
@@ -124,10 +127,10 @@ def _polish(spine: AbstractSpine, search: _Search, x: Array, s: Array) -> tuple[
     is a stationary point strictly inside the searched range."""
     c, tangent, k = spine.jet(s)
     d = x - c
-    f, slope = -jnp.dot(d, tangent), 1 - jnp.dot(k, d)
+    f, slope = -dot(d, tangent), 1 - dot(k, d)
     s = s - safe_divide(f, jnp.where(slope > 0, slope, 0))
     tol = relative_tolerance(x.dtype)
-    converged = (jnp.abs(f) <= tol * (1 + jnp.linalg.norm(d))) & (s > search.lo) & (s < search.hi)
+    converged = (jnp.abs(f) <= tol * (1 + norm(d))) & (s > search.lo) & (s < search.hi)
     return s, converged
 
 
@@ -159,13 +162,13 @@ class Registrar(eqx.Module):
     """A spine prepared for batched registration: its search samples and a lower bound of its
     reach, computed once for all points (see `closest_arc_lengths`)."""
 
-    spine: AbstractSpine  # prepared
+    spine: AbstractSpine | SpineTable  # prepared, or tabulated in single precision
     search: _Search
     reach: Array
 
     def __init__(self, spine: AbstractSpine, samples: int | None = None):
         samples = spine.default_samples() if samples is None else samples
-        self.spine = spine._prepare()
+        self.spine = fast_evaluator(spine)
         self.search = _search(self.spine, samples)
         self.reach = reach_lower_bound(self.spine)
 
@@ -241,7 +244,7 @@ def _local_coordinates(spine: AbstractSpine, x: Array, s: Array, converged: Arra
     finite = jnp.all(jnp.isfinite(x))
     (c, _, k), (i, j) = spine.jet_and_normals(s)
     d = jnp.where(finite, x, 0) - c
-    offset = jnp.stack([jnp.dot(d, i), jnp.dot(d, j)])
-    curvature = jnp.stack([jnp.dot(k, i), jnp.dot(k, j)])
-    valid = finite & converged & (1 - jnp.dot(curvature, offset) > 0)
+    offset = jnp.stack([dot(d, i), dot(d, j)])
+    curvature = jnp.stack([dot(k, i), dot(k, j)])
+    valid = finite & converged & (1 - dot(curvature, offset) > 0)
     return Registration(x, s, offset, curvature, valid, spine.length)

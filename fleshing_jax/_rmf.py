@@ -23,20 +23,20 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array
 
-from ._misc import safe_divide, safe_sqrt
+from ._misc import dot, norm, safe_divide, safe_sqrt
 
 METHODS = ("double_reflection", "projection")
 
 
 def _reflect(v: Array, normal: Array, normal_sq: Array) -> Array:
     """Reflection of `v` in the plane through 0 orthogonal to `normal` (identity if it is 0)."""
-    return v - 2 * safe_divide(jnp.dot(v, normal), normal_sq) * normal
+    return v - 2 * safe_divide(dot(v, normal), normal_sq) * normal
 
 
 def orthonormalise(r: Array, tangent: Array) -> Array:
     """`r` made orthogonal to the unit `tangent` and normalised, (3,)."""
-    r = r - jnp.dot(r, tangent) * tangent
-    return r / jnp.linalg.norm(r)
+    r = r - dot(r, tangent) * tangent
+    return r / norm(r)
 
 
 def reflect_twice(chord: Array, t0: Array, r0: Array, t1: Array) -> Array:
@@ -46,11 +46,11 @@ def reflect_twice(chord: Array, t0: Array, r0: Array, t1: Array) -> Array:
     `chord` only needs the direction of `x₁ − x₀` (its length does not matter); a zero chord
     means a zero step, where the result is `r0` re-orthogonalised.
     """
-    c1 = jnp.dot(chord, chord)
+    c1 = dot(chord, chord)
     r_l = _reflect(r0, chord, c1)
     t_l = _reflect(t0, chord, c1)
     v2 = t1 - t_l
-    return orthonormalise(_reflect(r_l, v2, jnp.dot(v2, v2)), t1)
+    return orthonormalise(_reflect(r_l, v2, dot(v2, v2)), t1)
 
 
 def double_reflection(x0, t0, r0, x1, t1, k0=None) -> Array:
@@ -64,7 +64,7 @@ def double_reflection(x0, t0, r0, x1, t1, k0=None) -> Array:
     **Returns:** the (3,) unit normal at `x₁`, exactly orthogonal to `t₁`.
     """
     chord = x1 - x0
-    c1 = jnp.dot(chord, chord)
+    c1 = dot(chord, chord)
     scale = jnp.max(jnp.abs(x0)) + safe_sqrt(c1)
     short = c1 <= (np.finfo(np.dtype(x0.dtype)).eps ** (1 / 3) * scale) ** 2
     h = safe_sqrt(jnp.where(short, c1, 0))

@@ -19,7 +19,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike
 
-from ._misc import safe_sqrt
+from ._misc import dot, norm, safe_sqrt
 
 
 def initial_normal(tangent: Array) -> Array:
@@ -37,8 +37,8 @@ def initial_normal(tangent: Array) -> Array:
     # from the axes, where fits and straight rest spines live.
     margin = jnp.asarray([0.0, 1e-4, 2e-4], tangent.dtype)
     axis = jnp.eye(3, dtype=tangent.dtype)[jnp.argmin(jnp.abs(tangent) + margin)]
-    normal = axis - jnp.dot(axis, tangent) * tangent
-    return normal / jnp.linalg.norm(normal)
+    normal = axis - dot(axis, tangent) * tangent
+    return normal / norm(normal)
 
 
 def _circle_functions(kk: Array, t: Array) -> tuple[Array, Array, Array]:
@@ -62,14 +62,14 @@ def _continue(jet: tuple[Array, Array, Array], normals: tuple[Array, Array], t: 
     rotation-minimising frame is the end frame rotated with the tangent about the binormal.
     """
     c, tangent, k = jet
-    kk = jnp.dot(k, k)
+    kk = dot(k, k)
     cos, sin_k, vers_kk = _circle_functions(kk, t)
     position = c + sin_k * tangent + vers_kk * k
     new_tangent = cos * tangent + sin_k * k
     new_k = cos * k - kk * sin_k * tangent
 
     def rotate(v):  # the rotation taking T to the new tangent, applied to v ⟂ T
-        return v - jnp.dot(v, k) * (vers_kk * k + sin_k * tangent)
+        return v - dot(v, k) * (vers_kk * k + sin_k * tangent)
 
     return (position, new_tangent, new_k), tuple(rotate(v) for v in normals)
 
@@ -120,6 +120,11 @@ class AbstractSpine(eqx.Module):
     def default_samples(self) -> int:
         """How many samples the coarse closest-point search uses on this spine (static)."""
         return 128
+
+    def _tabulable(self) -> bool:
+        """Whether the batched single-precision paths may evaluate this spine through a table of
+        cubic pieces (`_table`): smooth spines yes, piecewise ones (polylines) no (static)."""
+        return True
 
     def _split(self, s: ArrayLike) -> tuple[Array, Array, Array]:
         """`s` clamped to `[0, length]`, and the signed overshoots before 0 and past `length`.
@@ -176,7 +181,7 @@ class AbstractSpine(eqx.Module):
 
         def reach(s):
             k = self._jet(s)[2]
-            kappa = safe_sqrt(jnp.dot(k, k))
+            kappa = safe_sqrt(dot(k, k))
             return jnp.minimum(self.length, 0.5 * jnp.pi / jnp.maximum(kappa, 1e-30))
 
         return reach(jnp.zeros_like(self.length)), reach(self.length)
@@ -203,9 +208,11 @@ class PreparedSpine(AbstractSpine):
     tables: object
     functions: Evaluators = eqx.field(static=True)
     samples: int = eqx.field(static=True)
+    tabulable: bool = eqx.field(static=True)
 
-    def __init__(self, tables, functions: Evaluators, samples: int):
+    def __init__(self, tables, functions: Evaluators, samples: int, tabulable: bool = True):
         self.tables, self.functions, self.samples = tables, functions, samples
+        self.tabulable = tabulable
 
     @property
     def length(self):
@@ -231,6 +238,9 @@ class PreparedSpine(AbstractSpine):
 
     def default_samples(self) -> int:
         return self.samples
+
+    def _tabulable(self) -> bool:
+        return self.tabulable
 
     def _prepare(self):
         return self

@@ -183,6 +183,20 @@ def test_gradient_wrt_spine_parameter(method):
     np.testing.assert_allclose(grad, fd, rtol=1e-6)
 
 
+@pytest.mark.parametrize("method", ["radial", "normal", "binormal"])
+def test_gradient_wrt_source_spine_parameter(method):
+    # Through the registration on the source: the closest projection's implicit derivative.
+    x = jnp.array([1.2, 0.25, -0.3])
+
+    def mapped(radius):
+        source = fj.Arc(radius, 3.0, normal=(0, 1, 0))
+        return fj.Fleshing(source, fj.Helix(2.0, 1.0, 3.0), method=method, twist=0.5)(x)
+
+    np.testing.assert_allclose(
+        jax.jit(jax.jacfwd(mapped))(2.5), central_difference(mapped, 2.5), rtol=1e-6, atol=1e-8
+    )
+
+
 def test_gradient_wrt_twist():
     x = jnp.array([1.2, 0.25, -0.3])
 

@@ -8,6 +8,7 @@ the outputs they were committed with.
 import os
 from pathlib import Path
 
+import jax
 import nbclient
 import nbformat
 import pytest
@@ -33,6 +34,12 @@ def test_notebook_runs(path, monkeypatch):
     # The kernel inherits the environment: import this checkout, not another installed copy.
     path_entries = [str(ROOT), *filter(None, [os.environ.get("PYTHONPATH")])]
     monkeypatch.setenv("PYTHONPATH", os.pathsep.join(path_entries))
+    # Share the tests' persistent compilation cache (see conftest.py) with the kernels.
+    monkeypatch.setenv("JAX_COMPILATION_CACHE_DIR", jax.config.jax_compilation_cache_dir)
+    monkeypatch.setenv(
+        "JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS",
+        str(jax.config.jax_persistent_cache_min_compile_time_secs),
+    )
     client = nbclient.NotebookClient(
         nb,
         timeout=300,

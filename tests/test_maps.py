@@ -1,0 +1,54 @@
+"""The closed-form maps' building blocks: the radial cubic and its safe branches."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from conftest import central_difference
+
+import fleshing_jax as fj
+
+A = 2 / (3 * np.sqrt(3))  # the branch point of μ³ − μ = α
+
+
+def test_cubic_root_solves_the_cubic_on_both_branches():
+    alpha = jnp.concatenate([jnp.linspace(-A, A, 2001), jnp.linspace(A, 50.0, 2001)])
+    mu = jax.vmap(fj.cubic_root)(alpha)
+    np.testing.assert_allclose(mu**3 - mu, alpha, atol=1e-13, rtol=1e-13)
+    assert float(fj.cubic_root(0.0)) == 1.0
+    # The branch through μ(0) = 1: increasing, from 1/√3 at α = −a, through 2/√3 at α = a.
+    assert np.all(np.diff(np.asarray(mu)) >= 0)
+    np.testing.assert_allclose(float(fj.cubic_root(-A)), 1 / np.sqrt(3), atol=1e-7)
+    np.testing.assert_allclose(float(fj.cubic_root(A)), 2 / np.sqrt(3), atol=1e-14)
+
+
+def test_cubic_root_gradients_are_finite_at_the_branch_points():
+    grad = jax.jit(jax.vmap(jax.grad(fj.cubic_root)))
+    # Where arccos hands over to arccosh (α = a), on both sides and exactly there.
+    near_a = jnp.asarray([A - 1e-9, A, A + 1e-9])
+    slopes = grad(near_a)
+    mu = jax.vmap(fj.cubic_root)(near_a)
+    np.testing.assert_allclose(slopes, 1 / (3 * mu**2 - 1), rtol=1e-12)
+    np.testing.assert_allclose(slopes, 1 / 3, rtol=1e-6)  # μ = 2/√3: 1/(3·4/3 − 1)
+    # Towards the double root (α → −a) the slope grows like 1/√(α + a), but stays finite;
+    # exactly at −a (the edge of the valid space) it is reported as 0, never NaN.
+    edge = grad(jnp.asarray([-A + 1e-6, -A + 1e-12, -A]))
+    assert np.all(np.isfinite(np.asarray(edge)))
+    assert float(edge[0]) > 100
+    # And the slope is the derivative of the values away from the branch points.
+    for alpha in (-0.3, 0.0, 0.2, 1.0, 10.0):
+        np.testing.assert_allclose(
+            grad(jnp.asarray([alpha]))[0], central_difference(fj.cubic_root, alpha), rtol=1e-7
+        )
+
+
+def test_radial_map_gradient_through_the_branch_switch():
+    # A point whose bend parameter α crosses the arccos/arccosh switch as the target bends.
+    source, x = fj.Line(3.0), jnp.asarray([1.5, -0.5, 0.0])
+
+    def mapped(radius):
+        return fj.Fleshing(source, fj.Arc(radius, 3.0, normal=(0, 1, 0)), twist=0.0)(x)
+
+    for radius in (0.6, 0.8659, 1.5):
+        jac = jax.jacfwd(mapped)(radius)
+        assert np.all(np.isfinite(np.asarray(jac)))
+        np.testing.assert_allclose(jac, central_difference(mapped, radius), rtol=1e-5, atol=1e-7)

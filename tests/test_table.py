@@ -1,0 +1,108 @@
+"""The tabulated spines of the single-precision batched paths (`_table`).
+
+The table replaces the exact spine in `register`, `pose` and `flesh` for float32 points only: its
+interpolation error must sit far below float32's resolution, so that those paths give what the
+exact spines give, to float32 round-off (and float64 keeps the exact spines).
+"""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from conftest import cloud
+
+import fleshing_jax as fj
+from fleshing_jax._table import SpineTable, fast_evaluator
+
+TORSION = [[0, 0, 0], [1, 0.4, 0.1], [2, 0.1, 0.6], [3, -0.5, 0.4], [4, 0, 0.2], [5, 0.3, 0.8]]
+INFLECTION = [[0, 0, 0], [1, 1, 0], [2, 0, 0.5], [3, -1, 0], [4, 0, 0.3], [5, 1, 1.0]]
+ZOO = {
+    "arc": fj.Arc(3.0, 4.0),
+    "tight-arc": fj.Arc(0.5, 3.0),
+    "helix": fj.Helix(2.0, 3.0, 8.0),
+    "bspline-torsion": fj.BSpline(TORSION),
+    "bspline-inflection": fj.BSpline(INFLECTION),
+    "polynomial": fj.InterpolatingPolynomial(
+        [[0, 0, 0], [1, 0.5, 0.2], [2, 0.2, 0.5], [3, -0.3, 0.4]]
+    ),
+}
+
+
+def _values(spine, s):
+    (c, t, k), (i, j) = spine.jet_and_normals(s)
+    return jnp.concatenate([c, t, k, i, j])
+
+
+@pytest.mark.parametrize("name", sorted(ZOO))
+def test_table_matches_the_spine_over_its_search_range(name):
+    # Built in float64, so that what is measured is the interpolation error alone.
+    spine = ZOO[name]._prepare()
+    table = SpineTable(spine, max(128, spine.default_samples()))
+    assert float(table.lo) < 0 and float(table.hi) > float(spine.length)
+    s = jnp.linspace(table.lo, table.hi, 5001)
+    exact = jax.vmap(lambda t: _values(spine, t))(s)
+    tabulated = jax.vmap(lambda t: _values(table, t))(s)
+    error = np.abs(np.asarray(exact - tabulated))
+    # Position, tangent and normals to 1e-7, curvature to 1e-6: below float32's resolution
+    # once multiplied by the offsets (≲ the reach, ≲ 1/κ).
+    assert error[:, :6].max() < 1e-7 and error[:, 9:].max() < 1e-7, error.max(axis=0)
+    assert error[:, 6:9].max() < 1e-6, error[:, 6:9].max()
+
+
+def test_fast_evaluator_is_exact_in_float64_and_for_polylines():
+    assert not isinstance(fast_evaluator(fj.Arc(3.0, 4.0)), SpineTable)  # float64 (conftest)
+    arc32 = fj.Arc(np.float32(3.0), np.float32(4.0))
+    assert isinstance(fast_evaluator(arc32), SpineTable)
+    polyline = fj.Polyline(np.asarray(INFLECTION, np.float32))
+    assert not isinstance(fast_evaluator(polyline), SpineTable)
+
+
+PAIRS = {
+    "line-arc": (fj.Line(4.0), fj.Arc(3.0, 4.0)),
+    "helix-helix": (fj.Helix(2.0, 3.0, 8.0), fj.Helix(1.5, -2.5, 8.0)),
+    "bspline-bspline": (fj.BSpline(TORSION), fj.BSpline(INFLECTION)),
+}
+
+
+@pytest.mark.parametrize("pair", sorted(PAIRS))
+@pytest.mark.parametrize("method", ["radial", "normal", "binormal"])
+def test_float32_batched_paths_agree_with_exact_float64(pair, method):
+    source, target = PAIRS[pair]
+    points = cloud(source, n=512, radius=0.25, seed=3, overshoot=0.05)
+    exact, valid = fj.flesh(points, source, target, method=method, twist=0.4)
+    fast, valid32 = fj.flesh(points.astype(np.float32), source, target, method=method, twist=0.4)
+    assert fast.dtype == jnp.float32
+    np.testing.assert_array_equal(np.asarray(valid32), np.asarray(valid))
+    assert np.mean(valid) > 0.9
+    scale = float(np.max(np.abs(exact)))
+    # float32 round-off through projection, frames and maps: a few ulps of the coordinates.
+    np.testing.assert_allclose(np.asarray(fast), np.asarray(exact), atol=2e-6 * scale)
+
+
+def test_float32_pose_gradient_through_the_table():
+    source = fj.BSpline(TORSION)
+    points = cloud(source, n=64, radius=0.2, seed=4)
+
+    def loss(control, dtype):
+        registration = fj.register(points.astype(dtype), source)
+        images, _ = fj.pose(registration, fj.BSpline(control.astype(dtype)), twist=0.3)
+        return jnp.sum(images.astype(jnp.float64) ** 2)
+
+    control = jnp.asarray(INFLECTION, jnp.float64)
+    exact = jax.grad(loss)(control, jnp.float64)
+    fast = jax.grad(loss)(control, jnp.float32)
+    assert np.all(np.isfinite(np.asarray(fast)))
+    np.testing.assert_allclose(np.asarray(fast), np.asarray(exact), rtol=1e-3, atol=1e-3)
+
+
+@pytest.mark.parametrize("dtype", [np.float64, np.float32])
+def test_images_beyond_the_target_search_range_are_invalid(dtype):
+    # A straight source is searched one length past its ends; a tight arc only a quarter turn
+    # (π/4 here). A point 2 past the source's end maps 2 past the arc's: outside its range.
+    source, target = fj.Line(4.0), fj.Arc(0.5, 4.0)
+    points = np.asarray([[6.0, 0.1, 0.0], [2.0, 0.1, 0.0]], dtype)
+    for check in (True, False):
+        _, valid = fj.flesh(points, source, target, check_projection=check)
+        np.testing.assert_array_equal(np.asarray(valid), [False, True])
+        M = fj.Fleshing(source, target, check_projection=check)
+        assert not bool(M.is_valid(points[0])) and bool(M.is_valid(points[1]))
