@@ -23,8 +23,15 @@ def _points_around(spine, count, seed, radius=(0.05, 0.3)):
     return np.asarray(c + r * (np.cos(angle) * i + np.sin(angle) * j))
 
 
-def test_det_j_on_bspline_pairs():
-    source, target = fj.BSpline(TORSION), fj.BSpline(INFLECTION)
+@pytest.mark.parametrize("kind", ["bspline", "polynomial"])
+def test_det_j_on_free_form_pairs(kind):
+    # A spine with torsion (a quintic B-spline, or the cubic through 4 of its points) → one
+    # with an inflection.
+    if kind == "bspline":
+        source = fj.BSpline(TORSION)
+    else:
+        source = fj.InterpolatingPolynomial(TORSION[::2])
+    target = fj.BSpline(INFLECTION)
     mid = float(target.length) / 2
     assert float(jnp.linalg.norm(target.curvature_vector(mid))) < 1e-10  # the inflection
     points = _points_around(source, 8, 0)
