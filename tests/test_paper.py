@@ -14,7 +14,9 @@ import fig6_genus2  # noqa: E402
 import fig7_sliding  # noqa: E402
 import fig8_10_resolution as fig8  # noqa: E402
 import table1_extrusion  # noqa: E402
-from _spiral import LogSpiral  # noqa: E402
+from _spiral import Piece, conical_spiral  # noqa: E402
+
+import fleshing_jax as fj  # noqa: E402
 
 
 def test_table1_round_off_vs_skinning():
@@ -62,13 +64,24 @@ def test_genus2_successive_bending():
     assert flesh2 * 100 < skin2
 
 
-def test_log_spiral_is_arc_length_parameterised():
-    spine = LogSpiral(8.0, 4.0)
+def test_spiral_piece_is_an_arc_length_spine_with_its_own_frame():
+    spiral = conical_spiral()
+    piece = Piece(spiral, 7.0, 4.0)
+    assert float(piece.torsion(2.0)) != 0  # a 3D curve
+    (_, t0, _), (i0, _) = piece.jet_and_normals(0.0)
+    np.testing.assert_allclose(i0, fj.initial_normal(t0), atol=1e-14)
     for s in (0.0, 1.3, 4.0):
         s = jnp.asarray(s)
-        position, tangent, curvature = spine.jet(s)
-        np.testing.assert_allclose(jax.jacfwd(spine)(s), tangent, atol=1e-12)
-        np.testing.assert_allclose(jax.jacfwd(spine.tangent)(s), curvature, atol=1e-12)
-        assert float(jnp.linalg.norm(tangent)) == pytest.approx(1.0)
-        i, j = spine.jet_and_normals(s)[1]
-        assert abs(float(i @ tangent)) < 1e-12 and abs(float(j @ tangent)) < 1e-12
+        position, tangent, curvature = piece.jet(s)
+        np.testing.assert_allclose(position, spiral(7.0 + s), atol=1e-12)
+        np.testing.assert_allclose(jax.jacfwd(piece)(s), tangent, atol=1e-10)
+        np.testing.assert_allclose(jax.jacfwd(piece.tangent)(s), curvature, atol=1e-8)
+        i, j = piece.jet_and_normals(s)[1]
+        np.testing.assert_allclose(
+            [i @ tangent, j @ tangent, i @ i, j @ j], [0, 0, 1, 1], atol=1e-12
+        )
+        # The base's frame turned by a constant angle (still rotation minimising), which
+        # `base_twist` undoes.
+        base = fj.rotation_minimizing_frame(spiral, 7.0 + s)
+        own = fj.rotation_minimizing_frame(piece, s, twist=piece.base_twist())
+        np.testing.assert_allclose(own, base, atol=1e-12)
