@@ -79,36 +79,35 @@ def deform_mesh(
     **Arguments:**
 
     - `mesh`: a `trimesh.Trimesh` (triangles; quad meshes as trimesh loads them, i.e. each quad
-      split in two triangles, vertex order kept), a `trimesh.PointCloud`, or an (N, 3) array
-      of points.
+      split in two triangles, vertex order kept), a `(vertices (N, 3), faces (F, k))` pair of
+      arrays for polygon meshes of any face size (quads: `k = 4`, as in the paper's §5.2), a
+      `trimesh.PointCloud`, or an (N, 3) array of points.
     - `source`, `target`: spines; `method` (one of `METHODS`) and `twist` (radians) as for
       `flesh`.
     - `chunk_size`, `progress`: see `flesh_chunked` (for large inputs).
 
     **Returns:** for a `Trimesh`, a new `Trimesh` with the input's faces, vertex order and
     visuals, its vertices fleshed, and the per-vertex validity (N,) bool in
-    `result.vertex_attributes["valid"]` (invalid vertices are left where they were). For a point
-    cloud or array, a `trimesh.PointCloud`, with the validity in `result.metadata["valid"]`.
+    `result.vertex_attributes["valid"]` (invalid vertices are left where they were). For a
+    `(vertices, faces)` pair, `(deformed vertices (N, 3), faces (the same array), valid (N,))`
+    (measure quad volumes with `fj.volume(deformed, faces)`). For a point cloud or array, a
+    `trimesh.PointCloud`, with the validity in `result.metadata["valid"]`.
     """
-    if isinstance(mesh, trimesh.Trimesh):
-        deformed, valid = flesh_chunked(
-            np.asarray(mesh.vertices),
-            source,
-            target,
-            method=method,
-            twist=twist,
-            chunk_size=chunk_size,
-            progress=progress,
-        )
-        result = mesh.copy()
-        result.vertices = deformed
-        result.vertex_attributes["valid"] = valid
-        return result
-    points = mesh.vertices if isinstance(mesh, trimesh.PointCloud) else mesh
-    if not isinstance(mesh, trimesh.PointCloud) and not hasattr(points, "shape"):
+    if isinstance(mesh, trimesh.Trimesh | trimesh.PointCloud):
+        points = mesh.vertices
+    elif isinstance(mesh, tuple) and len(mesh) == 2:
+        points, faces = mesh
+        faces = np.asarray(faces)
+        if faces.ndim != 2 or not np.issubdtype(faces.dtype, np.integer):
+            raise ValueError(f"`mesh` faces must be an (F, k) integer array, got {faces.shape}.")
+        if faces.size and (faces.min() < 0 or faces.max() >= len(points)):
+            raise ValueError(f"`mesh` faces must index its {len(points)} vertices.")
+    elif hasattr(mesh, "shape"):
+        points = mesh
+    else:
         raise TypeError(
-            "`mesh` must be a trimesh.Trimesh, trimesh.PointCloud or (N, 3) array, "
-            f"got {type(mesh)}."
+            "`mesh` must be a trimesh.Trimesh, a (vertices, faces) pair, a trimesh.PointCloud "
+            f"or an (N, 3) array, got {type(mesh)}."
         )
     deformed, valid = flesh_chunked(
         np.asarray(points),
@@ -119,6 +118,13 @@ def deform_mesh(
         chunk_size=chunk_size,
         progress=progress,
     )
+    if isinstance(mesh, trimesh.Trimesh):
+        result = mesh.copy()
+        result.vertices = deformed
+        result.vertex_attributes["valid"] = valid
+        return result
+    if isinstance(mesh, tuple):
+        return deformed, faces, valid
     cloud = trimesh.PointCloud(deformed)
     if isinstance(mesh, trimesh.PointCloud) and mesh.colors is not None and len(mesh.colors):
         cloud.colors = mesh.colors

@@ -60,6 +60,30 @@ def test_point_cloud(small):
         fj.deform_mesh("not a mesh", SOURCE, TARGET)
 
 
+def test_quad_mesh_as_vertices_and_faces():
+    # The paper's §5.2: quads kept as quads (trimesh would split them), volume of the bilinear
+    # patches preserved by fleshing and not by skinning.
+    vertices, quads = fj.genus2_slab(size=0.1)
+    # Along the spine (x ∈ [1, 3]) and off it in the bending plane, so that skinning's volume
+    # change is first order (a slab centred on the spine keeps its volume under skinning too).
+    vertices = vertices + np.array([1.0, 0.0, 0.2])
+    out, faces, valid = fj.deform_mesh((vertices, quads), SOURCE, TARGET, method="normal")
+    assert faces is quads or np.array_equal(faces, quads)
+    assert out.shape == vertices.shape and valid.all()
+    np.testing.assert_allclose(
+        out, np.asarray(fj.flesh(vertices, SOURCE, TARGET, method="normal")[0])
+    )
+    skinned, _, _ = fj.deform_mesh((vertices, quads), SOURCE, TARGET, method="skinning")
+    before = float(fj.volume(vertices, quads))
+    flesh_change = abs(float(fj.volume(out, quads)) / before - 1)
+    skin_change = abs(float(fj.volume(skinned, quads)) / before - 1)
+    assert flesh_change * 10 < skin_change
+    with pytest.raises(ValueError, match="faces must index"):
+        fj.deform_mesh((vertices, quads + len(vertices)), SOURCE, TARGET)
+    with pytest.raises(ValueError, match=r"\(F, k\) integer"):
+        fj.deform_mesh((vertices, quads.astype(float)), SOURCE, TARGET)
+
+
 def test_chunks_and_progress(small, bent):
     calls = []
     out, valid = fj.flesh_chunked(
