@@ -3,15 +3,19 @@
 float64 is enabled here (never in the library); float32 behaviour is tested explicitly.
 
 The suite's time is almost all XLA compilation, so the tests ask XLA for cheap compiles (the
-tests check values, not speed) and share compiled programs between the pytest-xdist workers
-through JAX's persistent compilation cache.
+tests check values, not speed): no backend optimisation, and XLA CPU's older loop emitters,
+which compile the suite's programs 1.7× faster than the MLIR fusion emitters (measured on the
+det J program: 3.3 s → 1.9 s). Compiled programs are shared between the pytest-xdist workers
+through JAX's persistent compilation cache. The notebooks' kernels inherit these flags.
 """
 
 import os
 from pathlib import Path
 
 os.environ.setdefault(
-    "XLA_FLAGS", "--xla_backend_optimization_level=0 --xla_llvm_disable_expensive_passes=true"
+    "XLA_FLAGS",
+    "--xla_backend_optimization_level=0 --xla_llvm_disable_expensive_passes=true"
+    " --xla_cpu_use_fusion_emitters=false",
 )
 
 import jax  # noqa: E402
