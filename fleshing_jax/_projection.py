@@ -163,19 +163,27 @@ class Registrar(eqx.Module):
     reach, computed once for all points (see `closest_arc_lengths`)."""
 
     spine: AbstractSpine | SpineTable  # prepared, or tabulated in single precision
+    exact: AbstractSpine  # prepared, gradients stopped: for a closed-form foot, if it has one
     search: _Search
     reach: Array
 
     def __init__(self, spine: AbstractSpine, samples: int | None = None):
         samples = spine.default_samples() if samples is None else samples
         self.spine = fast_evaluator(spine)
+        self.exact = jax.lax.stop_gradient(spine._prepare())
         self.search = _search(self.spine, samples)
         self.reach = reach_lower_bound(self.spine)
+
+    def start(self, x: Array) -> tuple[Array, Array]:
+        """`(s, certified)` for one point: the spine's closed-form foot (lines, arcs), else
+        Newton from a nearby sample (certified by the reach bound)."""
+        closed_form = self.exact._closest_start(x)
+        return self.search.fast_start(x, self.reach) if closed_form is None else closed_form
 
     def closest(self, points: Array) -> tuple[Array, Array]:
         """`(s (n,), converged (n,))` for a batch of finite points (n, 3)."""
         fixed = jax.lax.stop_gradient(points)
-        s, certified = jax.vmap(lambda x: self.search.fast_start(x, self.reach))(fixed)
+        s, certified = jax.vmap(self.start)(fixed)
         s, unique = update_where(~certified, self.search.global_start, (s, certified), fixed)
         s, converged = jax.vmap(lambda x, s: _polish(self.spine, self.search, x, s))(points, s)
         return s, converged & unique

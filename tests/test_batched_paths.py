@@ -65,6 +65,31 @@ def test_batched_projection_equals_global_search(shape):
     assert np.any(ok & (distance < reach)) and np.any(ok & (distance > reach))
 
 
+@pytest.mark.parametrize("dtype", [jnp.float64, jnp.float32])
+def test_closed_form_feet_of_lines_and_arcs_equal_the_global_search(dtype):
+    # Lines and arcs register through their closed-form foot (`_closest_start`): the same arc
+    # lengths and convergence as the global search, past the ends too, and no unique foot
+    # (an arc whose search range wraps more than a full turn: the same point of the circle at
+    # two arc lengths; points on its axis) reported as not converged.
+    rng = np.random.default_rng(5)
+    points = rng.uniform(-4.5, 4.5, (200, 3))
+    axis = np.array([[0.0, 1.0, 0.5], [0.0, 1.0, 2.0]])  # on the wrapped arc's axis
+    points = np.concatenate([points, axis])
+    tol = 1e-9 if dtype == jnp.float64 else 2e-4
+    line = fj.Line(4.0, origin=(-1, 0.5, 0), tangent=(1, 1, 0))
+    wrapped = fj.Arc(1.0, 5.0, origin=(0, 0, 0.5))
+    for spine in (line, fj.Arc(3.0, 4.0), wrapped):
+        s, ok = jax.jit(jax.vmap(lambda x: fj.closest_arc_length(spine, x)))(points)
+        batched, converged = eqx.filter_jit(closest_arc_lengths)(spine, points.astype(dtype))
+        converged = np.asarray(converged)
+        # The same verdicts, but within round-off of a tie in float32.
+        assert np.mean(converged != np.asarray(ok)) <= (0 if dtype == jnp.float64 else 0.02)
+        both = converged & np.asarray(ok)
+        np.testing.assert_allclose(np.asarray(batched)[both], np.asarray(s)[both], atol=tol)
+    assert not converged[-2:].any()
+    assert 0.2 < converged.mean() < 0.8  # the wrapped arc: many points have two feet
+
+
 @pytest.mark.parametrize("method", ["radial", "binormal"])
 def test_flesh_onto_u_turn_flags_images_near_the_other_branch(method):
     target = fj.BSpline(U_TURN, degree=3)

@@ -19,6 +19,19 @@ def test_cubic_root_solves_the_cubic_on_both_branches():
     assert np.all(np.diff(np.asarray(mu)) >= 0)
     np.testing.assert_allclose(float(fj.cubic_root(-A)), 1 / np.sqrt(3), atol=1e-7)
     np.testing.assert_allclose(float(fj.cubic_root(A)), 2 / np.sqrt(3), atol=1e-14)
+    # Far on the convex side (large α), where the starting guess comes from the exponent bits.
+    large = jnp.asarray([1.0, 1.0 + 1e-12, 7.5, 1e3, 1e6, 1e12, 1e30])
+    mu = jax.vmap(fj.cubic_root)(large)
+    np.testing.assert_allclose(mu**3 - mu, large, rtol=1e-15)
+
+
+def test_cubic_root_in_float32_matches_float64():
+    # The whole valid range but the ill-conditioned neighbourhood of the double root.
+    alpha = np.concatenate([np.linspace(-A + 1e-3, 3.0, 4001), np.geomspace(3.0, 1e30, 200)])
+    mu32 = jax.vmap(fj.cubic_root)(jnp.asarray(alpha, jnp.float32))
+    assert mu32.dtype == jnp.float32
+    mu64 = jax.vmap(fj.cubic_root)(jnp.asarray(alpha))
+    np.testing.assert_allclose(mu32, mu64, rtol=1e-6)
 
 
 def test_cubic_root_gradients_are_finite_at_the_branch_points():
