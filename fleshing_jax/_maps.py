@@ -34,26 +34,49 @@ def _normal_part(d: Array, k: Array) -> tuple[Array, Array]:
     return p, safe_divide(p, dot(k, k)) * k
 
 
-HALLEY_STEPS = 3  # from the starting guesses below: relative error ≤ 1e-15 (float64)
+HALLEY_STEPS = 3  # from the starting guesses of `_halley_root`: relative error ≤ 1e-15
 
 
 @jax.custom_jvp
 def cubic_root(alpha: Array) -> Array:
-    """The root `μ` of `μ³ − μ − α = 0` that equals 1 at `α = 0`, for `α ≥ −a`, `a = 2/(3√3)`.
+    """The root `μ` of `μ³ − μ − α = 0` that equals 1 at `α = 0` (closed form).
 
-    The closed form (`(2/√3) cos(arccos(α/a)/3)`, `cosh`/`arccosh` past `α = a`) costs four
-    transcendental functions per point, 16× the arithmetic below (the largest cost of `pose`,
-    benchmarks/README.md). Instead, `HALLEY_STEPS` Halley steps (cubic convergence) run from a
-    guess with relative error ≤ 12%: the expansion at the double root,
-    `1/√3 + √((α + a)/√3)`, for `α ≤ 1`, and `c + 1/(3c)` with `c ≈ ∛α` read off the
-    floating-point exponent (Kahan's bit trick, ±5%) for `α > 1`. Measured against a bisection
-    in extended precision: relative error ≤ 7e-16 (float64) and ≤ 5e-7 (float32, as the closed
-    form's) except within 1e-3 of the double root `α = −a`, where the root itself is
-    ill-conditioned (`dμ/dα → ∞`; ≤ 3e-10 in float64). For `α < −a` there is no such root (the
-    point is outside the valid space) and `1/√3` is returned. The derivative is
-    `1/(3μ² − 1)`.
+    With `a = 2/(3√3)`: `μ = (2/√3) cos(arccos(α/a)/3)` for `|α| ≤ a` and
+    `μ = (2/√3) cosh(arccosh(α/a)/3)` for `α > a`. For `α < −a` there is no such root (the point
+    is outside the valid space) and `1/√3` is returned. One Newton step polishes the root to
+    round-off. The derivative is `1/(3μ² − 1)`, finite at the branch point `α = a`.
+
+    In single precision the same root comes from `_halley_root` instead: the closed form's four
+    transcendental functions cost 16× its arithmetic, and were the largest kernel of the
+    batched `pose` (benchmarks/README.md); both agree to float32 round-off (tested).
     """
     alpha = jnp.asarray(alpha)
+    if alpha.dtype == jnp.float32:
+        return _halley_root(alpha)
+    z = alpha / _A
+    inside = jnp.clip(z, -1.0, 1.0)
+    outside = jnp.where(z > 1, z, 1.0)
+    scale = 2.0 / 3.0**0.5
+    mu = jnp.where(
+        z > 1,
+        scale * jnp.cosh(jnp.arccosh(outside) / 3),
+        scale * jnp.cos(jnp.arccos(inside) / 3),
+    )
+    slope = 3 * mu**2 - 1
+    # Newton polish, skipped near the double root μ = 1/√3 where it would be ill-conditioned.
+    step = safe_divide(mu**3 - mu - alpha, jnp.where(slope > 1e-2, slope, 0))
+    return mu - step
+
+
+def _halley_root(alpha: Array) -> Array:
+    """`cubic_root` by `HALLEY_STEPS` Halley steps (cubic convergence) from a guess within 12%:
+    the expansion at the double root, `1/√3 + √((α + a)/√3)`, for `α ≤ 1`, and `c + 1/(3c)`
+    with `c ≈ ∛α` read off the floating-point exponent for `α > 1`.
+
+    Measured against a bisection in extended precision: relative error ≤ 7e-16 in float64 and
+    ≤ 5e-7 in float32 (as the closed form's), except within 1e-3 of the double root `α = −a`,
+    where the root itself is ill-conditioned (`dμ/dα → ∞`).
+    """
     large = alpha > 1
     c = _cube_root_guess(jnp.where(large, alpha, 1))
     double_root = 3**-0.5 + jnp.sqrt(jnp.maximum(alpha + _A, 0) * 3**-0.5)

@@ -3,9 +3,11 @@
 import jax
 import jax.numpy as jnp
 import numpy as np
+import pytest
 from conftest import central_difference
 
 import fleshing_jax as fj
+from fleshing_jax._maps import _halley_root
 
 A = 2 / (3 * np.sqrt(3))  # the branch point of μ³ − μ = α
 
@@ -25,13 +27,17 @@ def test_cubic_root_solves_the_cubic_on_both_branches():
     np.testing.assert_allclose(mu**3 - mu, large, rtol=1e-15)
 
 
-def test_cubic_root_in_float32_matches_float64():
-    # The whole valid range but the ill-conditioned neighbourhood of the double root.
+def test_cubic_root_in_float32_matches_the_closed_form():
+    # float32 takes Halley steps (`_halley_root`), float64 the closed form: the same root over
+    # the whole valid range but the ill-conditioned neighbourhood of the double root, and the
+    # iteration itself to float64 round-off.
     alpha = np.concatenate([np.linspace(-A + 1e-3, 3.0, 4001), np.geomspace(3.0, 1e30, 200)])
     mu32 = jax.vmap(fj.cubic_root)(jnp.asarray(alpha, jnp.float32))
     assert mu32.dtype == jnp.float32
     mu64 = jax.vmap(fj.cubic_root)(jnp.asarray(alpha))
     np.testing.assert_allclose(mu32, mu64, rtol=1e-6)
+    np.testing.assert_allclose(_halley_root(jnp.asarray(alpha)), mu64, rtol=2e-15)
+    assert float(_halley_root(jnp.asarray(-A))) == pytest.approx(1 / np.sqrt(3), abs=1e-7)
 
 
 def test_cubic_root_gradients_are_finite_at_the_branch_points():
