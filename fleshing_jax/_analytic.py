@@ -45,10 +45,9 @@ class Line(AbstractSpine):
     def _torsion(self, s):
         return jnp.zeros_like(s)
 
-    def _closest_start(self, x):
+    def _closest_start(self, x, lo, hi):
         # The continuation of a line is the line: the foot is unique everywhere.
         s = dot(x - self.origin, self.direction)
-        lo, hi = -self.extension()[0], self.length + self.extension()[1]
         return s, (s > lo) & (s < hi)
 
 
@@ -109,14 +108,13 @@ class Arc(AbstractSpine):
     def _torsion(self, s):
         return jnp.zeros_like(s)
 
-    def _closest_start(self, x):
+    def _closest_start(self, x, lo, hi):
         # The continuation of an arc is its circle: the foot is where the point's direction
         # from the centre meets it, at the angle φ from the start, s = R (φ + 2πm).
         t, n, r = self.start_tangent, self.start_normal, self.radius
         v = x - (self.origin + r * n)
         a, b = -dot(v, n), dot(v, t)
         phi = jnp.arctan2(b, a)
-        lo, hi = -self.extension()[0], self.length + self.extension()[1]
         turn = 2 * jnp.pi * r
         s = r * phi + turn * jnp.ceil((lo - r * phi) / turn)  # the first candidate past lo
         # Unique: off the axis, and the next candidate (the same point of the circle, a turn

@@ -160,7 +160,8 @@ def closest_arc_length(spine: AbstractSpine, x: Array, samples: int | None = Non
 
 class Registrar(eqx.Module):
     """A spine prepared for batched registration: its search samples and a lower bound of its
-    reach, computed once for all points (see `closest_arc_lengths`)."""
+    reach, computed once for all points, and its closed-form foot where it has one (lines,
+    arcs; see `closest_arc_lengths`)."""
 
     spine: AbstractSpine | SpineTable  # prepared, or tabulated in single precision
     exact: AbstractSpine  # prepared, gradients stopped: for a closed-form foot, if it has one
@@ -169,15 +170,16 @@ class Registrar(eqx.Module):
 
     def __init__(self, spine: AbstractSpine, samples: int | None = None):
         samples = spine.default_samples() if samples is None else samples
+        spine = spine._prepare()
         self.spine = fast_evaluator(spine)
-        self.exact = jax.lax.stop_gradient(spine._prepare())
+        self.exact = jax.lax.stop_gradient(spine)
         self.search = _search(self.spine, samples)
         self.reach = reach_lower_bound(self.spine)
 
     def start(self, x: Array) -> tuple[Array, Array]:
         """`(s, certified)` for one point: the spine's closed-form foot (lines, arcs), else
         Newton from a nearby sample (certified by the reach bound)."""
-        closed_form = self.exact._closest_start(x)
+        closed_form = self.exact._closest_start(x, self.search.lo, self.search.hi)
         return self.search.fast_start(x, self.reach) if closed_form is None else closed_form
 
     def closest(self, points: Array) -> tuple[Array, Array]:
@@ -200,7 +202,8 @@ def closest_arc_lengths(spine: AbstractSpine, points: Array, samples: int | None
 
     Same results, less work: each point first runs Newton from a nearby sample, and the result
     is certified global when the point is closer to its foot than a lower bound of the spine's
-    reach (`_reach`); only the other points run the global multi-candidate search. Points are
+    reach (`_reach`) — or, on lines and arcs, takes the closed-form foot, certified when unique
+    in the search range; only the other points run the global multi-candidate search. Points are
     processed in chunks (`_chunks`), so memory does not grow with intermediates per point.
     """
     return map_chunks(Registrar(spine, samples).closest, points)

@@ -126,11 +126,11 @@ class AbstractSpine(eqx.Module):
         cubic pieces (`_table`): smooth spines yes, piecewise ones (polylines) no (static)."""
         return True
 
-    def _closest_start(self, x: Array) -> tuple[Array, Array] | None:
-        """A closed-form closest projection of `x` (3,) on the continued spine, for the batched
-        registration: `(s, certified)`, certified when `s` is the unique closest point strictly
-        inside the search range. `None` (the default) where there is no closed form: the
-        batched registration then searches (`_projection`)."""
+    def _closest_start(self, x: Array, lo: Array, hi: Array) -> tuple[Array, Array] | None:
+        """A closed-form closest projection of `x` (3,) on the spine continued over the search
+        range `[lo, hi]`, for the batched registration: `(s, certified)`, certified when `s` is
+        the unique closest point strictly inside the range. `None` (the default) where there is
+        no closed form: the batched registration then searches (`_projection`)."""
         return None
 
     def _split(self, s: ArrayLike) -> tuple[Array, Array, Array]:
