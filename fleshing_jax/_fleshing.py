@@ -20,7 +20,6 @@ from jaxtyping import Array, ArrayLike, Bool, Float
 from . import _chunks
 from ._chunks import batch_axes, map_chunks
 from ._compact import update_where
-from ._frames import twist_normals
 from ._maps import BEND, UNBEND, check_method
 from ._misc import as_float_array, cast_floats, dot, norm, relative_tolerance
 from ._projection import (
@@ -30,32 +29,31 @@ from ._projection import (
     register_point,
     register_points,
 )
-from ._reach import reach_lower_bound, search_range
+from ._reach import reach_lower_bound
 from ._spine import AbstractSpine
-from ._table import SpineTable, fast_evaluator
+from ._table import SpineTable, fast_evaluator, tabulates
+from ._target import TargetFrames
 
 
 def bend_point(
-    registration: Registration, target: AbstractSpine, method: str, twist: Array
+    registration: Registration, frames: TargetFrames, method: str
 ) -> tuple[Array, Array, Array, Array]:
-    """Unbends, transfers and bends one registered point onto `target`, without the global
-    projection check: `(image (3,), valid, s₁, |d₁|)` (the image lies at offset `d₁` from
-    `C₁(s₁)`, in its normal plane). Valid requires `s₁` inside the target's search range (its
-    ends continued a quarter turn at most), as the registration requires on the source."""
+    """Unbends, transfers and bends one registered point onto the target whose (twisted)
+    `frames` are given, without the global projection check: `(image (3,), valid, s₁, |d₁|)`
+    (the image lies at offset `d₁` from `C₁(s₁)`, in its normal plane). Valid requires `s₁`
+    inside the target's search range (its ends continued a quarter turn at most), as the
+    registration requires on the source."""
     reg = registration
-    target = target._prepare()
-    lo, hi = search_range(target)
-    stretch = target.length / reg.length
+    stretch = frames.length / reg.length
     s1 = stretch * reg.arc_length
     straight, unbent = UNBEND[method](reg.offset, reg.curvature)
     if method != "skinning":  # skinning is the uncorrected baseline: offsets carried rigidly
         straight = straight / jnp.sqrt(stretch)
-    (c1, _, k1), normals = target.jet_and_normals(s1)
-    i1, j1 = twist_normals(normals, twist)
-    k1_2d = jnp.stack([dot(k1, i1), dot(k1, j1)])
+    c1, i1, j1, k1_2d = frames(s1)
     d1, bent = BEND[method](straight, k1_2d)
     image = c1 + d1[0] * i1 + d1[1] * j1
-    valid = reg.valid & unbent & bent & (1 - dot(k1_2d, d1) > 0) & (s1 > lo) & (s1 < hi)
+    inside = (s1 > frames.lo) & (s1 < frames.hi)
+    valid = reg.valid & unbent & bent & (1 - dot(k1_2d, d1) > 0) & inside
     return image, valid, s1, norm(d1)
 
 
@@ -78,64 +76,55 @@ def pose_point(
     Invalid points are returned unchanged (their image is computed from safe values and
     discarded, so that neither values nor gradients of other points are affected).
     """
-    image, valid, s1, distance = bend_point(registration, target, method, twist)
+    target = target._prepare()
+    image, valid, s1, distance = bend_point(registration, TargetFrames(target, twist), method)
     if check_projection:
         valid = valid & projects_back(target, image, s1, distance)
     return jnp.where(valid, image, registration.points), valid
 
 
 class Poser(eqx.Module):
-    """A target spine prepared for batched posing: its fast evaluator (`_table`) and a lower
-    bound of its reach (for the projection check), computed once for all points.
+    """A target spine prepared for batched posing, once for all points: its frames with the
+    twist (tabulated in single precision, `_target`), its fast evaluator for the projection
+    check (`_table`) and a lower bound of its reach.
 
-    Points are bent chunk by chunk (`bend`); the projection check is certified on the way for
-    the images closer to the target than the lower bound of its reach (`_reach`), and the few
-    others run the global search afterwards, all at once (`check`).
+    The projection check is certified on the way for the images closer to the target than the
+    lower bound of its reach (`_reach`); the few others are bent again and run the global
+    search (`update_where`), so that the images are consumed once (by the output) and XLA
+    computes them in the same kernel as the frames they are made of.
     """
 
-    target: AbstractSpine | SpineTable  # what the points are bent with: `fast_evaluator`
+    frames: TargetFrames  # what the points are bent with
+    target: AbstractSpine | SpineTable  # what the images are projected back on: `fast_evaluator`
     method: str = eqx.field(static=True)
-    twist: Array
     check_projection: bool = eqx.field(static=True)
     reach: Array
 
     def __init__(self, target, method, twist, check_projection=True):
         self.target = fast_evaluator(target)
-        self.method, self.twist, self.check_projection = method, twist, check_projection
+        # Tabulated from the spine table (its nodes are the table's, so no exact evaluation).
+        self.frames = TargetFrames(self.target, twist, tabulate=tabulates(target))
+        self.method, self.check_projection = method, check_projection
         self.reach = reach_lower_bound(self.target)
 
-    def bend(self, registration: Registration) -> tuple[Array, ...]:
-        """`bend_point` for a batch of registered points (`length` shared or repeated per
-        point): `(images (n, 3), valid (n,))`, and with the projection check also
-        `(pending, s₁, |d₁|)`, each (n,): `valid` is then certified, `pending` marks the valid
-        images that still need the global search."""
+    def pose(self, registration: Registration) -> tuple[Array, Array]:
+        """`pose_point` for a batch of registered points (`length` shared or repeated per
+        point): `(images (n, 3), valid (n,))`."""
 
         def bend(reg):
-            return bend_point(reg, self.target, self.method, self.twist)
+            return bend_point(reg, self.frames, self.method)
 
-        axes = batch_axes(registration)
-        image, valid, s1, distance = jax.vmap(bend, in_axes=(axes,))(registration)
-        if not self.check_projection:
-            return image, valid
-        certified = valid & (distance < self.reach)
-        return image, certified, valid & ~certified, s1, distance
+        def projects(reg):
+            image, _, s1, distance = bend(reg)
+            return projects_back(self.target, image, s1, distance)
 
-    def check(self, image, certified, pending, s1, distance) -> Array:
-        """The validity of bent images (N,), from the outputs of `bend`: the global search
-        for the pending ones."""
-
-        def full(args):
-            return projects_back(self.target, *args)
-
-        return update_where(pending, full, certified, (image, s1, distance))
-
-    def finish(self, points: Array, bent: tuple[Array, ...]) -> tuple[Array, Array]:
-        """`(images (N, 3), valid (N,))` from the outputs of `bend` for all points; invalid
-        points are returned unchanged."""
-        image, valid = bent[:2]
+        image, valid, _, distance = jax.vmap(bend, in_axes=(batch_axes(registration),))(
+            registration
+        )
         if self.check_projection:
-            valid = self.check(*bent)
-        return jnp.where(valid[:, None], image, points), valid
+            certified = valid & (distance < self.reach)
+            valid = update_where(valid & ~certified, projects, certified, registration)
+        return jnp.where(valid[:, None], image, registration.points), valid
 
 
 def pose_points(
@@ -145,9 +134,16 @@ def pose_points(
     twist: Array,
     check_projection: bool = True,
 ) -> tuple[Array, Array]:
-    """`pose_point` for registered points: `(images (N, 3), valid (N,))`, in chunks."""
+    """`pose_point` for registered points: `(images (N, 3), valid (N,))`.
+
+    Tabulated frames (single precision) bend all points at once: a few values per point, fused
+    into a few kernels. Exact spines bend in chunks (`_chunks`), their evaluation having many
+    intermediates per point.
+    """
     poser = Poser(target, method, twist, check_projection)
-    return poser.finish(registration.points, map_chunks(poser.bend, registration))
+    if poser.frames.table is None:
+        return map_chunks(poser.pose, registration)
+    return poser.pose(registration)
 
 
 def flesh_points(
@@ -163,7 +159,7 @@ def flesh_points(
     never held in memory at once."""
     registrar = Registrar(source, samples)
     poser = Poser(target, method, twist, check_projection)
-    return poser.finish(points, map_chunks(lambda c: poser.bend(registrar.register(c)), points))
+    return map_chunks(lambda chunk: poser.pose(registrar.register(chunk)), points)
 
 
 class Fleshing(eqx.Module):

@@ -54,13 +54,16 @@ def reach_lower_bound(spine: AbstractSpine, samples: int = REACH_SAMPLES) -> Arr
     kappa_hat = jnp.max(kappa) + jnp.max(jnp.abs(jnp.diff(kappa)))
     radius = 1 / kappa_hat  # inf on a straight spine
     chords = jnp.linalg.norm(positions[:, None] - positions[None], axis=-1)
+    # The closest chord between samples m apart (m = 0 … S−1), then between samples at least
+    # m apart (a suffix minimum): the far distance of every window from one (S, S) pass.
     index = jnp.arange(samples)
-    apart = jnp.abs(index[:, None] - index[None]) * h  # arc-length separation of sample pairs
+    separation = jnp.abs(index[:, None] - index[None])
+    closest = jnp.full(samples, jnp.inf, chords.dtype).at[separation].min(chords)
+    at_least = jax.lax.cummin(closest, reverse=True)
     fractions = jnp.arange(1, WINDOWS, dtype=h.dtype) / WINDOWS
     windows = jnp.append(jnp.where(jnp.isfinite(radius), fractions * radius, 0), hi - lo + 2 * h)
-
-    def bound(w):
-        far = jnp.min(jnp.where(apart >= w - h, chords, jnp.inf)) - h
-        return jnp.minimum(radius - w, far / 2)
-
-    return jnp.maximum(jnp.max(jax.vmap(bound)(windows)), 0)
+    # Pairs at least `w − h` apart in arc length: separations m with m·h ≥ w − h (m·h grows
+    # with m, so the first such m is the count of those below).
+    first = jnp.sum(index * h < (windows - h)[:, None], axis=1)
+    far = jnp.append(at_least, jnp.inf)[first] - h
+    return jnp.maximum(jnp.max(jnp.minimum(radius - windows, far / 2)), 0)

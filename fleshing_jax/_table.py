@@ -1,23 +1,29 @@
-"""A spine tabulated as cubic pieces: the fast evaluator of the batched paths in single precision.
+"""Functions of arc length tabulated as cubic pieces: the fast evaluators of the batched paths
+in single precision.
 
 Evaluating a spine exactly is expensive where it matters most, once per point of a large batch:
 a free-form spine needs a span search, a Newton arc-length inverse and a double-reflection step,
 and every spine needs the circular continuation past its ends. None of that depends on the
 points, so the batched paths (`register`, `pose`, `flesh`) can evaluate the spine once on a grid
-and then, per point, look up a cubic: one gathered row and a few fused multiply-adds.
+and then, per point, look up a cubic: a few gathered coefficients and fused multiply-adds.
 
-The table covers the closest-point search range `[lo, hi]` (the spine and its continuations) in
-three uniform grids, on `[lo, 0]`, `[0, length]` and `[length, hi]`, so that no piece straddles
-an end (where the continuation joins with only two continuous derivatives). On each piece the
-jet and normals `(C, T, k, I, J)` are interpolated at the 4 Chebyshev points of the piece. With
+A `PiecewiseCubic` covers the closest-point search range `[lo, hi]` of a spine (the spine and its
+continuations) in three uniform grids, on `[lo, 0]`, `[0, length]` and `[length, hi]`, so that no
+piece straddles an end (where the continuation joins with only two continuous derivatives). On
+each piece the tabulated function is interpolated at the 4 Chebyshev points of the piece. With
 at least 32 pieces per radian of turning the interpolation error is below 1e-9 relative
 (measured in `tests/test_table.py`): far below single precision's resolution (1.2e-7), so that in
 float32 the tabulated paths agree with the exact ones to round-off. In float64 they would not
 (`det J = 1` to 1e-15 is the point of the exact spines): there the batched paths evaluate the
-spine exactly (`fast_evaluator`). Polylines are piecewise by nature and are never tabulated.
+spine exactly (`tabulates`). Polylines are piecewise by nature and are never tabulated.
+
+`SpineTable` tabulates the jet and normals of a spine (for the closest-point search);
+`_target.TargetFrames` tabulates what a pose needs of its target.
 """
 
 from __future__ import annotations
+
+from collections.abc import Callable
 
 import equinox as eqx
 import jax
@@ -32,17 +38,13 @@ END_PIECES = 32  # pieces on each continuation (at most a quarter turn, or one l
 MIN_PIECES = 128  # pieces on [0, length], at least (else the spine's search samples)
 
 
-class SpineTable(eqx.Module):
-    """A spine tabulated on its closest-point search range, evaluated like a prepared spine.
+class PiecewiseCubic(eqx.Module):
+    """A function of arc length `s ↦ (F,)` tabulated on a spine's closest-point search range.
 
-    Provides `length`, `jet`, `jet_and_normals`, `__call__`, `extension`, `default_samples` and
-    `_prepare` with the meaning they have on a spine, for `s` in `[lo, hi]` (beyond, the end
-    pieces extrapolate: callers keep to the range, or use the exact spine there).
-
-    **Fields:** `length`, `lo`, `hi` (scalars); `coefficients`: (4, 15, P) monomial coefficients
-    of `(C, T, k, I, J)` on each piece, in its local parameter `u ∈ [−1, 1]`; `inner`: static
-    number of pieces on `[0, length]` (`P = inner + 2 END_PIECES`); `samples`: static, the
-    spine's `default_samples()`.
+    **Fields:** `length`, `lo`, `hi` (scalars: the spine's length and search range);
+    `coefficients`: (4, F, P) monomial coefficients of the F values on each piece, in its local
+    parameter `u ∈ [−1, 1]`; `inner`: static number of pieces on `[0, length]`
+    (`P = inner + 2 END_PIECES`).
     """
 
     length: Array
@@ -50,34 +52,36 @@ class SpineTable(eqx.Module):
     hi: Array
     coefficients: Array
     inner: int = eqx.field(static=True)
-    samples: int = eqx.field(static=True)
 
-    def __init__(self, spine: AbstractSpine, inner: int):
+    def __init__(self, spine: AbstractSpine, function: Callable, inner: int | None = None):
+        """`function`: `s` (scalar) → (F,); `spine` gives the range and the default `inner`
+        (`max(MIN_PIECES, spine.default_samples())`)."""
         e0, e1 = spine.extension()
-        self.length, self.lo, self.hi, self.inner = spine.length, -e0, spine.length + e1, inner
-        self.samples = spine.default_samples()
+        self.length, self.lo, self.hi = spine.length, -e0, spine.length + e1
+        self.inner = max(MIN_PIECES, spine.default_samples()) if inner is None else inner
         x, fit = arclength.fit_matrix(DEGREE)
         x = jnp.asarray((x + 1) / 2, self.length.dtype)  # Chebyshev points of [0, 1]
         widths = self._widths()
-        counts = (END_PIECES, inner, END_PIECES)
+        counts = (END_PIECES, self.inner, END_PIECES)
         breaks = (self.lo, jnp.zeros_like(self.length), self.length)
         starts = jnp.concatenate(
             [a + w * jnp.arange(n, dtype=w.dtype) for a, w, n in zip(breaks, widths, counts)]
         )
         width = jnp.concatenate([jnp.full((n,), w) for w, n in zip(widths, counts)])
-
-        def values(s):
-            (c, t, k), (i, j) = spine.jet_and_normals(s)
-            return jnp.concatenate([c, t, k, i, j])
-
-        samples = jax.vmap(jax.vmap(values))(starts[:, None] + width[:, None] * x)  # (P, 4, 15)
+        samples = jax.vmap(jax.vmap(function))(starts[:, None] + width[:, None] * x)  # (P, 4, F)
         self.coefficients = jnp.einsum("kq,pqf->kfp", jnp.asarray(fit, samples.dtype), samples)
 
     def _widths(self) -> tuple[Array, Array, Array]:
         return -self.lo / END_PIECES, self.length / self.inner, (self.hi - self.length) / END_PIECES
 
-    def _values(self, s: Array) -> Array:
-        """The 15 tabulated values at `s`: `(C, T, k, I, J)` concatenated, (15,)."""
+    def fields(self, s: Array) -> list[Array]:
+        """The F tabulated values at `s`, as F scalars.
+
+        Each is its own lookup (one gather per coefficient, from rows of P values): batched,
+        XLA fuses a lookup into the kernel that consumes it, where a stacked (F,) vector would
+        be materialised and then read back (several times slower on XLA's CPU backend,
+        benchmarks/README.md). So callers look up only the values they need, each used once.
+        """
         s = jnp.asarray(s, self.length.dtype)
         w0, w1, w2 = self._widths()
         # A fractional piece index: whole part = the piece, fraction = where in it.
@@ -92,21 +96,54 @@ class SpineTable(eqx.Module):
         )
         piece = jnp.clip(jnp.floor(index), 0, self.coefficients.shape[-1] - 1)
         u = 2 * (index - piece) - 1
-        # One gather per coefficient, from rows of P values: batched, these are fast loads from
-        # a table that stays in cache, where gathering whole (4, 15) rows per point is ~7×
-        # slower on XLA's CPU backend (benchmarks/README.md).
-        a = [
-            [row.at[piece.astype(jnp.int32)].get(mode="promise_in_bounds") for row in rows]
+        piece = piece.astype(jnp.int32)
+        a0, a1, a2, a3 = (
+            [row.at[piece].get(mode="promise_in_bounds") for row in rows]
             for rows in self.coefficients
-        ]
-        values = jnp.stack([a0 + u * (a1 + u * (a2 + u * a3)) for a0, a1, a2, a3 in zip(*a)])
-        # Materialised once per point: left to itself, XLA splits the gathers into separate
-        # kernels when many consumers share them (~5× slower registration).
-        return jax.lax.optimization_barrier(values)
+        )
+        return [b0 + u * (b1 + u * (b2 + u * b3)) for b0, b1, b2, b3 in zip(a0, a1, a2, a3)]
+
+
+class SpineTable(eqx.Module):
+    """A spine tabulated on its closest-point search range, evaluated like a prepared spine.
+
+    Provides `length`, `jet`, `jet_and_normals`, `__call__`, `extension`, `default_samples` and
+    `_prepare` with the meaning they have on a spine, for `s` in `[lo, hi]` (beyond, the end
+    pieces extrapolate: callers keep to the range, or use the exact spine there).
+
+    **Fields:** `cubics`: the `PiecewiseCubic` of `(C, T, k, I, J)` (F = 15); `samples`:
+    static, the spine's `default_samples()`.
+    """
+
+    cubics: PiecewiseCubic
+    samples: int = eqx.field(static=True)
+
+    def __init__(self, spine: AbstractSpine, inner: int | None = None):
+        def values(s):
+            (c, t, k), (i, j) = spine.jet_and_normals(s)
+            return jnp.concatenate([c, t, k, i, j])
+
+        self.cubics = PiecewiseCubic(spine, values, inner)
+        self.samples = spine.default_samples()
+
+    @property
+    def length(self) -> Array:
+        return self.cubics.length
+
+    @property
+    def lo(self) -> Array:
+        return self.cubics.lo
+
+    @property
+    def hi(self) -> Array:
+        return self.cubics.hi
 
     def jet_and_normals(self, s):
         """`((C, T, k), (I, J))` at `s`, each (3,)."""
-        c, t, k, i, j = jnp.split(self._values(s), 5)
+        # Materialised once per point: the search reads all 15 values several times, and left
+        # to itself XLA would repeat the lookups in every consumer (~5× slower registration).
+        values = jax.lax.optimization_barrier(jnp.stack(self.cubics.fields(s)))
+        c, t, k, i, j = jnp.split(values, 5)
         return (c, t, k), (i, j)
 
     def jet(self, s):
@@ -129,11 +166,14 @@ class SpineTable(eqx.Module):
         return self
 
 
+def tabulates(spine: AbstractSpine) -> bool:
+    """Whether the batched paths evaluate `spine` through tables: in single precision, and for
+    smooth spines (static)."""
+    return jnp.finfo(spine.length.dtype).bits <= 32 and spine._tabulable()
+
+
 def fast_evaluator(spine: AbstractSpine) -> AbstractSpine | SpineTable:
-    """What the batched paths evaluate: the prepared `spine` itself in double precision (and
-    for polylines), its `SpineTable` in single precision (the spine's dtype, cast to the
-    points')."""
+    """What the batched paths search: the prepared `spine` itself in double precision (and for
+    polylines), its `SpineTable` in single precision (the spine's dtype, cast to the points')."""
     spine = spine._prepare()
-    if jnp.finfo(spine.length.dtype).bits > 32 or not spine._tabulable():
-        return spine
-    return SpineTable(spine, max(MIN_PIECES, spine.default_samples()))
+    return SpineTable(spine) if tabulates(spine) else spine

@@ -45,6 +45,35 @@ def test_reach_lower_bound():
     assert 1 / (8 * kappa) < float(reach_lower_bound(u_turn)) <= 1 / kappa
 
 
+def _reach_by_definition(spine, samples=384, windows=16):
+    """The bound of `_reach` computed as written: for each window `w`, the closest chord over
+    all sample pairs at least `w − h` apart (the library takes a suffix minimum instead)."""
+    spine = spine._prepare()
+    e0, e1 = spine.extension()
+    lo, hi = -e0, spine.length + e1
+    grid = jnp.linspace(lo, hi, samples)
+    h = (hi - lo) / (samples - 1)
+    positions, _, k = jax.vmap(spine.jet)(grid)
+    kappa = jnp.linalg.norm(k, axis=-1)
+    radius = 1 / (jnp.max(kappa) + jnp.max(jnp.abs(jnp.diff(kappa))))
+    chords = jnp.linalg.norm(positions[:, None] - positions[None], axis=-1)
+    apart = jnp.abs(jnp.arange(samples)[:, None] - jnp.arange(samples)[None]) * h
+    fractions = jnp.arange(1, windows, dtype=h.dtype) / windows
+    ws = jnp.append(jnp.where(jnp.isfinite(radius), fractions * radius, 0), hi - lo + 2 * h)
+    far = [jnp.min(jnp.where(apart >= w - h, chords, jnp.inf)) - h for w in ws]
+    return jnp.maximum(jnp.max(jnp.minimum(radius - ws, jnp.stack(far) / 2)), 0)
+
+
+@pytest.mark.parametrize("dtype", [np.float64, np.float32])
+def test_reach_lower_bound_equals_its_definition(dtype):
+    shapes = [fj.Line(3.0), fj.Arc(3.0, 4.0), fj.Helix(1.0, 1.0, 12.0), _coil()]
+    shapes.append(fj.BSpline(U_TURN, degree=3))
+    for spine in shapes:
+        spine = jax.tree.map(lambda a: a.astype(dtype) if eqx.is_inexact_array(a) else a, spine)
+        # The same pairs and the same arithmetic: equal, not just close (inf for the line).
+        assert float(reach_lower_bound(spine)) == float(_reach_by_definition(spine)), spine
+
+
 @pytest.mark.parametrize("shape", ["u_turn", "coil"])
 def test_batched_projection_equals_global_search(shape):
     spine = fj.BSpline(U_TURN, degree=3) if shape == "u_turn" else _coil()

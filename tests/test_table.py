@@ -13,6 +13,7 @@ from conftest import cloud
 
 import fleshing_jax as fj
 from fleshing_jax._table import SpineTable, fast_evaluator
+from fleshing_jax._target import TargetFrames
 
 TORSION = [[0, 0, 0], [1, 0.4, 0.1], [2, 0.1, 0.6], [3, -0.5, 0.4], [4, 0, 0.2], [5, 0.3, 0.8]]
 INFLECTION = [[0, 0, 0], [1, 1, 0], [2, 0, 0.5], [3, -1, 0], [4, 0, 0.3], [5, 1, 1.0]]
@@ -47,6 +48,29 @@ def test_table_matches_the_spine_over_its_search_range(name):
     # once multiplied by the offsets (≲ the reach, ≲ 1/κ).
     assert error[:, :6].max() < 1e-7 and error[:, 9:].max() < 1e-7, error.max(axis=0)
     assert error[:, 6:9].max() < 1e-6, error[:, 6:9].max()
+
+
+@pytest.mark.parametrize("name", sorted(ZOO))
+def test_tabulated_target_frames_match_the_exact_ones(name):
+    # What `pose` looks up in single precision: C₁, the twisted normals and the curvature in
+    # them, tabulated (as `Poser` does) from the spine's table. Built in float64 to measure the
+    # interpolation error alone.
+    spine = ZOO[name]._prepare()
+    exact = TargetFrames(spine, jnp.asarray(0.4))
+    tabulated = TargetFrames(SpineTable(spine), jnp.asarray(0.4), tabulate=True)
+    assert tabulated.table is not None and exact.table is None
+    assert float(tabulated.lo) == float(exact.lo) and float(tabulated.hi) == float(exact.hi)
+    s = jnp.linspace(exact.lo, exact.hi, 5001)
+    error = np.abs(
+        np.concatenate(jax.vmap(exact)(s), axis=-1) - np.concatenate(jax.vmap(tabulated)(s), -1)
+    )
+    assert error[:, :9].max() < 1e-7, error.max(axis=0)
+    assert error[:, 9:].max() < 1e-6, error[:, 9:].max()
+    # The twist is folded into the table: the normals turn by it about the tangent.
+    (_, t, _), (i, _) = spine.jet_and_normals(1.0)
+    _, i1, j1, _ = tabulated(1.0)
+    np.testing.assert_allclose(float(jnp.dot(i, i1)), np.cos(0.4), atol=1e-7)
+    np.testing.assert_allclose(np.asarray(jnp.cross(i1, j1)), np.asarray(t), atol=1e-7)
 
 
 def test_fast_evaluator_is_exact_in_float64_and_for_polylines():

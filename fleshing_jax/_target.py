@@ -1,0 +1,73 @@
+"""What bending onto a target spine needs of it at an arc length `s₁`, exact or tabulated.
+
+The bend (paper §3.3) places a point at `C₁(s₁) + d₁ₓ I₁ + d₁ᵧ J₁`, where the map's offset `d₁`
+depends on the curvature vector `k₁` in the twisted normals `(I₁, J₁)`: 11 numbers per point,
+`(C₁, I₁, J₁, (k₁·I₁, k₁·J₁))`. In single precision they are tabulated (`PiecewiseCubic`) with
+the twist folded in, so that a pose looks up exactly these 11 values and uses each once: XLA then
+fuses every lookup into the kernel that consumes it. (Looking up the spine table's 15 values and
+twisting per point was 5× slower: the shared values were materialised, one kernel each.)
+"""
+
+from __future__ import annotations
+
+import equinox as eqx
+import jax.numpy as jnp
+from jaxtyping import Array
+
+from ._frames import twist_normals
+from ._misc import dot
+from ._reach import search_range
+from ._spine import AbstractSpine
+from ._table import PiecewiseCubic, SpineTable
+
+
+def target_frame(spine: AbstractSpine, twist: Array, s: Array) -> tuple[Array, ...]:
+    """`(C (3,), I (3,), J (3,), k in (I, J) (2,))` of a prepared `spine` at `s`, with its
+    normals turned by `twist` radians."""
+    (c, _, k), normals = spine.jet_and_normals(s)
+    i, j = twist_normals(normals, twist)
+    return c, i, j, jnp.stack([dot(k, i), dot(k, j)])
+
+
+class TargetFrames(eqx.Module):
+    """The frames of a target spine, with a twist, as a function of arc length (`__call__`).
+
+    **Arguments:** `spine`: the target (an `AbstractSpine` or its `SpineTable`); `twist`: scalar
+    radians; `tabulate`: look the frames up in a table (single precision) rather than evaluate
+    `spine` at every point.
+
+    **Attributes:** `length`; `lo`, `hi`: the target's closest-point search range, where frames
+    are defined.
+    """
+
+    spine: AbstractSpine | SpineTable  # prepared
+    twist: Array
+    table: PiecewiseCubic | None
+
+    def __init__(self, spine: AbstractSpine | SpineTable, twist: Array, tabulate: bool = False):
+        self.spine, self.twist = spine._prepare(), twist
+        self.table = None
+        if tabulate:
+            prepared = self.spine  # (not `self` in a lambda: the module is not frozen yet)
+            self.table = PiecewiseCubic(
+                prepared, lambda s: jnp.concatenate(target_frame(prepared, twist, s))
+            )
+
+    @property
+    def length(self) -> Array:
+        return self.spine.length
+
+    @property
+    def lo(self) -> Array:
+        return search_range(self.spine)[0]
+
+    @property
+    def hi(self) -> Array:
+        return search_range(self.spine)[1]
+
+    def __call__(self, s: Array) -> tuple[Array, ...]:
+        """`(C₁ (3,), I₁ (3,), J₁ (3,), k₁ in (I₁, J₁) (2,))` at `s` (one point)."""
+        if self.table is None:
+            return target_frame(self.spine, self.twist, s)
+        v = self.table.fields(s)
+        return jnp.stack(v[0:3]), jnp.stack(v[3:6]), jnp.stack(v[6:9]), jnp.stack(v[9:11])
