@@ -18,13 +18,18 @@ from jaxtyping import PyTree
 CHUNK_POINTS = 8192
 
 
-def map_chunks(function: Callable, inputs: PyTree, chunk: int | None = None) -> PyTree:
+def map_chunks(
+    function: Callable, inputs: PyTree, chunk: int | None = None, whole: bool = False
+) -> PyTree:
     """`function(inputs)` for a batch function, evaluated `chunk` points at a time.
 
     **Arguments:** `function`: a batch of inputs (leading axis `n`) → a batch of outputs (same
     leading axis); it must treat points independently. `inputs`: pytree of arrays with leading
     axis N, and scalars shared by all points (passed to every chunk as they are). `chunk`:
-    points per chunk (default `CHUNK_POINTS`).
+    points per chunk (default `CHUNK_POINTS`). `whole`: evaluate the whole batch at once, for
+    functions that fuse into a few kernels with few intermediates per point (the tabulated
+    paths, `_table`): for them chunking saves little memory and costs time, the loop body
+    running ~2.5× slower on XLA's CPU backend than the same kernels on the whole batch.
 
     **Returns:** the outputs, leading axis N, equal to `function(inputs)`. Batches of at most
     one chunk call `function` directly. Otherwise the batch is padded to whole chunks with
@@ -34,7 +39,7 @@ def map_chunks(function: Callable, inputs: PyTree, chunk: int | None = None) -> 
     chunk = CHUNK_POINTS if chunk is None else int(chunk)
     inputs, shared = per_point(inputs)
     n = jax.tree.leaves(inputs)[0].shape[0]
-    if n <= chunk:
+    if whole or n <= chunk:
         return function(eqx.combine(inputs, shared))
     count = -(-n // chunk)
 

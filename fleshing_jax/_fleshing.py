@@ -4,7 +4,8 @@ Written for one point and batched with `vmap`. Registration depends only on the 
 so `register` runs once per shape and `pose` is the per-frame path: O(1) work per point plus,
 by default, the check that each image projects back where it should (certified for most points
 by a lower bound of the target's reach, `_reach`; the global search runs on the others only).
-The batched paths (`Registrar`, `Poser`) run in chunks of points (`_chunks`).
+The batched paths (`Registrar`, `Poser`) run in chunks of points (`_chunks`) on exact
+spines, on whole batches on tabulated ones (single precision, `_table`).
 
 Unequal lengths: with `λ = L₁/L₀`, the cross-section at `s` goes to `s₁ = λ s` and its
 straightened offset is scaled by `1/√λ`, so that `ds₁ dA₁ = ds dA` (`det J = 1` still).
@@ -107,6 +108,11 @@ class Poser(eqx.Module):
         self.method, self.check_projection = method, check_projection
         self.reach = reach_lower_bound(self.target)
 
+    @property
+    def fused(self) -> bool:
+        """Whether the frames are tabulated: batches then run whole (`map_chunks`)."""
+        return self.frames.table is not None
+
     def pose(self, registration: Registration) -> tuple[Array, Array]:
         """`pose_point` for a batch of registered points (`length` shared or repeated per
         point): `(images (n, 3), valid (n,))`."""
@@ -141,9 +147,7 @@ def pose_points(
     intermediates per point.
     """
     poser = Poser(target, method, twist, check_projection)
-    if poser.frames.table is None:
-        return map_chunks(poser.pose, registration)
-    return poser.pose(registration)
+    return map_chunks(poser.pose, registration, whole=poser.fused)
 
 
 def flesh_points(
@@ -250,12 +254,14 @@ def register(points: ArrayLike, source: AbstractSpine, *, samples: int | None = 
     points = _check_points(points, "points")
     _check_spine(source, "source")
     samples = source.default_samples() if samples is None else int(samples)
-    return _register(points, cast_floats(source, points.dtype), samples)
+    # The points are put in outside the compiled call: returned from it, they would be copied.
+    return Registration(points, *_register(points, cast_floats(source, points.dtype), samples))
 
 
 @eqx.filter_jit
 def _register(points, source, samples):
-    return register_points(source, points, samples)
+    r = register_points(source, points, samples)
+    return r.arc_length, r.offset, r.curvature, r.valid, r.length
 
 
 def pose(
@@ -314,16 +320,21 @@ def flesh(
     _check_spine(source, "source")
     _check_spine(target, "target")
     method, check_projection = check_method(method), bool(check_projection)
-    if points.shape[0] <= _chunks.CHUNK_POINTS:
-        # One chunk: nothing to fuse. Compiled apart, the registration is compiled once for
-        # all the methods and targets a shape is fleshed onto.
+    cast_source, cast_target = cast_floats((source, target), points.dtype)
+    if points.shape[0] <= _chunks.CHUNK_POINTS or (
+        tabulates(cast_source) and tabulates(cast_target)
+    ):
+        # One chunk, or tabulated spines (whose batches run whole): nothing to gain from one
+        # program, and compiled apart, the registration is compiled once for all the methods
+        # and targets a shape is fleshed onto. (In one program XLA fuses the registration's
+        # lookups into the pose's kernels, ~1.5× slower than the two calls.)
         registration = register(points, source)
         return pose(
             registration, target, method=method, twist=twist, check_projection=check_projection
         )
     samples = source.default_samples()
-    source, target, twist = cast_floats((source, target, jnp.asarray(twist)), points.dtype)
-    return _flesh(points, source, target, method, twist, check_projection, samples)
+    twist = jnp.asarray(twist, points.dtype)
+    return _flesh(points, cast_source, cast_target, method, twist, check_projection, samples)
 
 
 @eqx.filter_jit

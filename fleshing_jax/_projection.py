@@ -18,7 +18,7 @@ from jaxtyping import Array, ArrayLike, Bool, Float
 
 from ._chunks import map_chunks
 from ._compact import update_where
-from ._misc import argmin, dot, norm, relative_tolerance, safe_divide
+from ._misc import dot, relative_tolerance, safe_divide
 from ._reach import reach_lower_bound, search_range
 from ._spine import AbstractSpine
 from ._table import SpineTable, fast_evaluator
@@ -44,20 +44,21 @@ class _Search(eqx.Module):
         return (self.hi - self.lo) / (self.grid.shape[0] - 1)
 
     def descend(self, x: Array, s: Array, steps: int) -> Array:
-        """Safeguarded Newton steps on `f(s) = (C(s) − x)·T(s)` from `s`."""
-        h = self.h
+        """Safeguarded Newton steps on `f(s) = (C(s) − x)·T(s)` from `s`, each at most `h`."""
+        h, tiny = self.h, jnp.finfo(x.dtype).tiny
 
         def newton(_, s):
-            c, tangent, k = self.spine.jet(s)
-            d = x - c
-            f, slope = -dot(d, tangent), 1 - dot(k, d)
-            # Outside the local reach Newton heads for a maximum: step downhill instead.
-            step = jnp.where(slope > 0, -f / jnp.where(slope > 0, slope, 1), -jnp.sign(f) * h)
-            step = jnp.where(jnp.abs(step) > h, jnp.sign(step) * h, step)
-            s = s + step
-            return jnp.where(s < self.lo, self.lo, jnp.where(s > self.hi, self.hi, s))
+            f, slope, _ = self.spine._foot_terms(x, s)
+            # Outside the local reach (slope ≤ 0) Newton heads for a maximum: dividing by
+            # `tiny` instead makes the clamped step go downhill by `h`. (Clamps rather than
+            # `where`s: `f` and `slope` are used once, see `SpineTable._foot_terms`.)
+            step = jnp.clip(-f / jnp.maximum(slope, tiny), -h, h)
+            return jnp.clip(s + step, self.lo, self.hi)
 
-        return jax.lax.fori_loop(0, steps, newton, s)
+        # Unrolled on tables, so that XLA fuses the steps into one kernel; a loop on exact
+        # spines, whose evaluation is large (unrolled, it would multiply compile time).
+        unroll = isinstance(self.spine, SpineTable)
+        return jax.lax.fori_loop(0, steps, newton, s, unroll=unroll)
 
     def global_start(self, x: Array) -> tuple[Array, Array]:
         """Newton from the best local minima of the sampled distance: `(s, unique)`."""
@@ -91,26 +92,46 @@ class _Search(eqx.Module):
         (logarithmic in the resolution; not always the nearest sample, which is not needed:
         `fast_start` certifies its result independently of where it started)."""
         last = self.grid.shape[0] - 1
-        coarse = self.positions[:: BRANCH**self.levels]
-        best = argmin(dot(coarse - x, coarse - x))
-        offsets = jnp.arange(-BRANCH, BRANCH + 1)
         columns = self.positions.T  # gathered one coordinate at a time: fast on XLA's CPU
+        stride = BRANCH**self.levels
+        best = stride * _nearest(columns, x, range(0, last + 1, stride))
         for level in range(1, self.levels + 1):
             stride = BRANCH ** (self.levels - level)
-            index = jnp.clip(best * BRANCH + offsets, 0, last // stride) * stride
-            distance = sum((column[index] - xi) ** 2 for column, xi in zip(columns, x))
-            best = index[argmin(distance)] // stride
+            first = best - BRANCH * stride
+            around = [jnp.clip(first + m * stride, 0, last) for m in range(2 * BRANCH + 1)]
+            best = jnp.clip(first + _nearest(columns, x, around) * stride, 0, last)
         return best
 
     def fast_start(self, x: Array, reach: Array) -> tuple[Array, Array]:
         """Newton from a nearby sample: `(s, certified)`, certified when the foot is closer
         than the `reach` lower bound (then it is the unique closest point, see `_reach`)."""
         s = self.descend(x, self.grid[self.nearby_sample(x)], FAST_STEPS)
-        c, tangent, _ = self.spine.jet(s)
-        d = x - c
-        distance = norm(d)
-        stationary = jnp.abs(dot(d, tangent)) <= relative_tolerance(x.dtype) * (1 + distance)
+        f, _, distance = self.spine._foot_terms(x, s)
+        stationary = jnp.abs(f) <= relative_tolerance(x.dtype) * (1 + distance)
         return s, stationary & (distance < reach) & (s > self.lo) & (s < self.hi)
+
+
+def _nearest(columns: Array, x: Array, indices) -> Array:
+    """Position in `indices` (a sequence of sample indices) of the sample nearest to `x` (3,),
+    the first on ties; `columns`: (3, G) sample coordinates.
+
+    The squared distances are non-negative, so their bit patterns as integers order like them:
+    each is packed with its position in the low bits and the minimum taken, one `minimum` per
+    sample (an argmin's selects would use every distance twice, and batched, XLA would split
+    the gathers feeding them into separate kernels). Distances equal but in those few low bits
+    count as ties, which a search for *a* nearby sample does not mind.
+    """
+    bits = max(1, (len(indices) - 1).bit_length())
+    key = None
+    for position, i in enumerate(indices):
+        squared = sum(
+            jnp.square(column.at[i].get(mode="promise_in_bounds") - xi)
+            for column, xi in zip(columns, x)
+        )
+        integer = jnp.dtype(f"int{8 * squared.dtype.itemsize}")
+        packed = (jax.lax.bitcast_convert_type(squared, integer) >> bits << bits) | position
+        key = packed if key is None else jnp.minimum(key, packed)
+    return (key & ((1 << bits) - 1)).astype(jnp.int32)
 
 
 def _search(spine: AbstractSpine, samples: int) -> _Search:
@@ -123,14 +144,15 @@ def _search(spine: AbstractSpine, samples: int) -> _Search:
 
 
 def _polish(spine: AbstractSpine, search: _Search, x: Array, s: Array) -> tuple[Array, Array]:
-    """One Newton step with live gradients (the implicit-function derivative), and whether `s`
-    is a stationary point strictly inside the searched range."""
-    c, tangent, k = spine.jet(s)
-    d = x - c
-    f, slope = -dot(d, tangent), 1 - dot(k, d)
+    """One Newton step with live gradients (the implicit-function derivative), and whether its
+    result is a stationary point strictly inside the searched range."""
+    f, slope, _ = spine._foot_terms(x, s)
     s = s - safe_divide(f, jnp.where(slope > 0, slope, 0))
+    # Checked after the step, from the spine there: the values before it are used once (by the
+    # step), see `SpineTable._foot_terms`.
+    f, _, distance = spine._foot_terms(x, s)
     tol = relative_tolerance(x.dtype)
-    converged = (jnp.abs(f) <= tol * (1 + norm(d))) & (s > search.lo) & (s < search.hi)
+    converged = (jnp.abs(f) <= tol * (1 + distance)) & (s > search.lo) & (s < search.hi)
     return s, converged
 
 
@@ -176,6 +198,11 @@ class Registrar(eqx.Module):
         self.search = _search(self.spine, samples)
         self.reach = reach_lower_bound(self.spine)
 
+    @property
+    def fused(self) -> bool:
+        """Whether the spine is tabulated: batches then run whole (`map_chunks`)."""
+        return isinstance(self.spine, SpineTable)
+
     def start(self, x: Array) -> tuple[Array, Array]:
         """`(s, certified)` for one point: the spine's closed-form foot (lines, arcs), else
         Newton from a nearby sample (certified by the reach bound)."""
@@ -206,7 +233,8 @@ def closest_arc_lengths(spine: AbstractSpine, points: Array, samples: int | None
     in the search range; only the other points run the global multi-candidate search. Points are
     processed in chunks (`_chunks`), so memory does not grow with intermediates per point.
     """
-    return map_chunks(Registrar(spine, samples).closest, points)
+    registrar = Registrar(spine, samples)
+    return map_chunks(registrar.closest, points, whole=registrar.fused)
 
 
 class Registration(eqx.Module):
@@ -246,16 +274,13 @@ def register_points(spine: AbstractSpine, points: Array, samples: int | None = N
     """Registers points (N, 3) on `spine` (batched projection in chunks, see
     `closest_arc_lengths`)."""
     registrar = Registrar(spine, samples)
-    registration = map_chunks(registrar.register, points)
+    registration = map_chunks(registrar.register, points, whole=registrar.fused)
     return eqx.tree_at(lambda r: r.length, registration, registrar.spine.length)
 
 
 def _local_coordinates(spine: AbstractSpine, x: Array, s: Array, converged: Array):
     """The registration of `x` (3,) at its projection `s`."""
     finite = jnp.all(jnp.isfinite(x))
-    (c, _, k), (i, j) = spine.jet_and_normals(s)
-    d = jnp.where(finite, x, 0) - c
-    offset = jnp.stack([dot(d, i), dot(d, j)])
-    curvature = jnp.stack([dot(k, i), dot(k, j)])
-    valid = finite & converged & (1 - dot(curvature, offset) > 0)
+    offset, curvature, slope = spine._local_terms(jnp.where(finite, x, 0), s)
+    valid = finite & converged & (slope > 0)
     return Registration(x, s, offset, curvature, valid, spine.length)

@@ -133,6 +133,23 @@ class AbstractSpine(eqx.Module):
         no closed form: the batched registration then searches (`_projection`)."""
         return None
 
+    def _foot_terms(self, x: Array, s: Array) -> tuple[Array, Array, Array]:
+        """What the closest-point search needs at `s` for a point `x` (3,): `(f, slope,
+        distance)`, where `f = (C − x)·T` vanishes at a foot, `slope = f'(s) = 1 − k·(x − C)`
+        and `distance = |x − C|` (`SpineTable` computes the same from tabulated products)."""
+        c, tangent, k = self.jet(s)
+        d = x - c
+        return -dot(d, tangent), 1 - dot(k, d), norm(d)
+
+    def _local_terms(self, x: Array, s: Array) -> tuple[Array, Array, Array]:
+        """`x` (3,) in the local frame at `s`: `(offset (2,), curvature (2,), slope)`, the
+        offset `x − C` and the curvature vector in `(I, J)` coordinates and `1 − k·(x − C)`."""
+        (c, _, k), (i, j) = self.jet_and_normals(s)
+        d = x - c
+        offset = jnp.stack([dot(d, i), dot(d, j)])
+        curvature = jnp.stack([dot(k, i), dot(k, j)])
+        return offset, curvature, 1 - dot(curvature, offset)
+
     def _split(self, s: ArrayLike) -> tuple[Array, Array, Array]:
         """`s` clamped to `[0, length]`, and the signed overshoots before 0 and past `length`.
 

@@ -17,8 +17,15 @@ float32 the tabulated paths agree with the exact ones to round-off. In float64 t
 (`det J = 1` to 1e-15 is the point of the exact spines): there the batched paths evaluate the
 spine exactly (`tabulates`). Polylines are piecewise by nature and are never tabulated.
 
-`SpineTable` tabulates the jet and normals of a spine (for the closest-point search);
-`_target.TargetFrames` tabulates what a pose needs of its target.
+`SpineTable` tabulates the jet and normals of a spine and the products the closest-point
+search needs (`_foot_terms`, `_local_terms`); `_target.TargetFrames` tabulates what a pose needs
+of its target.
+
+Why products and single uses: batched, a looked-up value used once is fused by XLA into the
+kernel that consumes it (a few loads and multiply-adds per point); a value used by several
+kernels is materialised, one kernel and one round trip through memory per value, several times
+slower on XLA's CPU backend (benchmarks/README.md). So the search's terms are tabulated as
+products (`C·T`, `k·C`, …) and formed per point from values each used once.
 """
 
 from __future__ import annotations
@@ -31,6 +38,7 @@ import jax.numpy as jnp
 from jaxtyping import Array
 
 from . import _arclength as arclength
+from ._misc import dot
 from ._spine import AbstractSpine
 
 DEGREE = 3
@@ -107,12 +115,13 @@ class PiecewiseCubic(eqx.Module):
 class SpineTable(eqx.Module):
     """A spine tabulated on its closest-point search range, evaluated like a prepared spine.
 
-    Provides `length`, `jet`, `jet_and_normals`, `__call__`, `extension`, `default_samples` and
-    `_prepare` with the meaning they have on a spine, for `s` in `[lo, hi]` (beyond, the end
-    pieces extrapolate: callers keep to the range, or use the exact spine there).
+    Provides `length`, `jet`, `jet_and_normals`, `__call__`, `extension`, `default_samples`,
+    `_prepare` and the search's `_foot_terms` and `_local_terms` with the meaning they have on a
+    spine, for `s` in `[lo, hi]` (beyond, the end pieces extrapolate: callers keep to the range,
+    or use the exact spine there).
 
-    **Fields:** `cubics`: the `PiecewiseCubic` of `(C, T, k, I, J)` (F = 15); `samples`:
-    static, the spine's `default_samples()`.
+    **Fields:** `cubics`: the `PiecewiseCubic` of `C, T, k, I, J` and of the products
+    `C·T, k·C, C·I, C·J, k·I, k·J` (F = 21); `samples`: static, the spine's `default_samples()`.
     """
 
     cubics: PiecewiseCubic
@@ -121,7 +130,8 @@ class SpineTable(eqx.Module):
     def __init__(self, spine: AbstractSpine, inner: int | None = None):
         def values(s):
             (c, t, k), (i, j) = spine.jet_and_normals(s)
-            return jnp.concatenate([c, t, k, i, j])
+            products = [dot(c, t), dot(k, c), dot(c, i), dot(c, j), dot(k, i), dot(k, j)]
+            return jnp.concatenate([c, t, k, i, j, jnp.stack(products)])
 
         self.cubics = PiecewiseCubic(spine, values, inner)
         self.samples = spine.default_samples()
@@ -140,9 +150,9 @@ class SpineTable(eqx.Module):
 
     def jet_and_normals(self, s):
         """`((C, T, k), (I, J))` at `s`, each (3,)."""
-        # Materialised once per point: the search reads all 15 values several times, and left
-        # to itself XLA would repeat the lookups in every consumer (~5× slower registration).
-        values = jax.lax.optimization_barrier(jnp.stack(self.cubics.fields(s)))
+        # Materialised once per point: callers use these vectors several times, and XLA would
+        # otherwise split the lookups into one kernel per consumer (~5× slower).
+        values = jax.lax.optimization_barrier(jnp.stack(self.cubics.fields(s)[:15]))
         c, t, k, i, j = jnp.split(values, 5)
         return (c, t, k), (i, j)
 
@@ -154,6 +164,26 @@ class SpineTable(eqx.Module):
         """`C(s)`, (3,)."""
         return self.jet(s)[0]
 
+    # The search's own terms, from the tabulated products: no vector of the spine is formed and
+    # each looked-up value is used once, so XLA fuses the lookups into their consumer (the
+    # whole fast registration of a point is a few kernels). Callers use each result once too.
+
+    def _foot_terms(self, x, s):
+        """`(f, slope, distance)` at `s` for a point `x` (3,), as `AbstractSpine._foot_terms`:
+        `f = C·T − x·T`, `slope = 1 + k·C − x·k`, `distance = |x − C|`."""
+        v = self.cubics.fields(s)
+        f = v[15] - _dot(x, v[3:6])
+        slope = 1 + v[16] - _dot(x, v[6:9])
+        distance = jnp.sqrt(sum(jnp.square(x[a] - v[a]) for a in range(3)))
+        return f, slope, distance
+
+    def _local_terms(self, x, s):
+        """`(offset (2,), curvature (2,), slope)` at `s`, as `AbstractSpine._local_terms`:
+        offset `(x·I − C·I, x·J − C·J)`, curvature `(k·I, k·J)`, slope `1 + k·C − x·k`."""
+        v = self.cubics.fields(s)
+        offset = jnp.stack([_dot(x, v[9:12]) - v[17], _dot(x, v[12:15]) - v[18]])
+        return offset, jnp.stack(v[19:21]), 1 + v[16] - _dot(x, v[6:9])
+
     def extension(self) -> tuple[Array, Array]:
         """How far the table reaches past each end: the spine's search extension."""
         return -self.lo, self.hi - self.length
@@ -164,6 +194,11 @@ class SpineTable(eqx.Module):
 
     def _prepare(self) -> SpineTable:
         return self
+
+
+def _dot(x: Array, values: list[Array]) -> Array:
+    """`x·v` for `x` (3,) and `v` given as 3 looked-up scalars."""
+    return x[0] * values[0] + x[1] * values[1] + x[2] * values[2]
 
 
 def tabulates(spine: AbstractSpine) -> bool:

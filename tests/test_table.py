@@ -12,6 +12,7 @@ import pytest
 from conftest import cloud
 
 import fleshing_jax as fj
+from fleshing_jax._projection import _nearest
 from fleshing_jax._table import SpineTable, fast_evaluator
 from fleshing_jax._target import TargetFrames
 
@@ -71,6 +72,48 @@ def test_tabulated_target_frames_match_the_exact_ones(name):
     _, i1, j1, _ = tabulated(1.0)
     np.testing.assert_allclose(float(jnp.dot(i, i1)), np.cos(0.4), atol=1e-7)
     np.testing.assert_allclose(np.asarray(jnp.cross(i1, j1)), np.asarray(t), atol=1e-7)
+
+
+@pytest.mark.parametrize("name", sorted(ZOO))
+def test_tabulated_search_terms_match_the_spine(name):
+    # The closest-point search's terms, formed per point from tabulated products (`C·T`,
+    # `k·C`, `C·I`, ...): the same as from the exact jet and frame, to the interpolation error
+    # (built in float64 to measure it alone), at points around the spine and past its ends.
+    spine = ZOO[name]._prepare()
+    table = SpineTable(spine)
+    rng = np.random.default_rng(3)
+    s = jnp.asarray(rng.uniform(float(table.lo), float(table.hi), 400))
+    x = jax.vmap(spine)(s) + jnp.asarray(rng.normal(0, 0.3, (400, 3)))
+    for terms in ("_foot_terms", "_local_terms"):
+        exact = jax.vmap(getattr(spine, terms))(x, s)
+        tabulated = jax.vmap(getattr(table, terms))(x, s)
+        for e, t in zip(exact, tabulated):
+            np.testing.assert_allclose(np.asarray(t), np.asarray(e), rtol=0, atol=2e-6)
+    # What the terms are: f = (C − x)·T, f' = 1 − k·(x − C), |x − C|.
+    (c, t, k) = jax.vmap(spine.jet)(s)
+    f, slope, distance = jax.vmap(table._foot_terms)(x, s)
+    np.testing.assert_allclose(f, jnp.sum((c - x) * t, -1), atol=2e-6)
+    np.testing.assert_allclose(slope, 1 - jnp.sum(k * (x - c), -1), atol=2e-6)
+    np.testing.assert_allclose(distance, jnp.linalg.norm(x - c, axis=-1), atol=2e-6)
+
+
+@pytest.mark.parametrize("dtype", [jnp.float64, jnp.float32])
+def test_nearest_sample_by_packed_keys(dtype):
+    # `_nearest` takes the minimum of the squared distances with the candidate's position
+    # packed in their low bits: the nearest candidate, up to distances equal in all but those
+    # bits, and the first of exact ties.
+    rng = np.random.default_rng(4)
+    samples = jnp.asarray(rng.normal(size=(17, 3)), dtype)
+    points = jnp.asarray(rng.normal(size=(500, 3)), dtype)
+    picked = jax.vmap(lambda x: _nearest(samples.T, x, range(17)))(points)
+    squared = np.sum((np.asarray(points)[:, None] - np.asarray(samples)[None]) ** 2, -1)
+    best = squared[np.arange(500), np.asarray(picked)]
+    np.testing.assert_array_less(best, squared.min(1) * (1 + 2.0**-17) + 1e-30)
+    assert np.mean(np.asarray(picked) == squared.argmin(1)) > 0.99
+    # Traced candidate indices (the finer levels) and exact ties: the first one wins.
+    twice = jnp.concatenate([samples, samples])
+    picked = jax.vmap(lambda x: _nearest(twice.T, x, [jnp.int32(i) for i in range(34)]))(points)
+    assert np.all(np.asarray(picked) < 17)
 
 
 def test_fast_evaluator_is_exact_in_float64_and_for_polylines():
