@@ -28,9 +28,8 @@ from ._projection import (
     Registration,
     closest_arc_length,
     register_point,
-    register_points,
 )
-from ._reach import reach_lower_bound
+from ._reach import LocalReach
 from ._spine import AbstractSpine
 from ._table import SpineTable, fast_evaluator, tabulates
 from ._target import TargetFrames
@@ -87,7 +86,7 @@ def pose_point(
 class Poser(eqx.Module):
     """A target spine prepared for batched posing, once for all points: its frames with the
     twist (tabulated in single precision, `_target`), its fast evaluator for the projection
-    check (`_table`) and a lower bound of its reach.
+    check (`_table`) and lower bounds of its reach around each arc length.
 
     The projection check is certified on the way for the images closer to the target than the
     lower bound of its reach (`_reach`); the few others are bent again and run the global
@@ -99,14 +98,14 @@ class Poser(eqx.Module):
     target: AbstractSpine | SpineTable  # what the images are projected back on: `fast_evaluator`
     method: str = eqx.field(static=True)
     check_projection: bool = eqx.field(static=True)
-    reach: Array
+    reach: LocalReach | None  # for the projection check
 
     def __init__(self, target, method, twist, check_projection=True):
         self.target = fast_evaluator(target)
         # Tabulated from the spine table (its nodes are the table's, so no exact evaluation).
         self.frames = TargetFrames(self.target, twist, tabulate=tabulates(target))
         self.method, self.check_projection = method, check_projection
-        self.reach = reach_lower_bound(self.target)
+        self.reach = LocalReach(self.target) if check_projection else None
 
     @property
     def fused(self) -> bool:
@@ -124,13 +123,18 @@ class Poser(eqx.Module):
             image, _, s1, distance = bend(reg)
             return projects_back(self.target, image, s1, distance)
 
-        image, valid, _, distance = jax.vmap(bend, in_axes=(batch_axes(registration),))(
+        image, valid, s1, distance = jax.vmap(bend, in_axes=(batch_axes(registration),))(
             registration
         )
         if self.check_projection:
-            certified = valid & (distance < self.reach)
+            certified = valid & (distance < jax.vmap(self.reach)(s1))
             valid = update_where(valid & ~certified, projects, certified, registration)
         return jnp.where(valid[:, None], image, registration.points), valid
+
+    def pose_all(self, registration: Registration) -> tuple[Array, Array]:
+        """`pose` for any number of registered points: in chunks (`map_chunks`) with exact
+        frames, whole with tabulated ones."""
+        return map_chunks(self.pose, registration, whole=self.fused)
 
 
 def pose_points(
@@ -146,8 +150,7 @@ def pose_points(
     into a few kernels. Exact spines bend in chunks (`_chunks`), their evaluation having many
     intermediates per point.
     """
-    poser = Poser(target, method, twist, check_projection)
-    return map_chunks(poser.pose, registration, whole=poser.fused)
+    return Poser(target, method, twist, check_projection).pose_all(registration)
 
 
 def flesh_points(
@@ -254,13 +257,21 @@ def register(points: ArrayLike, source: AbstractSpine, *, samples: int | None = 
     points = _check_points(points, "points")
     _check_spine(source, "source")
     samples = source.default_samples() if samples is None else int(samples)
+    registrar = _registrar(cast_floats(source, points.dtype), samples)
     # The points are put in outside the compiled call: returned from it, they would be copied.
-    return Registration(points, *_register(points, cast_floats(source, points.dtype), samples))
+    return Registration(points, *_register(registrar, points))
+
+
+# The prepared spine (tables, search samples, reach bounds) is built by a compiled call of its
+# own: compiled with the points, XLA fuses parts of it into every point's kernel (2× slower).
+@eqx.filter_jit
+def _registrar(source, samples):
+    return Registrar(source, samples)
 
 
 @eqx.filter_jit
-def _register(points, source, samples):
-    r = register_points(source, points, samples)
+def _register(registrar, points):
+    r = registrar.register_all(points)
     return r.arc_length, r.offset, r.curvature, r.valid, r.length
 
 
@@ -286,12 +297,18 @@ def pose(
     _check_spine(target, "target")
     dtype = registration.points.dtype
     target, twist = cast_floats((target, jnp.asarray(twist, dtype)), dtype)
-    return _pose(registration, target, check_method(method), twist, bool(check_projection))
+    poser = _poser(target, check_method(method), twist, bool(check_projection))
+    return _pose(poser, registration)
 
 
 @eqx.filter_jit
-def _pose(registration, target, method, twist, check_projection):
-    return pose_points(registration, target, method, twist, check_projection)
+def _poser(target, method, twist, check_projection):  # compiled apart, as `_registrar`
+    return Poser(target, method, twist, check_projection)
+
+
+@eqx.filter_jit
+def _pose(poser, registration):
+    return poser.pose_all(registration)
 
 
 def flesh(

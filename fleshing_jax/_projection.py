@@ -19,7 +19,7 @@ from jaxtyping import Array, ArrayLike, Bool, Float
 from ._chunks import map_chunks
 from ._compact import update_where
 from ._misc import dot, relative_tolerance, safe_divide
-from ._reach import reach_lower_bound, search_range
+from ._reach import LocalReach, search_range
 from ._spine import AbstractSpine
 from ._table import SpineTable, fast_evaluator
 
@@ -102,13 +102,14 @@ class _Search(eqx.Module):
             best = jnp.clip(first + _nearest(columns, x, around) * stride, 0, last)
         return best
 
-    def fast_start(self, x: Array, reach: Array) -> tuple[Array, Array]:
+    def fast_start(self, x: Array, reach: LocalReach) -> tuple[Array, Array]:
         """Newton from a nearby sample: `(s, certified)`, certified when the foot is closer
-        than the `reach` lower bound (then it is the unique closest point, see `_reach`)."""
+        than the lower bound of the `reach` around it (then it is the unique closest point, see
+        `_reach`)."""
         s = self.descend(x, self.grid[self.nearby_sample(x)], FAST_STEPS)
         f, _, distance = self.spine._foot_terms(x, s)
         stationary = jnp.abs(f) <= relative_tolerance(x.dtype) * (1 + distance)
-        return s, stationary & (distance < reach) & (s > self.lo) & (s < self.hi)
+        return s, stationary & (distance < reach(s)) & (s > self.lo) & (s < self.hi)
 
 
 def _nearest(columns: Array, x: Array, indices) -> Array:
@@ -188,7 +189,7 @@ class Registrar(eqx.Module):
     spine: AbstractSpine | SpineTable  # prepared, or tabulated in single precision
     exact: AbstractSpine  # prepared, gradients stopped: for a closed-form foot, if it has one
     search: _Search
-    reach: Array
+    reach: LocalReach
 
     def __init__(self, spine: AbstractSpine, samples: int | None = None):
         samples = spine.default_samples() if samples is None else samples
@@ -196,7 +197,7 @@ class Registrar(eqx.Module):
         self.spine = fast_evaluator(spine)
         self.exact = jax.lax.stop_gradient(spine)
         self.search = _search(self.spine, samples)
-        self.reach = reach_lower_bound(self.spine)
+        self.reach = LocalReach(self.spine)
 
     @property
     def fused(self) -> bool:
@@ -222,6 +223,12 @@ class Registrar(eqx.Module):
         finite = jnp.all(jnp.isfinite(points), axis=-1)
         s, converged = self.closest(jnp.where(finite[:, None], points, 0))
         return jax.vmap(lambda *a: _local_coordinates(self.spine, *a))(points, s, converged)
+
+    def register_all(self, points: Array) -> Registration:
+        """`register` for any number of points (N, 3): in chunks (`map_chunks`) on exact
+        spines, whole on tables; the `length` a scalar."""
+        registration = map_chunks(self.register, points, whole=self.fused)
+        return eqx.tree_at(lambda r: r.length, registration, self.spine.length)
 
 
 def closest_arc_lengths(spine: AbstractSpine, points: Array, samples: int | None = None):
@@ -273,9 +280,7 @@ def register_point(spine: AbstractSpine, x: ArrayLike, samples: int | None = Non
 def register_points(spine: AbstractSpine, points: Array, samples: int | None = None):
     """Registers points (N, 3) on `spine` (batched projection in chunks, see
     `closest_arc_lengths`)."""
-    registrar = Registrar(spine, samples)
-    registration = map_chunks(registrar.register, points, whole=registrar.fused)
-    return eqx.tree_at(lambda r: r.length, registration, registrar.spine.length)
+    return Registrar(spine, samples).register_all(points)
 
 
 def _local_coordinates(spine: AbstractSpine, x: Array, s: Array, converged: Array):

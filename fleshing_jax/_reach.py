@@ -1,36 +1,49 @@
-"""A certified lower bound of a spine's reach, so that most points skip the global search.
+"""Certified lower bounds of a spine's reach, so that most points skip the global search.
 
 Within the reach of a curve, every point has a unique closest point, and a foot of a normal at a
-distance below the reach *is* that closest point (Federer 1959, Thm 4.8). So a point whose
-Newton-converged foot `s` lies strictly inside the searched range `[lo, hi]` at a distance
-`r < ρ`, for a lower bound `ρ` of the reach, is projected correctly without the global
-multi-candidate search. The bound is computed once per spine (per pose, per registration), from
-`REACH_SAMPLES` samples of the continued spine on `[lo, hi]`, at spacing `h`:
+distance below the reach *is* that closest point (Federer 1959, Thm 4.8). The same holds
+locally: a point whose Newton-converged foot `s` lies strictly inside the searched range
+`[lo, hi]`, at a distance `r` below a lower bound `ρ(s)` of the reach *around `s`*, is projected
+correctly without the global multi-candidate search. The bounds are computed once per spine
+(per pose, per registration), from `REACH_SAMPLES` samples `P_j` of the continued spine on
+`[lo, hi]` at spacing `h`, one per sample `t_i`, for the feet nearest to it:
 
-For a window `w`, split the other spine points `t` into near (`|t − s| < w`) and far ones. Near:
+For a window `w`, split the spine points `t` into near (`|t − s| < w`) and far ones. Near:
 `f(t) = ½|X − C(t)|²` has `f'' = 1 − k(t)·(X − C(t)) ≥ 1 − κ̂ (r + |t − s|) > 0` when
-`κ̂ (r + w) < 1` (`κ̂ ≥ max κ`), so `s` is the only minimum there. Far: if every pair of spine
-points at least `w` apart in arc length is at least `D(w)` apart in space, then
-`|X − C(t)| ≥ D(w) − r > r` when `2r < D(w)`. Hence
+`κ̂ (r + w) < 1` (`κ̂ ≥ max κ`), so `s` is the only minimum there. Far: with `X = C(s) + r n`,
+`n ⟂ T(s)` and `Δ = C(t) − C(s)`, `|X − C(t)|² − r² = |Δ|² − 2r Δ·n ≥ |Δ|² − 2r |Δ⊥|` (`Δ⊥`:
+the part of `Δ` across `T(s)`), positive when `r < |Δ|²/(2|Δ⊥|)`; and `|X − C(t)| ≥ |Δ| − r > r`
+when `r < |Δ|/2`. For `s` nearest to sample `i`, `t` nearest to sample `j` and `δ = P_j − P_i`
+(unit speed: `|Δ − δ| ≤ h`, `|T(s) − T_i| ≤ κ̂h/2`): `|Δ| ≥ a = |δ| − h`, `|Δ⊥| ≤ c =
+|δ⊥T_i| + |δ|κ̂h + h` and `|t_j − t_i| ≥ w − h`. With `q_ij = max(a²/(2c), a/2)` (0 if
+`a ≤ 0`),
 
-    ρ = max over w of min(1/κ̂ − w, D(w)/2),
+    ρ_i = max over w of min(1/κ̂_i(w) − w, min of q_ij over j at least w − h from i),
 
-with the sampled `D(w)` lowered by `h` (true points lie within `h/2` of samples) and taken over
-sample pairs at least `w − h` apart. `κ̂` is the largest sampled curvature plus the largest jump
-between neighbouring samples (a Lipschitz margin for the curvature between samples). Points
-that are not certified this way still get the full global search: the bound only saves work.
+over windows `w = m h`, `m = 2, 4, 8, …` up to the whole range.
+
+Along a gently curved stretch `a²/(2c)` is large (`δ⊥` is small): the bound is then set by the
+curvature, where the chord test `a/2` alone stops at about a third of `1/κ̂`.
+`κ̂_i(w)` is the largest sampled curvature within `w/h + 1` samples of sample `i` plus the largest
+jump between neighbouring samples there (a Lipschitz margin for the curvature between samples).
+Both parts are local: a tight bend, or a spine coming back near itself (a U-turn, a coil),
+lowers the bounds around it only, not along the whole spine. Points that are
+not certified still get the full global search: the bounds only save work.
 """
 
 from __future__ import annotations
 
+import math
+
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 from jaxtyping import Array
 
+from ._misc import norm
 from ._spine import AbstractSpine
 
 REACH_SAMPLES = 384
-WINDOWS = 16  # candidate windows w = j/(WINDOWS κ̂), j = 1 … WINDOWS − 1, and the whole range
 
 
 def search_range(spine: AbstractSpine) -> tuple[Array, Array]:
@@ -39,31 +52,74 @@ def search_range(spine: AbstractSpine) -> tuple[Array, Array]:
     return -e0, spine.length + e1
 
 
-def reach_lower_bound(spine: AbstractSpine, samples: int = REACH_SAMPLES) -> Array:
-    """A lower bound of the reach of `spine` continued over its search range (scalar, ≥ 0).
+def _around(values: Array, radius: int) -> Array:
+    """The largest of `values` (S,) within `radius` indices of each index."""
+    window = (2 * radius + 1,)
+    padding = ((radius, radius),)
+    return jax.lax.reduce_window(values, -jnp.inf, jax.lax.max, window, (1,), padding)
 
-    Infinite for a straight spine. Computed without gradients (it only decides which points need
-    the global search).
+
+class LocalReach(eqx.Module):
+    """Lower bounds of a spine's reach around each of its samples, as a function of the arc
+    length of a foot (`__call__`, one point).
+
+    **Fields:** `lo`, `h`: the first sample and the spacing; `bounds`: (S,) the bound `ρ_i` for
+    feet within `h/2` of sample `i` (`inf` on a straight spine).
     """
-    spine = jax.lax.stop_gradient(spine._prepare())
-    lo, hi = search_range(spine)
-    grid = jnp.linspace(lo, hi, samples)
-    h = (hi - lo) / (samples - 1)
-    positions, _, k = jax.vmap(spine.jet)(grid)
-    kappa = jnp.linalg.norm(k, axis=-1)
-    kappa_hat = jnp.max(kappa) + jnp.max(jnp.abs(jnp.diff(kappa)))
-    radius = 1 / kappa_hat  # inf on a straight spine
-    chords = jnp.linalg.norm(positions[:, None] - positions[None], axis=-1)
-    # The closest chord between samples m apart (m = 0 … S−1), then between samples at least
-    # m apart (a suffix minimum): the far distance of every window from one (S, S) pass.
-    index = jnp.arange(samples)
-    separation = jnp.abs(index[:, None] - index[None])
-    closest = jnp.full(samples, jnp.inf, chords.dtype).at[separation].min(chords)
-    at_least = jax.lax.cummin(closest, reverse=True)
-    fractions = jnp.arange(1, WINDOWS, dtype=h.dtype) / WINDOWS
-    windows = jnp.append(jnp.where(jnp.isfinite(radius), fractions * radius, 0), hi - lo + 2 * h)
-    # Pairs at least `w − h` apart in arc length: separations m with m·h ≥ w − h (m·h grows
-    # with m, so the first such m is the count of those below).
-    first = jnp.sum(index * h < (windows - h)[:, None], axis=1)
-    far = jnp.append(at_least, jnp.inf)[first] - h
-    return jnp.maximum(jnp.max(jnp.minimum(radius - windows, far / 2)), 0)
+
+    lo: Array
+    h: Array
+    bounds: Array
+
+    def __init__(self, spine: AbstractSpine, samples: int = REACH_SAMPLES):
+        spine = jax.lax.stop_gradient(spine._prepare())
+        lo, hi = search_range(spine)
+        grid = jnp.linspace(lo, hi, samples)
+        h = (hi - lo) / (samples - 1)
+        self.lo, self.h = lo, h
+        positions, tangents, k = jax.vmap(spine.jet)(grid)
+        kappa = norm(k)
+        jumps = jnp.abs(jnp.diff(kappa, append=kappa[-1:]))
+
+        def kappa_hat(m):  # κ̂ over the spine within m + 1 samples of each sample
+            return _around(kappa, m + 1) + _around(jumps, m + 1)
+
+        # q_ij: far points near sample j stay farther than r from X when r < q_ij (see above).
+        # δ_ij = P_j − P_i one coordinate at a time (sums over a minor axis of 3 are slow on
+        # XLA's CPU backend, see `_misc.dot`).
+        delta = [p[None] - p[:, None] for p in positions.T]
+        along = sum(d * t[:, None] for d, t in zip(delta, tangents.T))
+        length = jnp.sqrt(sum(d * d for d in delta))
+        across = jnp.sqrt(jnp.maximum(length**2 - along**2, 0))
+        a = length - h
+        c = across + length * kappa_hat(1)[:, None] * h + h
+        q = jnp.where(a > 0, jnp.maximum(a**2 / (2 * c), a / 2), 0)
+        # Row-wise running minima: the smallest q_ij over samples j at least n indices away
+        # from i on either side is read off them (one (S, S) pass for all windows).
+        upto = jax.lax.cummin(q, axis=1)
+        onward = jax.lax.cummin(q, axis=1, reverse=True)
+        index, last = jnp.arange(samples), samples - 1
+        inf = jnp.asarray(jnp.inf, q.dtype)
+        bounds = []
+        # Windows w = m h, m = 2, 4, …, up to the whole range (no far points).
+        for m in (2**e for e in range(1, math.ceil(math.log2(samples + 1)) + 1)):
+            left, right = index - (m - 1), index + (m - 1)  # far: at least w − h away
+            before = jnp.where(left >= 0, upto[index, jnp.maximum(left, 0)], inf)
+            after = jnp.where(right <= last, onward[index, jnp.minimum(right, last)], inf)
+            near = 1 / kappa_hat(m) - m * h
+            bounds.append(jnp.minimum(near, jnp.minimum(before, after)))
+        # A reduction, so that XLA materialises the bounds (their elementwise last steps would
+        # otherwise be fused into every point's lookup, 2× slower `pose`).
+        self.bounds = jnp.maximum(jnp.max(jnp.stack(bounds, axis=1), axis=1), 0)
+
+    def __call__(self, s: Array) -> Array:
+        """The bound for a foot at `s` (scalar): that of the nearest sample."""
+        nearest = jnp.clip(jnp.round((s - self.lo) / self.h), 0, self.bounds.shape[0] - 1)
+        return self.bounds.at[nearest.astype(jnp.int32)].get(mode="clip")
+
+
+def reach_lower_bound(spine: AbstractSpine, samples: int = REACH_SAMPLES) -> Array:
+    """A lower bound of the reach of `spine` continued over its search range (scalar, ≥ 0): the
+    smallest of its `LocalReach` bounds. Infinite for a straight spine. Computed without
+    gradients (it only decides which points need the global search)."""
+    return jnp.min(LocalReach(spine, samples).bounds)

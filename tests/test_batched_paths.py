@@ -16,7 +16,7 @@ from fleshing_jax import _chunks as chunks
 from fleshing_jax._chunks import map_chunks
 from fleshing_jax._compact import update_where
 from fleshing_jax._projection import closest_arc_lengths
-from fleshing_jax._reach import reach_lower_bound
+from fleshing_jax._reach import LocalReach, reach_lower_bound
 
 U_TURN = [[0, 0, 0], [4, 0, 0], [5, 0, 0], [5.5, 0.5, 0], [5, 1, 0], [4, 1, 0], [0, 1, 0]]
 
@@ -36,42 +36,98 @@ def test_reach_lower_bound():
         < float(reach_lower_bound(helix))
         <= 1 / float(jnp.linalg.norm(helix.curvature_vector(0.0)))
     )
-    # The U-turn's tightest bend has curvature 4: the reach is at most 1/4. The bound is within
-    # a factor of about 6 of it (near the bend chords are as short as the arcs, and the sampling
-    # costs a margin of one spacing twice).
+    # The U-turn's tightest bend has curvature 4: the reach is at most 1/4 there. Its bounds
+    # stay below that around the bend and exceed it along the straight branches (1 apart).
     u_turn = fj.BSpline(U_TURN, degree=3)
     s = jnp.linspace(0.0, u_turn.length, 4001)
     kappa = jnp.max(jnp.linalg.norm(jax.vmap(u_turn.curvature_vector)(s), axis=-1))
-    assert 1 / (8 * kappa) < float(reach_lower_bound(u_turn)) <= 1 / kappa
+    reach = LocalReach(u_turn)
+    bend = float(s[jnp.argmax(jnp.linalg.norm(jax.vmap(u_turn.curvature_vector)(s), axis=-1))])
+    assert float(reach(bend)) <= 1 / float(kappa) < float(reach(1.0))
+    assert 0.25 < float(reach(1.0)) <= 0.5  # the branches are 1 apart
 
 
-def _reach_by_definition(spine, samples=384, windows=16):
-    """The bound of `_reach` computed as written: for each window `w`, the closest chord over
-    all sample pairs at least `w − h` apart (the library takes a suffix minimum instead)."""
+def _local_reach_by_definition(spine, samples=96):
+    """The bounds of `_reach.LocalReach` computed as written, in NumPy float64: for each sample
+    `i` and window `w = m h`, the curvature bound within `m + 1` samples and the smallest `q_ij`
+    over all samples `j` at least `w − h` away."""
     spine = spine._prepare()
     e0, e1 = spine.extension()
-    lo, hi = -e0, spine.length + e1
-    grid = jnp.linspace(lo, hi, samples)
+    lo, hi = -float(e0), float(spine.length) + float(e1)
+    grid = jnp.linspace(lo, hi, samples).astype(spine.length.dtype)
     h = (hi - lo) / (samples - 1)
-    positions, _, k = jax.vmap(spine.jet)(grid)
-    kappa = jnp.linalg.norm(k, axis=-1)
-    radius = 1 / (jnp.max(kappa) + jnp.max(jnp.abs(jnp.diff(kappa))))
-    chords = jnp.linalg.norm(positions[:, None] - positions[None], axis=-1)
-    apart = jnp.abs(jnp.arange(samples)[:, None] - jnp.arange(samples)[None]) * h
-    fractions = jnp.arange(1, windows, dtype=h.dtype) / windows
-    ws = jnp.append(jnp.where(jnp.isfinite(radius), fractions * radius, 0), hi - lo + 2 * h)
-    far = [jnp.min(jnp.where(apart >= w - h, chords, jnp.inf)) - h for w in ws]
-    return jnp.maximum(jnp.max(jnp.minimum(radius - ws, jnp.stack(far) / 2)), 0)
+    positions, tangents, k = (np.asarray(a, np.float64) for a in jax.vmap(spine.jet)(grid))
+    kappa = np.linalg.norm(k, axis=-1)
+    jumps = np.abs(np.diff(kappa, append=kappa[-1]))
+
+    def kappa_hat(i, m):
+        around = slice(max(i - m - 1, 0), i + m + 2)
+        return kappa[around].max() + jumps[around].max()
+
+    bounds = []
+    for i in range(samples):
+        best = 0.0
+        m = 2
+        while True:
+            far = np.inf
+            for j in range(samples):
+                if abs(j - i) < m - 1:
+                    continue
+                delta = positions[j] - positions[i]
+                across = np.linalg.norm(delta - (delta @ tangents[i]) * tangents[i])
+                a = np.linalg.norm(delta) - h
+                c = across + np.linalg.norm(delta) * kappa_hat(i, 1) * h + h
+                far = min(far, max(a * a / (2 * c), a / 2) if a > 0 else 0.0)
+            with np.errstate(divide="ignore"):
+                near = 1 / kappa_hat(i, m) - m * h
+            best = max(best, min(near, far))
+            if m >= samples + 1:
+                break
+            m *= 2
+        bounds.append(best)
+    return np.array(bounds)
 
 
 @pytest.mark.parametrize("dtype", [np.float64, np.float32])
-def test_reach_lower_bound_equals_its_definition(dtype):
+def test_local_reach_equals_its_definition(dtype):
     shapes = [fj.Line(3.0), fj.Arc(3.0, 4.0), fj.Helix(1.0, 1.0, 12.0), _coil()]
     shapes.append(fj.BSpline(U_TURN, degree=3))
     for spine in shapes:
         spine = jax.tree.map(lambda a: a.astype(dtype) if eqx.is_inexact_array(a) else a, spine)
-        # The same pairs and the same arithmetic: equal, not just close (inf for the line).
-        assert float(reach_lower_bound(spine)) == float(_reach_by_definition(spine)), spine
+        bounds = np.asarray(LocalReach(spine, 96).bounds, np.float64)
+        expected = _local_reach_by_definition(spine)
+        rtol = 1e-10 if dtype == np.float64 else 1e-4
+        np.testing.assert_allclose(bounds, expected, rtol=rtol, err_msg=str(spine))
+        # The global bound is the smallest local one.
+        assert float(reach_lower_bound(spine, 96)) == float(bounds.min())
+    # Local: along the U-turn's straight branches the bounds exceed the bend's radius of
+    # curvature (1/4), which the bend's own bounds stay below.
+    bounds = np.asarray(LocalReach(fj.BSpline(U_TURN, degree=3)).bounds)
+    assert bounds.min() < 0.25 < np.median(bounds)
+
+
+@pytest.mark.parametrize("shape", ["arc", "helix", "u_turn", "coil"])
+def test_local_reach_bounds_are_sound(shape):
+    # Points at a distance below the local bound from their foot, in any normal direction:
+    # no point of the continued spine (densely sampled) is closer than the foot.
+    spine = {
+        "arc": fj.Arc(3.0, 4.0),
+        "helix": fj.Helix(1.0, 1.0, 12.0),
+        "u_turn": fj.BSpline(U_TURN, degree=3),
+        "coil": _coil(),
+    }[shape]._prepare()
+    reach = LocalReach(spine)
+    rng = np.random.default_rng(5)
+    s = jnp.asarray(rng.uniform(float(reach.lo), float(reach.lo) + 383 * float(reach.h), 2000))
+    (c, t, _), (i, j) = jax.vmap(spine.jet_and_normals)(s)
+    angle = jnp.asarray(rng.uniform(0, 2 * np.pi, 2000))[:, None]
+    r = jax.vmap(reach)(s) * jnp.asarray(rng.uniform(0.9, 0.999, 2000))
+    x = c + r[:, None] * (jnp.cos(angle) * i + jnp.sin(angle) * j)
+    dense = jax.vmap(spine)(jnp.linspace(reach.lo, reach.lo + 383 * reach.h, 40001))
+    nearest = jnp.min(jnp.linalg.norm(x[:, None] - dense[None], axis=-1), axis=1)
+    assert np.all(np.asarray(nearest) >= np.asarray(r) * (1 - 1e-9) - 1e-12)
+    # And the bounds are not vacuous: the tube they certify has a useful radius.
+    assert np.median(np.asarray(reach.bounds)) > 0.2
 
 
 @pytest.mark.parametrize("shape", ["u_turn", "coil"])
@@ -90,7 +146,7 @@ def test_batched_projection_equals_global_search(shape):
     np.testing.assert_allclose(np.asarray(batched[0])[ok], np.asarray(single[0])[ok], atol=1e-9)
     # Both paths ran: some points certified by the reach bound, others searched globally.
     distance = np.linalg.norm(np.asarray(points - jax.vmap(spine)(single[0])), axis=-1)
-    reach = float(reach_lower_bound(spine))
+    reach = np.asarray(jax.vmap(LocalReach(spine))(single[0]))
     assert np.any(ok & (distance < reach)) and np.any(ok & (distance > reach))
 
 
