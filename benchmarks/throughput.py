@@ -315,14 +315,19 @@ def memory(args) -> None:
 
 
 def resolution(args) -> None:
+    """Registration against spine resolution, split into the once-per-spine preparation
+    (tables, search samples, reach bounds: linear in the resolution, independent of N) and the
+    per-point work with the spine prepared (the coarse-to-fine search: logarithmic)."""
+    from fleshing_jax._fleshing import _register, _registrar
+
     n = args.resolution_size
     dtype = args.dtypes[0]
     dense = _curve(np.linspace(0, 4, 8193))
     points = jax.device_put(tube_points(dense, n, dtype))
     print(f"\n## Registration cost against spine resolution (N = {n:.0e}, {dtype})\n")
-    print("| spine | resolution | search samples | register M points/s | time / time at lowest |"
-          " compile s |")  # fmt: skip
-    print("|---|---:|---:|---:|---:|---:|")
+    print("| spine | resolution | search samples | register M points/s | preparation ms |"
+          " prepared: M points/s | prepared time / at lowest | compile s |")  # fmt: skip
+    print("|---|---:|---:|---:|---:|---:|---:|---:|")
     cases = [("BSpline control points", c) for c in (8, 16, 32, 64, 128, 256)]
     cases += [("Polyline vertices", v) for v in (64, 128, 256, 512, 1024, 2048, 4096)]
     base = {}
@@ -332,12 +337,15 @@ def resolution(args) -> None:
             spine = fj.BSpline(_curve(u).astype(dtype))
         else:
             spine = fj.Polyline(_curve(u).astype(dtype))
+        samples = spine.default_samples()
         first, steady, _ = timed(lambda: fj.register(points, spine), args.repeats)
-        base.setdefault(kind, steady)
+        _, prepare, registrar = timed(lambda: _registrar(spine, samples), args.repeats, False)
+        _, per_point, _ = timed(lambda: _register(registrar, points), args.repeats, False)
+        base.setdefault(kind, per_point)
         print(
-            f"| {kind.split()[0]} | {kind.split(maxsplit=1)[1]}: {size} | "
-            f"{spine.default_samples()} | {rate(n, steady)} | {steady / base[kind]:.2f} |"
-            f" {first - steady:.2f} |",
+            f"| {kind.split()[0]} | {kind.split(maxsplit=1)[1]}: {size} | {samples} |"
+            f" {rate(n, steady)} | {prepare * 1e3:.3g} | {rate(n, per_point)} |"
+            f" {per_point / base[kind]:.2f} | {first - steady:.2f} |",
             flush=True,
         )
 

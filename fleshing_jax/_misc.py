@@ -68,16 +68,6 @@ def norm(a: Array) -> Array:
     return jnp.sqrt(dot(a, a))
 
 
-def argmin(values: Array) -> Array:
-    """Index of the smallest entry along a short last axis (the first on ties), unrolled as
-    comparisons for the reason given in `dot`."""
-    best, index = values[..., 0], jnp.zeros(values.shape[:-1], jnp.int32)
-    for i in range(1, values.shape[-1]):
-        better = values[..., i] < best
-        best, index = jnp.where(better, values[..., i], best), jnp.where(better, i, index)
-    return index
-
-
 def safe_sqrt(x: Array) -> Array:
     """`sqrt(x)` for `x > 0`, and 0 (with zero derivative) for `x <= 0`."""
     positive = x > 0

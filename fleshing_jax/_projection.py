@@ -93,14 +93,18 @@ class _Search(eqx.Module):
         `fast_start` certifies its result independently of where it started)."""
         last = self.grid.shape[0] - 1
         columns = self.positions.T  # gathered one coordinate at a time: fast on XLA's CPU
-        stride = BRANCH**self.levels
-        best = stride * _nearest(columns, x, range(0, last + 1, stride))
-        for level in range(1, self.levels + 1):
-            stride = BRANCH ** (self.levels - level)
+        strides = [BRANCH ** (self.levels - level) for level in range(self.levels + 1)]
+        best = strides[0] * _nearest(columns, x, range(0, last + 1, strides[0]))
+
+        def refine(level, best):
+            stride = jnp.asarray(strides)[level]
             first = best - BRANCH * stride
             around = [jnp.clip(first + m * stride, 0, last) for m in range(2 * BRANCH + 1)]
-            best = jnp.clip(first + _nearest(columns, x, around) * stride, 0, last)
-        return best
+            return jnp.clip(first + _nearest(columns, x, around) * stride, 0, last)
+
+        # A loop, not unrolled: batched, each level's result is then materialised once, where
+        # unrolled XLA would recompute the levels above in each of the next level's gathers.
+        return jax.lax.fori_loop(1, self.levels + 1, refine, best)
 
     def fast_start(self, x: Array, reach: LocalReach) -> tuple[Array, Array]:
         """Newton from a nearby sample: `(s, certified)`, certified when the foot is closer

@@ -50,9 +50,10 @@ class PiecewiseCubic(eqx.Module):
     """A function of arc length `s ↦ (F,)` tabulated on a spine's closest-point search range.
 
     **Fields:** `length`, `lo`, `hi` (scalars: the spine's length and search range);
-    `coefficients`: (4, F, P) monomial coefficients of the F values on each piece, in its local
-    parameter `u ∈ [−1, 1]`; `inner`: static number of pieces on `[0, length]`
-    (`P = inner + 2 END_PIECES`).
+    `coefficients`: (P, 4, F) monomial coefficients of the F values on each piece, in its local
+    parameter `u ∈ [−1, 1]` (piece-major: a point's lookups read one contiguous block, which
+    stays fast when the table outgrows the caches); `inner`: static number of pieces on
+    `[0, length]` (`P = inner + 2 END_PIECES`).
     """
 
     length: Array
@@ -77,7 +78,7 @@ class PiecewiseCubic(eqx.Module):
         )
         width = jnp.concatenate([jnp.full((n,), w) for w, n in zip(widths, counts)])
         samples = jax.vmap(jax.vmap(function))(starts[:, None] + width[:, None] * x)  # (P, 4, F)
-        self.coefficients = jnp.einsum("kq,pqf->kfp", jnp.asarray(fit, samples.dtype), samples)
+        self.coefficients = jnp.einsum("kq,pqf->pkf", jnp.asarray(fit, samples.dtype), samples)
 
     def _widths(self) -> tuple[Array, Array, Array]:
         return -self.lo / END_PIECES, self.length / self.inner, (self.hi - self.length) / END_PIECES
@@ -85,7 +86,7 @@ class PiecewiseCubic(eqx.Module):
     def fields(self, s: Array) -> list[Array]:
         """The F tabulated values at `s`, as F scalars.
 
-        Each is its own lookup (one gather per coefficient, from rows of P values): batched,
+        Each is its own lookup (one gather per coefficient): batched,
         XLA fuses a lookup into the kernel that consumes it, where a stacked (F,) vector would
         be materialised and then read back (several times slower on XLA's CPU backend,
         benchmarks/README.md). So callers look up only the values they need, each used once.
@@ -102,12 +103,15 @@ class PiecewiseCubic(eqx.Module):
                 END_PIECES + s / w1,
             ),
         )
-        piece = jnp.clip(jnp.floor(index), 0, self.coefficients.shape[-1] - 1)
+        index = jnp.where(jnp.isnan(index), 0, index)  # (keeps the reads below in bounds)
+        pieces, _, count = self.coefficients.shape
+        piece = jnp.clip(jnp.floor(index), 0, pieces - 1)
         u = 2 * (index - piece) - 1
-        piece = piece.astype(jnp.int32)
+        start = piece.astype(jnp.int32) * (4 * count)
+        flat = self.coefficients.reshape(-1)
         a0, a1, a2, a3 = (
-            [row.at[piece].get(mode="promise_in_bounds") for row in rows]
-            for rows in self.coefficients
+            [flat.at[start + k * count + f].get(mode="promise_in_bounds") for f in range(count)]
+            for k in range(4)
         )
         return [b0 + u * (b1 + u * (b2 + u * b3)) for b0, b1, b2, b3 in zip(a0, a1, a2, a3)]
 
