@@ -97,7 +97,7 @@ class _Search(eqx.Module):
         best = strides[0] * _nearest(columns, x, range(0, last + 1, strides[0]))
 
         def refine(level, best):
-            stride = jnp.asarray(strides)[level]
+            stride = jnp.asarray(strides, jnp.int32)[level]
             first = best - BRANCH * stride
             around = [jnp.clip(first + m * stride, 0, last) for m in range(2 * BRANCH + 1)]
             return jnp.clip(first + _nearest(columns, x, around) * stride, 0, last)
