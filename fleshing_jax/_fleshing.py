@@ -3,7 +3,7 @@
 Written for one point and batched with `vmap`. Registration depends only on the source spine,
 so `register` runs once per shape and `pose` is the per-frame path: O(1) work per point plus,
 by default, the check that each image projects back where it should (certified for most points
-by a lower bound of the target's reach, `_reach`; the global search runs on the others only).
+by lower bounds of the target's reach, `_reach`; the global search runs on the others only).
 The batched paths (`Registrar`, `Poser`) run in chunks of points (`_chunks`) on exact
 spines, on whole batches on tabulated ones (single precision, `_table`).
 

@@ -186,9 +186,9 @@ def closest_arc_length(spine: AbstractSpine, x: Array, samples: int | None = Non
 
 
 class Registrar(eqx.Module):
-    """A spine prepared for batched registration: its search samples and a lower bound of its
-    reach, computed once for all points, and its closed-form foot where it has one (lines,
-    arcs; see `closest_arc_lengths`)."""
+    """A spine prepared for batched registration: its search samples and lower bounds of its
+    reach around each arc length, computed once for all points, and its closed-form foot where
+    it has one (lines, arcs; see `closest_arc_lengths`)."""
 
     spine: AbstractSpine | SpineTable  # prepared, or tabulated in single precision
     exact: AbstractSpine  # prepared, gradients stopped: for a closed-form foot, if it has one
@@ -240,9 +240,10 @@ def closest_arc_lengths(spine: AbstractSpine, points: Array, samples: int | None
 
     Same results, less work: each point first runs Newton from a nearby sample, and the result
     is certified global when the point is closer to its foot than a lower bound of the spine's
-    reach (`_reach`) — or, on lines and arcs, takes the closed-form foot, certified when unique
-    in the search range; only the other points run the global multi-candidate search. Points are
-    processed in chunks (`_chunks`), so memory does not grow with intermediates per point.
+    reach around that foot (`_reach`) — or, on lines and arcs, takes the closed-form foot,
+    certified when unique in the search range; only the other points run the global
+    multi-candidate search. Exact spines are processed in chunks (`_chunks`), so memory does not
+    grow with their intermediates per point; tabulated ones in one batch.
     """
     registrar = Registrar(spine, samples)
     return map_chunks(registrar.closest, points, whole=registrar.fused)

@@ -154,9 +154,9 @@ class SpineTable(eqx.Module):
 
     def jet_and_normals(self, s):
         """`((C, T, k), (I, J))` at `s`, each (3,)."""
-        # Materialised once per point: callers use these vectors several times, and XLA would
-        # otherwise split the lookups into one kernel per consumer (~5× slower).
-        values = jax.lax.optimization_barrier(jnp.stack(self.cubics.fields(s)[:15]))
+        # For the rare paths (global search, building other tables): the batched search uses
+        # `_foot_terms` and `_local_terms`, whose lookups fuse.
+        values = jnp.stack(self.cubics.fields(s)[:15])
         c, t, k, i, j = jnp.split(values, 5)
         return (c, t, k), (i, j)
 
