@@ -16,7 +16,7 @@ import numpy as np
 jax.config.update("jax_enable_x64", True)
 
 import fleshing_jax as fj  # noqa: E402
-from fleshing_jax._parametric import RMF_NODES_PER_RADIAN  # noqa: E402
+from fleshing_jax._spines.parametric import RMF_NODES_PER_RADIAN  # noqa: E402
 
 
 def frame_errors():

@@ -318,7 +318,7 @@ def resolution(args) -> None:
     """Registration against spine resolution, split into the once-per-spine preparation
     (tables, search samples, reach bounds: linear in the resolution, independent of N) and the
     per-point work with the spine prepared (the coarse-to-fine search: logarithmic)."""
-    from fleshing_jax._fleshing import _register, _registrar
+    from fleshing_jax._fleshing.pipeline import _register, _registrar
 
     n = args.resolution_size
     dtype = args.dtypes[0]

@@ -15,7 +15,7 @@ import time
 
 import numpy as np
 
-from ._maps import METHODS
+from ._fleshing.maps import METHODS
 
 PROG = "fleshing-jax"
 
@@ -87,9 +87,10 @@ class _Progress:
 def _deform(args) -> int:
     import trimesh
 
-    from ._io import load_spine
-    from ._mesh import deform_mesh, load_mesh, write_mesh_atomic
-    from ._volume import volume
+    from ._mesh.deform import deform_mesh
+    from ._mesh.files import load_mesh, write_mesh_atomic
+    from ._mesh.volume import volume
+    from ._spines.files import load_spine
 
     source, target = load_spine(args.source), load_spine(args.target)
     mesh = load_mesh(args.input)

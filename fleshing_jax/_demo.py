@@ -10,11 +10,12 @@ from pathlib import Path
 
 import numpy as np
 
-from ._analytic import Arc, Line
-from ._maps import METHODS
-from ._mesh import deform_mesh, write_mesh_atomic
-from ._shapes import creature
-from ._volume import volume
+from ._fleshing.maps import METHODS
+from ._mesh.deform import deform_mesh
+from ._mesh.files import write_mesh_atomic
+from ._mesh.shapes import creature
+from ._mesh.volume import volume
+from ._spines.analytic import Arc, Line
 
 DEFAULT_OUT = "fleshing-demo"
 

@@ -12,11 +12,11 @@ import numpy as np
 import pytest
 
 import fleshing_jax as fj
-from fleshing_jax import _chunks as chunks
-from fleshing_jax._chunks import map_chunks
-from fleshing_jax._compact import update_where
-from fleshing_jax._projection import closest_arc_lengths
-from fleshing_jax._reach import LocalReach, reach_lower_bound
+from fleshing_jax._batching import chunks
+from fleshing_jax._batching.chunks import map_chunks
+from fleshing_jax._batching.compact import update_where
+from fleshing_jax._fleshing.projection import closest_arc_lengths
+from fleshing_jax._fleshing.reach import LocalReach, reach_lower_bound
 
 U_TURN = [[0, 0, 0], [4, 0, 0], [5, 0, 0], [5.5, 0.5, 0], [5, 1, 0], [4, 1, 0], [0, 1, 0]]
 
@@ -48,9 +48,9 @@ def test_reach_lower_bound():
 
 
 def _local_reach_by_definition(spine, samples=96):
-    """The bounds of `_reach.LocalReach` computed as written, in NumPy float64: for each sample
-    `i` and window `w = m h`, the curvature bound within `m + 1` samples and the smallest `q_ij`
-    over all samples `j` at least `w − h` away."""
+    """The bounds of `_fleshing.reach.LocalReach` computed as written, in NumPy float64: for
+    each sample `i` and window `w = m h`, the curvature bound within `m + 1` samples and the
+    smallest `q_ij` over all samples `j` at least `w − h` away."""
     spine = spine._prepare()
     e0, e1 = spine.extension()
     lo, hi = -float(e0), float(spine.length) + float(e1)

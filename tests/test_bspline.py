@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 import fleshing_jax as fj
-from fleshing_jax._bspline import _de_boor
+from fleshing_jax._spines.bspline import _de_boor
 
 CONTROL = np.array(
     [[0, 0, 0], [1, 0.4, 0.1], [2, 1.2, 0.6], [3, 0.5, 1.4], [4, -0.6, 1.2], [5, 0, 0.4],

@@ -14,12 +14,12 @@ import pytest
 from conftest import cloud
 
 import fleshing_jax as fj
-from fleshing_jax._fit import Correspondence
+from fleshing_jax._fit.correspondences import Correspondence
 
 BSpline = getattr(fj, "BSpline", None)
 if BSpline is None:  # until the free-form spines are exported
     try:
-        from fleshing_jax._bspline import BSpline
+        from fleshing_jax._spines.bspline import BSpline
     except ImportError:
         BSpline = None
 needs_bspline = pytest.mark.skipif(BSpline is None, reason="B-spline spines not available")
@@ -91,7 +91,7 @@ def test_invalid_points_excluded():
 
 def _problem(rest, init, source, target, **kwargs):
     """The residual function `fit_spine` would solve, with its initial `y`."""
-    from fleshing_jax._fit_common import prepare
+    from fleshing_jax._fit.problem import prepare
 
     options = dict(
         method="radial",

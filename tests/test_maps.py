@@ -7,7 +7,7 @@ import pytest
 from conftest import central_difference
 
 import fleshing_jax as fj
-from fleshing_jax._maps import _halley_root
+from fleshing_jax._fleshing.maps import _halley_root
 
 A = 2 / (3 * np.sqrt(3))  # the branch point of μ³ − μ = α
 

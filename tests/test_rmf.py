@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 import fleshing_jax as fj
-from fleshing_jax._parametric import RMF_NODES_PER_RADIAN
+from fleshing_jax._spines.parametric import RMF_NODES_PER_RADIAN
 
 HELIX = fj.Helix(1.0, 1.0, 12.0)
 

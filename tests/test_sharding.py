@@ -20,7 +20,7 @@ SCRIPT = textwrap.dedent(
     from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
     import fleshing_jax as fj
-    from fleshing_jax import _chunks as chunks
+    from fleshing_jax._batching import chunks
 
     devices = jax.devices()
     assert len(devices) == 4, devices

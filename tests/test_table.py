@@ -1,4 +1,4 @@
-"""The tabulated spines of the single-precision batched paths (`_table`).
+"""The tabulated spines of the single-precision batched paths (`_spines.table`).
 
 The table replaces the exact spine in `register`, `pose` and `flesh` for float32 points only: its
 interpolation error must sit far below float32's resolution, so that those paths give what the
@@ -12,9 +12,9 @@ import pytest
 from conftest import cloud
 
 import fleshing_jax as fj
-from fleshing_jax._projection import _nearest
-from fleshing_jax._table import SpineTable, fast_evaluator
-from fleshing_jax._target import TargetFrames
+from fleshing_jax._fleshing.projection import _nearest
+from fleshing_jax._fleshing.target import TargetFrames
+from fleshing_jax._spines.table import SpineTable, fast_evaluator
 
 TORSION = [[0, 0, 0], [1, 0.4, 0.1], [2, 0.1, 0.6], [3, -0.5, 0.4], [4, 0, 0.2], [5, 0.3, 0.8]]
 INFLECTION = [[0, 0, 0], [1, 1, 0], [2, 0, 0.5], [3, -1, 0], [4, 0, 0.3], [5, 1, 1.0]]

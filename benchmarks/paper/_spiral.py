@@ -12,7 +12,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import fleshing_jax as fj
-from fleshing_jax._misc import as_float_array
+from fleshing_jax._checks import as_float_array
 
 
 def conical_spiral(turns: float = 2.0, samples: int = 25) -> fj.BSpline:

@@ -14,11 +14,11 @@ import os
 
 import numpy as np
 
-from ._analytic import Arc, Helix, Line
-from ._bspline import BSpline
-from ._polyline import Polyline
-from ._polynomial import InterpolatingPolynomial
-from ._spine import AbstractSpine
+from .analytic import Arc, Helix, Line
+from .bspline import BSpline
+from .polyline import Polyline
+from .polynomial import InterpolatingPolynomial
+from .spine import AbstractSpine
 
 # type name → (class, {field: (kind, required)}); kinds: "scalar", "vector", "points", "int",
 # "vector_or_none" (knots), "scalar_or_none" (step). Positional arguments are listed first.

@@ -15,7 +15,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, PyTree
 
-from ._chunks import per_point
+from .chunks import per_point
 
 CHUNK = 32
 

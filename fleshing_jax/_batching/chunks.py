@@ -28,7 +28,7 @@ def map_chunks(
     axis N, and scalars shared by all points (passed to every chunk as they are). `chunk`:
     points per chunk (default `CHUNK_POINTS`). `whole`: evaluate the whole batch at once, for
     functions that fuse into a few kernels with few intermediates per point (the tabulated
-    paths, `_table`): for them chunking saves little memory and costs time, the loop body
+    paths, `_spines.table`): for them chunking saves little memory and costs time, the loop body
     running ~2.5× slower on XLA's CPU backend than the same kernels on the whole batch.
 
     **Returns:** the outputs, leading axis N, equal to `function(inputs)`. Batches of at most

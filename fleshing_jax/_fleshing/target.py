@@ -14,11 +14,11 @@ import equinox as eqx
 import jax.numpy as jnp
 from jaxtyping import Array
 
-from ._frames import twist_normals
-from ._misc import dot
-from ._reach import search_range
-from ._spine import AbstractSpine
-from ._table import PiecewiseCubic, SpineTable
+from .._numerics import dot
+from .._spines.frames import twist_normals
+from .._spines.spine import AbstractSpine
+from .._spines.table import PiecewiseCubic, SpineTable
+from .reach import search_range
 
 
 def target_frame(spine: AbstractSpine, twist: Array, s: Array) -> tuple[Array, ...]:

@@ -22,7 +22,8 @@ import jax.numpy as jnp
 import optimistix as optx
 from jaxtyping import Array, ArrayLike
 
-from ._fit_common import (
+from .._fleshing.projection import Registration
+from .problem import (
     AbstractPoseProblem,
     FitResult,
     Parameters,
@@ -32,7 +33,6 @@ from ._fit_common import (
     fit,
     prepare,
 )
-from ._projection import Registration
 
 
 def _nearest(a: Array, b: Array, usable: Array) -> Array:

@@ -16,12 +16,12 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike, Bool, Float
 
-from ._chunks import map_chunks
-from ._compact import update_where
-from ._misc import dot, relative_tolerance, safe_divide
-from ._reach import LocalReach, search_range
-from ._spine import AbstractSpine
-from ._table import SpineTable, fast_evaluator
+from .._batching.chunks import map_chunks
+from .._batching.compact import update_where
+from .._numerics import dot, relative_tolerance, safe_divide
+from .._spines.spine import AbstractSpine
+from .._spines.table import SpineTable, fast_evaluator
+from .reach import LocalReach, search_range
 
 NEWTON_STEPS = 8
 FAST_STEPS = 3  # Newton steps of the certified fast path (from a sample at most h away)
@@ -109,7 +109,7 @@ class _Search(eqx.Module):
     def fast_start(self, x: Array, reach: LocalReach) -> tuple[Array, Array]:
         """Newton from a nearby sample: `(s, certified)`, certified when the foot is closer
         than the lower bound of the `reach` around it (then it is the unique closest point, see
-        `_reach`)."""
+        `reach`)."""
         s = self.descend(x, self.grid[self.nearby_sample(x)], FAST_STEPS)
         f, _, distance = self.spine._foot_terms(x, s)
         stationary = jnp.abs(f) <= relative_tolerance(x.dtype) * (1 + distance)
@@ -240,10 +240,10 @@ def closest_arc_lengths(spine: AbstractSpine, points: Array, samples: int | None
 
     Same results, less work: each point first runs Newton from a nearby sample, and the result
     is certified global when the point is closer to its foot than a lower bound of the spine's
-    reach around that foot (`_reach`) — or, on lines and arcs, takes the closed-form foot,
+    reach around that foot (`reach`) — or, on lines and arcs, takes the closed-form foot,
     certified when unique in the search range; only the other points run the global
-    multi-candidate search. Exact spines are processed in chunks (`_chunks`), so memory does not
-    grow with their intermediates per point; tabulated ones in one batch.
+    multi-candidate search. Exact spines are processed in chunks (`_batching.chunks`), so memory
+    does not grow with their intermediates per point; tabulated ones in one batch.
     """
     registrar = Registrar(spine, samples)
     return map_chunks(registrar.closest, points, whole=registrar.fused)

@@ -25,9 +25,10 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike
 
-from ._misc import check_points, dot, is_concrete, norm, safe_divide, safe_sqrt
-from ._rmf import propagate, reflect_twice
-from ._spine import AbstractTabulatedSpine, Evaluators, PreparedSpine, initial_normal
+from .._checks import check_points, is_concrete
+from .._numerics import dot, norm, safe_divide, safe_sqrt
+from .double_reflection import propagate, reflect_twice
+from .spine import AbstractTabulatedSpine, Evaluators, PreparedSpine, initial_normal
 
 
 class Polyline(AbstractTabulatedSpine):

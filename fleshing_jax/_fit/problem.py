@@ -21,12 +21,13 @@ import numpy as np
 import optimistix as optx
 from jaxtyping import Array, ArrayLike, Bool, Float
 
-from ._analytic import Arc, Helix, Line
-from ._fleshing import pose, pose_points, register
-from ._maps import check_method
-from ._misc import as_float_array, cast_floats
-from ._projection import Registration
-from ._spine import AbstractSpine
+from .._checks import as_float_array
+from .._fleshing.maps import check_method
+from .._fleshing.pipeline import pose, pose_points, register
+from .._fleshing.projection import Registration
+from .._numerics import cast_floats
+from .._spines.analytic import Arc, Helix, Line
+from .._spines.spine import AbstractSpine
 
 INVALID_MODES = ("penalize", "exclude")
 SMOOTHNESS_SAMPLES = 16  # midpoint samples of the bending energy ∫|k|² ds

@@ -18,8 +18,8 @@ float32 the tabulated paths agree with the exact ones to round-off. In float64 t
 spine exactly (`tabulates`). Polylines are piecewise by nature and are never tabulated.
 
 `SpineTable` tabulates the jet and normals of a spine and the products the closest-point
-search needs (`_foot_terms`, `_local_terms`); `_target.TargetFrames` tabulates what a pose needs
-of its target.
+search needs (`_foot_terms`, `_local_terms`); `_fleshing.target.TargetFrames` tabulates what a pose
+needs of its target.
 
 Why products and single uses: batched, a looked-up value used once is fused by XLA into the
 kernel that consumes it (a few loads and multiply-adds per point); a value used by several
@@ -37,9 +37,9 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array
 
-from . import _arclength as arclength
-from ._misc import dot
-from ._spine import AbstractSpine
+from .._numerics import dot
+from . import arclength
+from .spine import AbstractSpine
 
 DEGREE = 3
 END_PIECES = 32  # pieces on each continuation (at most a quarter turn, or one length, long)

@@ -21,7 +21,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array
 
-from ._misc import dot, norm, safe_divide
+from .._numerics import dot, norm, safe_divide
 
 GAUSS_NODES = 8
 NEWTON_STEPS = 5

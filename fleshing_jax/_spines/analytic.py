@@ -11,8 +11,9 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike
 
-from ._misc import as_float_array, check_positive, dot, is_concrete, unit
-from ._spine import AbstractSpine, initial_normal
+from .._checks import as_float_array, check_positive, is_concrete, unit
+from .._numerics import dot
+from .spine import AbstractSpine, initial_normal
 
 
 class Line(AbstractSpine):

@@ -40,8 +40,8 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array
 
-from ._misc import norm
-from ._spine import AbstractSpine
+from .._numerics import norm
+from .._spines.spine import AbstractSpine
 
 REACH_SAMPLES = 384
 
@@ -86,7 +86,7 @@ class LocalReach(eqx.Module):
 
         # q_ij: far points near sample j stay farther than r from X when r < q_ij (see above).
         # δ_ij = P_j − P_i one coordinate at a time (sums over a minor axis of 3 are slow on
-        # XLA's CPU backend, see `_misc.dot`).
+        # XLA's CPU backend, see `_numerics.dot`).
         delta = [p[None] - p[:, None] for p in positions.T]
         along = sum(d * t[:, None] for d, t in zip(delta, tangents.T))
         length = jnp.sqrt(sum(d * d for d in delta))

@@ -23,7 +23,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array
 
-from ._misc import dot, norm, safe_divide, safe_sqrt
+from .._numerics import dot, norm, safe_divide, safe_sqrt
 
 METHODS = ("double_reflection", "projection")
 

@@ -7,8 +7,8 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike
 
-from ._misc import check_points, is_concrete
-from ._parametric import AbstractParametricSpine, check_subdivisions, static_sizes
+from .._checks import check_points, is_concrete
+from .parametric import AbstractParametricSpine, check_subdivisions, static_sizes
 
 
 class InterpolatingPolynomial(AbstractParametricSpine):

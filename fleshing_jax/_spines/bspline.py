@@ -7,8 +7,8 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike
 
-from ._misc import as_float_array, check_points, is_concrete
-from ._parametric import AbstractParametricSpine, check_subdivisions, static_sizes
+from .._checks import as_float_array, check_points, is_concrete
+from .parametric import AbstractParametricSpine, check_subdivisions, static_sizes
 
 
 def clamped_uniform_knots(count: int, degree: int, dtype) -> Array:

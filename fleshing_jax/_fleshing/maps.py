@@ -18,7 +18,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array
 
-from ._misc import dot, safe_divide, safe_sqrt
+from .._numerics import dot, safe_divide, safe_sqrt
 
 METHODS = ("radial", "normal", "binormal", "skinning")
 _A = 2.0 / (3.0 * 3.0**0.5)  # the branch point of μ³ − μ = α

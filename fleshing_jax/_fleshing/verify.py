@@ -7,7 +7,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike, Float
 
-from ._fleshing import Fleshing, _check_points
+from .pipeline import Fleshing, _check_points
 
 
 def jacobian_determinant(fleshing: Fleshing, points: ArrayLike) -> Float[Array, " N"]:

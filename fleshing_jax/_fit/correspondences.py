@@ -17,7 +17,8 @@ import numpy as np
 import optimistix as optx
 from jaxtyping import Array, ArrayLike
 
-from ._fit_common import (
+from .._fleshing.projection import Registration
+from .problem import (
     AbstractPoseProblem,
     FitResult,
     Parameters,
@@ -27,7 +28,6 @@ from ._fit_common import (
     fit,
     prepare,
 )
-from ._projection import Registration
 
 
 def weighted_rms(diff: Array, weights: Array, counted: Array) -> Array:

@@ -6,9 +6,9 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike
 
-from ._misc import dot, safe_sqrt
-from ._rmf import METHODS, propagate
-from ._spine import AbstractSpine
+from .._numerics import dot, safe_sqrt
+from .double_reflection import METHODS, propagate
+from .spine import AbstractSpine
 
 PROJECTION_STEPS = 1024
 

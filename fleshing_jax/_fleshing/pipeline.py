@@ -3,9 +3,9 @@
 Written for one point and batched with `vmap`. Registration depends only on the source spine,
 so `register` runs once per shape and `pose` is the per-frame path: O(1) work per point plus,
 by default, the check that each image projects back where it should (certified for most points
-by lower bounds of the target's reach, `_reach`; the global search runs on the others only).
-The batched paths (`Registrar`, `Poser`) run in chunks of points (`_chunks`) on exact
-spines, on whole batches on tabulated ones (single precision, `_table`).
+by lower bounds of the target's reach, `reach`; the global search runs on the others only).
+The batched paths (`Registrar`, `Poser`) run in chunks of points (`_batching.chunks`) on exact
+spines, on whole batches on tabulated ones (single precision, `_spines.table`).
 
 Unequal lengths: with `λ = L₁/L₀`, the cross-section at `s` goes to `s₁ = λ s` and its
 straightened offset is scaled by `1/√λ`, so that `ds₁ dA₁ = ds dA` (`det J = 1` still).
@@ -18,21 +18,22 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike, Bool, Float
 
-from . import _chunks
-from ._chunks import batch_axes, map_chunks
-from ._compact import update_where
-from ._maps import BEND, UNBEND, check_method
-from ._misc import as_float_array, cast_floats, dot, norm, relative_tolerance
-from ._projection import (
+from .._batching import chunks as _chunks
+from .._batching.chunks import batch_axes, map_chunks
+from .._batching.compact import update_where
+from .._checks import as_float_array
+from .._numerics import cast_floats, dot, norm, relative_tolerance
+from .._spines.spine import AbstractSpine
+from .._spines.table import SpineTable, fast_evaluator, tabulates
+from .maps import BEND, UNBEND, check_method
+from .projection import (
     Registrar,
     Registration,
     closest_arc_length,
     register_point,
 )
-from ._reach import LocalReach
-from ._spine import AbstractSpine
-from ._table import SpineTable, fast_evaluator, tabulates
-from ._target import TargetFrames
+from .reach import LocalReach
+from .target import TargetFrames
 
 
 def bend_point(
@@ -85,11 +86,11 @@ def pose_point(
 
 class Poser(eqx.Module):
     """A target spine prepared for batched posing, once for all points: its frames with the
-    twist (tabulated in single precision, `_target`), its fast evaluator for the projection
-    check (`_table`) and lower bounds of its reach around each arc length.
+    twist (tabulated in single precision, `target`), its fast evaluator for the projection
+    check (`_spines.table`) and lower bounds of its reach around each arc length.
 
     The projection check is certified on the way for the images closer to the target than the
-    lower bound of its reach (`_reach`); the few others are bent again and run the global
+    lower bound of its reach (`reach`); the few others are bent again and run the global
     search (`update_where`), so that the images are consumed once (by the output) and XLA
     computes them in the same kernel as the frames they are made of.
     """
@@ -147,8 +148,8 @@ def pose_points(
     """`pose_point` for registered points: `(images (N, 3), valid (N,))`.
 
     Tabulated frames (single precision) bend all points at once: a few values per point, fused
-    into a few kernels. Exact spines bend in chunks (`_chunks`), their evaluation having many
-    intermediates per point.
+    into a few kernels. Exact spines bend in chunks (`_batching.chunks`), their evaluation
+    having many intermediates per point.
     """
     return Poser(target, method, twist, check_projection).pose_all(registration)
 

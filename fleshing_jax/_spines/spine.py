@@ -19,7 +19,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike
 
-from ._misc import dot, norm, safe_sqrt
+from .._numerics import dot, norm, safe_sqrt
 
 
 def initial_normal(tangent: Array) -> Array:
@@ -123,14 +123,14 @@ class AbstractSpine(eqx.Module):
 
     def _tabulable(self) -> bool:
         """Whether the batched single-precision paths may evaluate this spine through a table of
-        cubic pieces (`_table`): smooth spines yes, piecewise ones (polylines) no (static)."""
+        cubic pieces (`table`): smooth spines yes, piecewise ones (polylines) no (static)."""
         return True
 
     def _closest_start(self, x: Array, lo: Array, hi: Array) -> tuple[Array, Array] | None:
         """A closed-form closest projection of `x` (3,) on the spine continued over the search
         range `[lo, hi]`, for the batched registration: `(s, certified)`, certified when `s` is
         the unique closest point strictly inside the range. `None` (the default) where there is
-        no closed form: the batched registration then searches (`_projection`)."""
+        no closed form: the batched registration then searches (`_fleshing.projection`)."""
         return None
 
     def _foot_terms(self, x: Array, s: Array) -> tuple[Array, Array, Array]:

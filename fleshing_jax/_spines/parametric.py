@@ -2,13 +2,14 @@
 
 A subclass provides its pieces: `_piece_values(x)`, the curve at local parameters `x ∈ (−1, 1)`
 of every piece, and the static `piece_degree`. This base fits each piece's monomial coefficients
-exactly (Chebyshev nodes), makes the curve an exact arc-length spine (`_arclength`), and derives:
+exactly (Chebyshev nodes), makes the curve an exact arc-length spine (`arclength`), and derives:
 
 - `T = P'/|P'|` and `k = (P'' − (P''·T)T)/|P'|²` (exactly `dT/ds`, orthogonal to `T`, zero at
   inflections without any division by the curvature);
 - torsion `τ = (P' × P'')·P‴ / |P' × P''|²` (0 where the curvature vanishes);
-- rotation-minimising normals: double-reflection frames at the sub-interval breaks (`_rmf`),
-  evaluated anywhere by one more double-reflection step from the break at or before `s`.
+- rotation-minimising normals: double-reflection frames at the sub-interval breaks
+  (`double_reflection`), evaluated anywhere by one more double-reflection step from the break
+  at or before `s`.
 
 Nothing is cached: coefficients and tables are functions of the (differentiable) curve
 parameters, computed once per `jit`/`vmap` call (they do not depend on the points being
@@ -26,10 +27,10 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array
 
-from . import _arclength as arclength
-from ._misc import dot, safe_divide
-from ._rmf import double_reflection, propagate
-from ._spine import AbstractTabulatedSpine, Evaluators, PreparedSpine, initial_normal
+from .._numerics import dot, safe_divide
+from . import arclength
+from .double_reflection import double_reflection, propagate
+from .spine import AbstractTabulatedSpine, Evaluators, PreparedSpine, initial_normal
 
 RMF_NODES_PER_RADIAN = 96  # double-reflection error < 1e-9 on free-form spines (tests/test_rmf.py)
 

@@ -1,0 +1,129 @@
+"""Bending meshes and point clouds (trimesh), in chunks for large inputs.
+
+Vertices are fleshed; faces are never touched, so the deformed mesh has exactly the input's
+faces, vertex count and vertex order.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import jax.numpy as jnp
+import numpy as np
+import trimesh
+
+from .._fleshing.maps import check_method
+from .._fleshing.pipeline import pose, register
+from .._spines.spine import AbstractSpine
+
+CHUNK_SIZE = 200_000
+
+
+def flesh_chunked(
+    points: np.ndarray,
+    source: AbstractSpine,
+    target: AbstractSpine,
+    *,
+    method: str = "radial",
+    twist: float = 0.0,
+    chunk_size: int = CHUNK_SIZE,
+    progress: Callable[[int, int], None] | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """`flesh` in chunks of at most `chunk_size` points (bounded memory, progress reports).
+
+    Every chunk has the same shape (the last one is padded), so the work compiles once.
+
+    **Arguments:** `points`: (N, 3) array; spines, `method` and `twist` as for `flesh`;
+    `progress(done, total)`: called after each chunk.
+
+    **Returns:** `(deformed (N, 3), valid (N,) bool)` as NumPy arrays, dtype of `points`.
+    """
+    check_method(method)
+    points = np.asarray(points)
+    if points.ndim != 2 or points.shape[-1] != 3:
+        raise ValueError(f"`points` must have shape (N, 3), got shape {points.shape}.")
+    if not np.issubdtype(points.dtype, np.floating):
+        points = points.astype(np.float64)
+    n = len(points)
+    size = max(1, min(int(chunk_size), n))
+    deformed, valid = np.empty_like(points), np.zeros(n, dtype=bool)
+    for start in range(0, n, size):
+        chunk = points[start : start + size]
+        m = len(chunk)
+        if m < size:
+            chunk = np.concatenate([chunk, np.repeat(chunk[:1], size - m, axis=0)])
+        registration = register(jnp.asarray(chunk), source)
+        out, ok = pose(registration, target, method=method, twist=twist)
+        deformed[start : start + m] = np.asarray(out)[:m]
+        valid[start : start + m] = np.asarray(ok)[:m]
+        if progress is not None:
+            progress(start + m, n)
+    return deformed, valid
+
+
+def deform_mesh(
+    mesh,
+    source: AbstractSpine,
+    target: AbstractSpine,
+    *,
+    method: str = "radial",
+    twist: float = 0.0,
+    chunk_size: int = CHUNK_SIZE,
+    progress: Callable[[int, int], None] | None = None,
+):
+    """Bends a mesh or point cloud from around `source` to around `target`.
+
+    **Arguments:**
+
+    - `mesh`: a `trimesh.Trimesh` (triangles; quad meshes as trimesh loads them, i.e. each quad
+      split in two triangles, vertex order kept), a `(vertices (N, 3), faces (F, k))` pair of
+      arrays for polygon meshes of any face size (quads: `k = 4`, as in the paper's §5.2), a
+      `trimesh.PointCloud`, or an (N, 3) array of points.
+    - `source`, `target`: spines; `method` (one of `METHODS`) and `twist` (radians) as for
+      `flesh`.
+    - `chunk_size`, `progress`: see `flesh_chunked` (for large inputs).
+
+    **Returns:** for a `Trimesh`, a new `Trimesh` with the input's faces, vertex order and
+    visuals, its vertices fleshed, and the per-vertex validity (N,) bool in
+    `result.vertex_attributes["valid"]` (invalid vertices are left where they were). For a
+    `(vertices, faces)` pair, `(deformed vertices (N, 3), faces (the same array), valid (N,))`
+    (measure quad volumes with `fj.volume(deformed, faces)`). For a point cloud or array, a
+    `trimesh.PointCloud`, with the validity in `result.metadata["valid"]`.
+    """
+    if isinstance(mesh, trimesh.Trimesh | trimesh.PointCloud):
+        points = mesh.vertices
+    elif isinstance(mesh, tuple) and len(mesh) == 2:
+        points, faces = mesh
+        faces = np.asarray(faces)
+        if faces.ndim != 2 or not np.issubdtype(faces.dtype, np.integer):
+            raise ValueError(f"`mesh` faces must be an (F, k) integer array, got {faces.shape}.")
+        if faces.size and (faces.min() < 0 or faces.max() >= len(points)):
+            raise ValueError(f"`mesh` faces must index its {len(points)} vertices.")
+    elif hasattr(mesh, "shape"):
+        points = mesh
+    else:
+        raise TypeError(
+            "`mesh` must be a trimesh.Trimesh, a (vertices, faces) pair, a trimesh.PointCloud "
+            f"or an (N, 3) array, got {type(mesh)}."
+        )
+    deformed, valid = flesh_chunked(
+        np.asarray(points),
+        source,
+        target,
+        method=method,
+        twist=twist,
+        chunk_size=chunk_size,
+        progress=progress,
+    )
+    if isinstance(mesh, trimesh.Trimesh):
+        result = mesh.copy()
+        result.vertices = deformed
+        result.vertex_attributes["valid"] = valid
+        return result
+    if isinstance(mesh, tuple):
+        return deformed, faces, valid
+    cloud = trimesh.PointCloud(deformed)
+    if isinstance(mesh, trimesh.PointCloud) and mesh.colors is not None and len(mesh.colors):
+        cloud.colors = mesh.colors
+    cloud.metadata["valid"] = valid
+    return cloud

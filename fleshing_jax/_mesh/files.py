@@ -1,0 +1,83 @@
+"""Reading meshes with their vertex order kept, and writing them atomically (trimesh)."""
+
+from __future__ import annotations
+
+import os
+import tempfile
+from pathlib import Path
+
+import numpy as np
+import trimesh
+
+
+def load_mesh(path: str | os.PathLike):
+    """Reads a mesh or point cloud with trimesh, keeping vertex count and order.
+
+    OBJ files keep their `v` lines as vertices, in order, whenever trimesh allows (quads are
+    split in two triangles). Scenes with several meshes are concatenated.
+
+    **Returns:** a `trimesh.Trimesh` or `trimesh.PointCloud`. **Raises:** `FileNotFoundError`
+    when `path` does not exist, `ValueError` when it holds no mesh or points.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: no such file")
+    try:
+        loaded = trimesh.load(str(path), process=False)
+        if path.suffix.lower() == ".obj" and isinstance(loaded, trimesh.Trimesh):
+            loaded = _obj_in_file_order(path, loaded)
+    except Exception as error:  # trimesh raises many kinds for unreadable files
+        raise ValueError(f"{path}: not a mesh trimesh can read ({error})") from error
+    if isinstance(loaded, trimesh.Scene):
+        geometries = [g for g in loaded.geometry.values() if isinstance(g, trimesh.Trimesh)]
+        if not geometries:
+            raise ValueError(f"{path}: contains no mesh")
+        loaded = trimesh.util.concatenate(geometries)
+    if not isinstance(loaded, trimesh.Trimesh | trimesh.PointCloud) or len(loaded.vertices) == 0:
+        raise ValueError(f"{path}: contains no mesh or points")
+    return loaded
+
+
+def _obj_in_file_order(path: Path, loaded: trimesh.Trimesh) -> trimesh.Trimesh:
+    """The OBJ mesh with one vertex per `v` line, in file order, when trimesh can give it.
+
+    trimesh splits vertices along texture seams by default, and along normal seams with
+    `maintain_order=True`; one of the two keeps the file's vertices as they are.
+    """
+    with open(path, "rb") as file:
+        count = sum(1 for line in file if line.startswith(b"v "))
+    if len(loaded.vertices) == count:
+        return loaded
+    ordered = trimesh.load(str(path), process=False, maintain_order=True)
+    if isinstance(ordered, trimesh.Trimesh) and len(ordered.vertices) == count:
+        return ordered
+    return loaded
+
+
+def write_mesh_atomic(mesh, path: str | os.PathLike) -> None:
+    """Writes `mesh` to `path` in the format of its extension, atomically.
+
+    The mesh is exported to a temporary file in the same folder, then renamed over `path`: a
+    failed export never leaves `path` half-written (a previous file there stays intact).
+    Boolean vertex attributes (e.g. `"valid"`) are written as 0/1 bytes where the format
+    stores attributes (PLY).
+    """
+    path = Path(path)
+    file_type = path.suffix.lower().lstrip(".")
+    if not file_type:
+        raise ValueError(f"{path}: no extension to choose the output format from")
+    if isinstance(mesh, trimesh.Trimesh):
+        mesh = mesh.copy()
+        for name, values in list(mesh.vertex_attributes.items()):
+            if np.asarray(values).dtype == bool:
+                mesh.vertex_attributes[name] = np.asarray(values, dtype=np.uint8)
+    directory = path.parent if str(path.parent) else Path(".")
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=directory)
+    try:
+        with os.fdopen(fd, "wb") as file:
+            data = mesh.export(file_type=file_type)
+            file.write(data.encode() if isinstance(data, str) else data)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
