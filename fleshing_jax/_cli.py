@@ -15,7 +15,7 @@ import time
 
 import numpy as np
 
-from ._fleshing.maps import METHODS
+from ._fleshing.methods import METHODS
 
 PROG = "fleshing-jax"
 

@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ._fleshing.maps import METHODS
+from ._fleshing.methods import METHODS
 from ._mesh.deform import deform_mesh
 from ._mesh.files import write_mesh_atomic
 from ._mesh.shapes import creature

@@ -22,7 +22,7 @@ import optimistix as optx
 from jaxtyping import Array, ArrayLike, Bool, Float
 
 from .._checks import as_float_array
-from .._fleshing.maps import check_method
+from .._fleshing.methods import check_method
 from .._fleshing.pipeline import pose, pose_points, register
 from .._fleshing.projection import Registration
 from .._numerics import cast_floats

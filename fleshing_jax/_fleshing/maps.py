@@ -20,7 +20,6 @@ from jaxtyping import Array
 
 from .._numerics import dot, safe_divide, safe_sqrt
 
-METHODS = ("radial", "normal", "binormal", "skinning")
 _A = 2.0 / (3.0 * 3.0**0.5)  # the branch point of μ³ − μ = α
 
 
@@ -156,10 +155,3 @@ def skinning(d: Array, k: Array) -> tuple[Array, Array]:
 UNBEND = {"radial": radial_unbend, "normal": normal_unbend, "binormal": binormal_unbend}
 BEND = {"radial": radial_bend, "normal": normal_bend, "binormal": binormal_bend}
 UNBEND["skinning"] = BEND["skinning"] = skinning
-
-
-def check_method(method: str) -> str:
-    """Raises `ValueError` unless `method` is one of `METHODS`."""
-    if method not in METHODS:
-        raise ValueError(f"`method` must be one of {METHODS}, got {method!r}.")
-    return method

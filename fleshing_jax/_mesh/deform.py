@@ -12,7 +12,7 @@ import jax.numpy as jnp
 import numpy as np
 import trimesh
 
-from .._fleshing.maps import check_method
+from .._fleshing.methods import check_method
 from .._fleshing.pipeline import pose, register
 from .._spines.spine import AbstractSpine
 

@@ -1,0 +1,51 @@
+# The public names of fleshing_jax, each re-exported from the module that defines it. This stub is
+# the one list of them: type checkers read it, and `__init__.py` loads each name from it on first
+# use (so that `import fleshing_jax` and the command line's `--help` do not import JAX).
+
+
+from ._fit.chamfer import fit_spine_to_points as fit_spine_to_points
+from ._fit.correspondences import fit_spine as fit_spine
+from ._fit.problem import FitResult as FitResult
+from ._fleshing.maps import cubic_root as cubic_root
+from ._fleshing.methods import METHODS as METHODS
+from ._fleshing.pipeline import (
+    Fleshing as Fleshing,
+    flesh as flesh,
+    pose as pose,
+    register as register,
+)
+from ._fleshing.projection import (
+    Registration as Registration,
+    closest_arc_length as closest_arc_length,
+)
+from ._fleshing.verify import jacobian_determinant as jacobian_determinant
+from ._mesh.deform import deform_mesh as deform_mesh, flesh_chunked as flesh_chunked
+from ._mesh.files import load_mesh as load_mesh, write_mesh_atomic as write_mesh_atomic
+from ._mesh.holes import cap_holes as cap_holes
+from ._mesh.shapes import (
+    box_grid as box_grid,
+    creature as creature,
+    cube_cloud as cube_cloud,
+    extrusion as extrusion,
+    genus2_slab as genus2_slab,
+    voxel_surface as voxel_surface,
+)
+from ._mesh.volume import (
+    face_volumes as face_volumes,
+    triangulate as triangulate,
+    volume as volume,
+    volume_change as volume_change,
+)
+from ._spines.analytic import Arc as Arc, Helix as Helix, Line as Line
+from ._spines.bspline import BSpline as BSpline
+from ._spines.files import load_spine as load_spine, save_spine as save_spine
+from ._spines.frames import (
+    frenet_frame as frenet_frame,
+    rotation_minimizing_frame as rotation_minimizing_frame,
+)
+from ._spines.parametric import AbstractParametricSpine as AbstractParametricSpine
+from ._spines.polyline import Polyline as Polyline
+from ._spines.polynomial import InterpolatingPolynomial as InterpolatingPolynomial
+from ._spines.spine import AbstractSpine as AbstractSpine, initial_normal as initial_normal
+
+__version__: str
