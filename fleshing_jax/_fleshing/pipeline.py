@@ -25,7 +25,8 @@ from .._checks import as_float_array
 from .._numerics import cast_floats, dot, norm, relative_tolerance
 from .._spines.spine import AbstractSpine
 from .._spines.table import SpineTable, fast_evaluator, tabulates
-from .maps import BEND, UNBEND, check_method
+from .maps import BEND, UNBEND
+from .methods import check_method
 from .projection import (
     Registrar,
     Registration,
