@@ -1,0 +1,141 @@
+"""The initial medial axis: the inner part of the Voronoi diagram of dense surface samples.
+
+As in Q-MAT (Li et al. 2015, section 5) and Amenta & Bern's poles: the Voronoi vertices of
+surface samples that lie inside the shape are centres of maximal empty spheres, so they
+approximate medial spheres; Voronoi edges and faces between inside vertices connect them
+into a 2-complex that converges to the medial axis (with spikes, removed later by the
+simplification). The Voronoi diagram is taken as the dual of SciPy's Delaunay tetrahedra:
+
+- Voronoi vertex = circumcentre of a tetrahedron, kept where it lies inside the mesh; its
+  radius is the distance to the mesh (`surface.SurfaceQuery`), its contacts are the
+  tetrahedron's four samples (whose tangent planes seed the sphere quadrics);
+- Voronoi edge = a triangle shared by two kept tetrahedra;
+- Voronoi face = a Delaunay edge, not on the hull, all of whose tetrahedra are kept: a
+  convex polygon in the edge's bisector plane, ordered by angle and fanned into triangles
+  (the fan's diagonals become edges too, so every face's edges are edges).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.spatial import Delaunay
+
+from .surface import SurfaceQuery
+
+_PAIRS = np.array([(0, 1), (0, 2), (0, 3), (1, 2), (1, 3), (2, 3)])
+
+
+@dataclass
+class InitialAxis:
+    """The inner Voronoi complex. `centers (n, 3)`, `radii (n,)`, `edges (e, 2)`, `faces
+    (f, 3)`, `contacts (n, 4)`: indices into `points (s, 3)` / `normals (s, 3)` of the samples
+    on each sphere, `weights (s,)`: each sample's share of the surface area."""
+
+    centers: np.ndarray
+    radii: np.ndarray
+    edges: np.ndarray
+    faces: np.ndarray
+    contacts: np.ndarray
+    points: np.ndarray
+    normals: np.ndarray
+    weights: np.ndarray
+
+
+def circumcentres(a, b, c, d):
+    """Circumcentres `(T, 3)` of tetrahedra and a validity mask `(T,)` (False when flat)."""
+    u, v, w = b - a, c - a, d - a
+    vw, wu, uv = np.cross(v, w), np.cross(w, u), np.cross(u, v)
+    det = 2 * np.einsum("ij,ij->i", u, vw)
+    num = ((u * u).sum(1)[:, None] * vw + (v * v).sum(1)[:, None] * wu
+           + (w * w).sum(1)[:, None] * uv)
+    scale = np.maximum.reduce([np.linalg.norm(x, axis=1) for x in (u, v, w)]) ** 3
+    ok = np.abs(det) > 1e-12 * scale
+    return a + num / np.where(ok, det, 1.0)[:, None], ok
+
+
+def initial_medial_axis(query: SurfaceQuery, points, normals, weights, sample_faces
+                        ) -> InitialAxis:
+    """The inner Voronoi complex of surface samples `points (s, 3)` with outward `normals`
+    on the closed mesh of `query`, `weights (s,)` their area shares and `sample_faces (s, k)`
+    the faces each lies on (-1 padded; see `InitialAxis`)."""
+    delaunay = Delaunay(points)
+    tets = delaunay.simplices.astype(np.int64)
+    a, b, c, d = (points[tets[:, k]] for k in range(4))
+    centre, ok = circumcentres(a, b, c, d)
+    lo, hi = query.vertices.min(axis=0), query.vertices.max(axis=0)
+    ok &= ((centre >= lo) & (centre <= hi)).all(axis=1)
+    candidates = np.flatnonzero(ok)
+    # The closest point of an empty sphere lies near its contact samples: search the faces
+    # around the faces of the tetrahedron's four samples.
+    near = query.around(sample_faces[tets[candidates]].reshape(len(candidates), -1))
+    distance, _, inside = query.query_candidates(centre[candidates], near)
+    keep = np.zeros(len(tets), dtype=bool)
+    keep[candidates[inside & (distance > 0)]] = True
+    radius = np.zeros(len(tets))
+    # The circumradius is a distance to a surface point, so it bounds the distance from above
+    # where the closest face was not certified (see `SurfaceQuery.query`).
+    radius[candidates] = np.minimum(distance, np.linalg.norm(centre[candidates] -
+                                                             a[candidates], axis=1))
+
+    # Voronoi edges: Delaunay neighbours that are both kept.
+    neighbours = delaunay.neighbors.astype(np.int64)
+    t = np.repeat(np.arange(len(tets)), 4)
+    nb = neighbours.reshape(-1)
+    sel = (nb > t) & keep[t] & keep[np.maximum(nb, 0)]
+    edges = [np.stack([t[sel], nb[sel]], 1)]
+
+    # Voronoi faces: Delaunay edges whose whole ring of tetrahedra is kept, off the hull.
+    n_points = len(points)
+    ends = np.sort(tets[:, _PAIRS], axis=2)  # (T, 6, 2)
+    key = (ends[..., 0] * n_points + ends[..., 1]).reshape(-1)
+    owner = np.repeat(np.arange(len(tets)), 6)
+    on_hull = neighbours < 0
+    hull_keys = []
+    for k in range(4):  # facet opposite vertex k of the tetrahedra on the hull
+        facet = np.delete(tets[on_hull[:, k]], k, axis=1)
+        for p, q in ((0, 1), (0, 2), (1, 2)):
+            lo_, hi_ = np.minimum(facet[:, p], facet[:, q]), np.maximum(facet[:, p], facet[:, q])
+            hull_keys.append(lo_ * n_points + hi_)
+    hull_keys = np.unique(np.concatenate(hull_keys))
+    order = np.argsort(key, kind="stable")
+    key, owner = key[order], owner[order]
+    start = np.flatnonzero(np.r_[True, key[1:] != key[:-1]])
+    size = np.diff(np.r_[start, len(key)])
+    ring_kept = np.minimum.reduceat(keep[owner].astype(np.int8), start).astype(bool)
+    good = ring_kept & (size >= 3) & ~np.isin(key[start], hull_keys)
+    group = np.repeat(np.arange(len(start)), size)
+    member = good[group]
+    key, owner, group = key[member], owner[member], group[member]
+    faces = np.zeros((0, 3), dtype=np.int64)
+    if len(key):
+        i, j = np.divmod(key, n_points)
+        axis = points[j] - points[i]
+        axis /= np.linalg.norm(axis, axis=1, keepdims=True)
+        # A reference direction perpendicular to the axis, then the angle of each circumcentre
+        # around the axis (the polygon is convex and perpendicular to it).
+        helper = np.where((np.abs(axis[:, 0]) < 0.9)[:, None], [1.0, 0, 0], [0, 1.0, 0])
+        e1 = np.cross(axis, helper)
+        e1 /= np.linalg.norm(e1, axis=1, keepdims=True)
+        e2 = np.cross(axis, e1)
+        offset = centre[owner] - (points[i] + points[j]) / 2
+        angle = np.arctan2(np.einsum("ij,ij->i", offset, e2), np.einsum("ij,ij->i", offset, e1))
+        order = np.lexsort((angle, group))
+        owner, group = owner[order], group[order]
+        first = np.r_[True, group[1:] != group[:-1]]
+        rank = np.arange(len(group)) - np.maximum.accumulate(np.where(first, np.arange(len(group)),
+                                                                      0))
+        head = owner[np.maximum.accumulate(np.where(first, np.arange(len(group)), 0))]
+        fan = np.flatnonzero(rank >= 2)
+        faces = np.stack([head[fan], owner[fan - 1], owner[fan]], 1)
+        edges += [faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [0, 2]]]
+    edges = np.unique(np.sort(np.concatenate(edges), axis=1), axis=0)
+    faces = np.unique(np.sort(faces, axis=1), axis=0)
+
+    # Keep the spheres that some edge uses, renumbered.
+    used = np.unique(edges.reshape(-1))
+    new = np.full(len(tets), -1, dtype=np.int64)
+    new[used] = np.arange(len(used))
+    return InitialAxis(centre[used], radius[used], new[edges], new[faces], tets[used],
+                       points, normals, weights)
