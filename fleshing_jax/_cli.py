@@ -1,10 +1,15 @@
 """The `fleshing-jax` command line.
 
-    fleshing-jax deform IN OUT --from A.json --to B.json [--method radial] [--twist RAD]
+    fleshing-jax deform IN OUT [--from A.json] (--to B.json | --bend-angle DEG) [--method M]
+                               [--twist RAD] [--cap-holes]
+    fleshing-jax medial IN OUT.ma [--spheres N] [--envelope ENV.obj]
     fleshing-jax demo [--out DIR]
+    fleshing-jax --version
 
 Expected failures (missing file, malformed spine, unreadable mesh, unwritable output) print one
-line `fleshing-jax: error: …` on stderr and exit with status 2; OUT is written atomically.
+line `fleshing-jax: error: …` on stderr and exit with status 2; outputs are checked before any
+work and written atomically. JAX is imported only once a command runs (`--help` stays fast),
+and compiled programs are kept in the user's cache folder (`_cache`).
 """
 
 from __future__ import annotations
@@ -13,11 +18,21 @@ import argparse
 import sys
 import time
 
-import numpy as np
-
+from . import __version__
 from ._fleshing.methods import METHODS
 
 PROG = "fleshing-jax"
+
+SPINE_FORMAT = """\
+spine files (JSON), e.g.
+  {"type": "line", "length": 4.0, "origin": [0, 0, 0], "tangent": [1, 0, 0]}
+  {"type": "arc", "radius": 2.0, "length": 4.0, "origin": [0, 0, 0],
+   "tangent": [1, 0, 0], "normal": [0, 1, 0]}
+  {"type": "bspline", "control_points": [[0, 0, 0], [1, 0, 0], ...], "degree": 5}
+types: line, arc, helix, bspline, interpolatingpolynomial, polyline (see the README).
+
+Without --from, the rest spine is found on the medial axis of IN (IN must be closed; see
+--cap-holes) and printed as JSON, so that it can be saved and reused with --from."""
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -25,20 +40,30 @@ def _parser() -> argparse.ArgumentParser:
         prog=PROG,
         description="Spine-driven bending of 3D shapes with local volume preservation.",
     )
+    parser.add_argument("--version", action="version", version=f"{PROG} {__version__}")
     commands = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     deform = commands.add_parser(
         "deform",
         help="bend a mesh or point cloud from one spine to another",
-        description="Bend IN (any format trimesh reads) from the spine --from to the spine "
-        "--to and write OUT in the format of its extension.",
+        description="Bend IN (any format trimesh reads) from the rest spine (--from, or found "
+        "on the medial axis) to a bent spine (--to, or an arc turning by --bend-angle) and "
+        "write OUT in the format of its extension.",
+        epilog=SPINE_FORMAT,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     deform.add_argument("input", metavar="IN", help="input mesh or point cloud")
     deform.add_argument("output", metavar="OUT", help="output file; its extension sets the format")
     deform.add_argument(
-        "--from", dest="source", required=True, metavar="A.json", help="source spine (JSON)"
+        "--from", dest="source", metavar="A.json", help="rest spine (default: from the medial axis)"
     )
-    deform.add_argument(
-        "--to", dest="target", required=True, metavar="B.json", help="target spine (JSON)"
+    bend = deform.add_mutually_exclusive_group(required=True)
+    bend.add_argument("--to", dest="target", metavar="B.json", help="bent spine (JSON)")
+    bend.add_argument(
+        "--bend-angle",
+        type=float,
+        metavar="DEG",
+        help="bend the rest spine into an arc of the same length turning by DEG degrees "
+        "towards its initial normal (negative: the other way)",
     )
     deform.add_argument(
         "--method",
@@ -47,21 +72,35 @@ def _parser() -> argparse.ArgumentParser:
         help="fleshing method (default: radial; skinning is the baseline)",
     )
     deform.add_argument(
-        "--twist",
-        type=float,
-        default=0.0,
-        metavar="RAD",
-        help="global twist in radians (default: 0)",
+        "--twist", type=float, default=0.0, metavar="RAD", help="global twist in radians"
     )
+    deform.add_argument(
+        "--cap-holes",
+        action="store_true",
+        help="close the holes of an open mesh first (fj.cap_holes): exact volumes, and a "
+        "medial axis to find the rest spine on",
+    )
+    medial = commands.add_parser(
+        "medial",
+        help="compute the medial mesh of a closed mesh (Q-MAT .ma file)",
+        description="Compute the medial mesh of IN (a closed mesh) and write it to OUT in "
+        "Q-MAT's .ma format; print its size, its two one-sided Hausdorff distances to IN (as "
+        "fractions of the bounding-box diagonal) and the time taken.",
+    )
+    medial.add_argument("input", metavar="IN", help="input mesh (closed)")
+    medial.add_argument("output", metavar="OUT.ma", help="output medial mesh (.ma)")
+    medial.add_argument("--spheres", type=int, default=200, metavar="N", help="default: 200")
+    medial.add_argument("--seed", type=int, default=0, help="seed of the surface samples")
+    medial.add_argument(
+        "--envelope", metavar="ENV.obj", help="also write the medial mesh's envelope (a mesh)"
+    )
+    medial.add_argument("--cap-holes", action="store_true", help="close IN's holes first")
     demo = commands.add_parser(
         "demo",
         help="bend a built-in creature with the four methods; write meshes, a figure, a table",
     )
     demo.add_argument(
-        "--out",
-        default="fleshing-demo",
-        metavar="DIR",
-        help="output folder (default: ./fleshing-demo)",
+        "--out", default="fleshing-demo", metavar="DIR", help="output folder (./fleshing-demo)"
     )
     return parser
 
@@ -84,17 +123,47 @@ class _Progress:
         self.stream.flush()
 
 
-def _deform(args) -> int:
+def _load_input(path, cap: bool):
+    """The input mesh, finite, with its holes closed when asked."""
+    import numpy as np
     import trimesh
 
-    from ._mesh.deform import deform_mesh
-    from ._mesh.files import load_mesh, write_mesh_atomic
-    from ._mesh.volume import volume
-    from ._spines.files import load_spine
+    from ._mesh.files import load_mesh
+    from ._mesh.holes import cap_holes
 
-    source, target = load_spine(args.source), load_spine(args.target)
-    mesh = load_mesh(args.input)
+    mesh = load_mesh(path)
+    if not np.all(np.isfinite(np.asarray(mesh.vertices))):
+        raise ValueError(f"{path}: has non-finite vertex coordinates (NaN or inf)")
+    if cap and isinstance(mesh, trimesh.Trimesh):
+        mesh = cap_holes(mesh)
+    return mesh
+
+
+def _deform(args) -> int:
+    import jax.numpy as jnp
+    import numpy as np
+    import trimesh
+
+    from ._fleshing.diagnose import diagnose, largest_valid_bend, planar_bend
+    from ._fleshing.pipeline import register
+    from ._mesh.deform import deform_mesh
+    from ._mesh.files import check_output_path, write_mesh_atomic
+    from ._mesh.volume import volume
+    from ._spines.files import load_spine, spine_json
+
+    check_output_path(args.output)
+    mesh = _load_input(args.input, args.cap_holes)
+    is_mesh = isinstance(mesh, trimesh.Trimesh) and len(mesh.faces) > 0
     started = time.perf_counter()
+    if args.source is not None:
+        source = load_spine(args.source)
+    else:
+        source = _found_rest_spine(mesh, args)
+        print(f"rest spine (medial axis): {spine_json(source)}")
+    if args.target is not None:
+        target = load_spine(args.target)
+    else:
+        target = planar_bend(source, float(np.radians(args.bend_angle)))
     bent = deform_mesh(
         mesh,
         source,
@@ -104,19 +173,98 @@ def _deform(args) -> int:
         progress=_Progress(f"{args.method}: vertices"),
     )
     if isinstance(bent, trimesh.Trimesh):
-        valid = bent.vertex_attributes["valid"]
-        if len(bent.faces):
-            closed = "" if mesh.is_watertight else " (mesh not closed: volumes approximate)"
-            v0 = float(volume(np.asarray(mesh.vertices), mesh.faces))
-            v1 = float(volume(np.asarray(bent.vertices), bent.faces))
-            change = (v1 - v0) / v0 if v0 != 0 else float("nan")
-            print(f"volume before: {v0:.9g}{closed}")
-            print(f"volume after:  {v1:.9g} ({100 * change:+.4f}%)")
+        valid = np.asarray(bent.vertex_attributes["valid"], dtype=bool)
     else:
-        valid = bent.metadata["valid"]
-    write_mesh_atomic(bent, args.output)
+        valid = np.asarray(bent.metadata["valid"], dtype=bool)
+    if is_mesh:
+        _print_volumes(mesh, bent, volume)
     print(f"invalid vertices: {int(np.sum(~valid))} of {len(valid)}")
+    if args.bend_angle is not None or not valid.all():
+        registration = register(jnp.asarray(np.asarray(mesh.vertices)), source)
+        options = dict(method=args.method, twist=args.twist)
+        if not valid.all():
+            _print_causes(diagnose(registration, target, **options))
+        sign = -1.0 if args.bend_angle is not None and args.bend_angle < 0 else 1.0
+        angle = largest_valid_bend(registration, source, sign=sign, **options)
+        radius = float(source.length) / angle if angle > 0 else float("inf")
+        print(
+            f"largest bend of the rest spine keeping every vertex valid ({args.method}): "
+            f"{np.degrees(angle):.1f} degrees (arc radius {radius:.6g})"
+        )
+    write_mesh_atomic(bent, args.output)
     print(f"wrote {args.output} ({args.method}, {time.perf_counter() - started:.1f} s)")
+    return 0
+
+
+def _found_rest_spine(mesh, args):
+    import trimesh
+
+    from ._medial.rest_spine import rest_spine
+
+    if not (isinstance(mesh, trimesh.Trimesh) and mesh.is_watertight):
+        raise ValueError(
+            f"{args.input}: finding the rest spine needs a closed mesh; pass --cap-holes to "
+            "close its holes, or give the rest spine with --from"
+        )
+    return rest_spine(mesh)
+
+
+def _print_volumes(mesh, bent, volume) -> None:
+    import numpy as np
+
+    closed = "" if mesh.is_watertight else " (mesh not closed: volumes approximate)"
+    v0 = float(volume(np.asarray(mesh.vertices), mesh.faces))
+    v1 = float(volume(np.asarray(bent.vertices), bent.faces))
+    change = (v1 - v0) / v0 if v0 != 0 else float("nan")
+    print(f"volume before: {v0:.9g}{closed}")
+    print(f"volume after:  {v1:.9g} ({100 * change:+.4f}%)")
+    if not mesh.is_watertight:
+        print("advice: the mesh has holes; pass --cap-holes to close them (exact volumes)")
+
+
+def _print_causes(causes) -> None:
+    print(f"  outside the rest spine's reach: {causes.outside_source}")
+    print(f"  beyond the method's bending limit: {causes.beyond_limit}")
+    print(f"  outside the bent spine's reach: {causes.outside_target}")
+    if causes.outside_source:
+        print(
+            "advice: vertices outside the rest spine's reach stay invalid for any bend: move "
+            "the rest spine closer to them or make it straighter"
+        )
+    if causes.beyond_limit or causes.outside_target:
+        print("advice: bend less (a larger arc radius, below), or try another --method")
+
+
+def _medial(args) -> int:
+    import numpy as np
+
+    from ._medial.construct import medial_mesh
+    from ._medial.distance import medial_distance
+    from ._medial.files import save_medial
+    from ._mesh.files import check_output_path, write_mesh_atomic
+
+    if not str(args.output).lower().endswith(".ma"):
+        raise ValueError(f"{args.output}: the medial mesh is written in .ma format (OUT.ma)")
+    if args.envelope is not None:
+        check_output_path(args.envelope)
+    mesh = _load_input(args.input, args.cap_holes)
+    started = time.perf_counter()
+    medial = medial_mesh(mesh, spheres=args.spheres, seed=args.seed)
+    elapsed = time.perf_counter() - started
+    to_envelope, to_surface = medial_distance(medial, mesh)
+    save_medial(medial, args.output)
+    print(
+        f"spheres: {len(np.asarray(medial.radii))}, edges: {len(np.asarray(medial.edges))}, "
+        f"faces: {len(np.asarray(medial.faces))}"
+    )
+    print(
+        "one-sided Hausdorff distances (fraction of the diagonal): surface to envelope "
+        f"{to_envelope:.4f}, envelope to surface {to_surface:.4f}"
+    )
+    print(f"wrote {args.output} in {elapsed:.1f} s")
+    if args.envelope is not None:
+        write_mesh_atomic(medial.envelope(), args.envelope)
+        print(f"wrote {args.envelope}")
     return 0
 
 
@@ -130,15 +278,21 @@ def _demo(args) -> int:
     return 0
 
 
+COMMANDS = {"deform": _deform, "medial": _medial, "demo": _demo}
+
+
 def main(argv: list[str] | None = None) -> int:
     """Runs the command line with `argv` (default: `sys.argv[1:]`); returns the exit status."""
     parser = _parser()
     try:
         args = parser.parse_args(argv)
-    except SystemExit as exit_:  # argparse has printed its usage message
+    except SystemExit as exit_:  # argparse has printed its usage or version message
         return int(exit_.code or 0)
     try:
-        return _deform(args) if args.command == "deform" else _demo(args)
+        from ._cache import enable_compilation_cache
+
+        enable_compilation_cache()
+        return COMMANDS[args.command](args)
     except (FileNotFoundError, ValueError, TypeError, OSError) as error:
         message = " ".join(str(error).split()) or type(error).__name__
         print(f"{PROG}: error: {message}", file=sys.stderr)

@@ -25,6 +25,7 @@ import pytest  # noqa: E402
 jax.config.update("jax_enable_x64", True)
 _CACHE = Path(__file__).resolve().parents[1] / ".pytest_cache" / "jax-compilation-cache"
 jax.config.update("jax_compilation_cache_dir", str(_CACHE))
+os.environ["FLESHING_JAX_CACHE"] = str(_CACHE)  # the command line in tests: the same cache
 jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.2)
 
 import fleshing_jax as fj  # noqa: E402

@@ -45,6 +45,19 @@ def bend_point(
     (the image lies at offset `d₁` from `C₁(s₁)`, in its normal plane). Valid requires `s₁`
     inside the target's search range (its ends continued a quarter turn at most), as the
     registration requires on the source."""
+    image, (registered, within_limit, inside_target), s1, distance = bend_checks(
+        registration, frames, method
+    )
+    return image, registered & within_limit & inside_target, s1, distance
+
+
+def bend_checks(
+    registration: Registration, frames: TargetFrames, method: str
+) -> tuple[Array, tuple[Array, Array, Array], Array, Array]:
+    """`bend_point` with its validity split by cause: `(image, (registered, within_limit,
+    inside_target), s₁, |d₁|)` — the point's registration on the source is valid; the method's
+    unbend and bend equations have their solution; the image is inside the target's reach and
+    search range. (What `diagnose` counts.)"""
     reg = registration
     stretch = frames.length / reg.length
     s1 = stretch * reg.arc_length
@@ -54,9 +67,8 @@ def bend_point(
     c1, i1, j1, k1_2d = frames(s1)
     d1, bent = BEND[method](straight, k1_2d)
     image = c1 + d1[0] * i1 + d1[1] * j1
-    inside = (s1 > frames.lo) & (s1 < frames.hi)
-    valid = reg.valid & unbent & bent & (1 - dot(k1_2d, d1) > 0) & inside
-    return image, valid, s1, norm(d1)
+    inside = (s1 > frames.lo) & (s1 < frames.hi) & (1 - dot(k1_2d, d1) > 0)
+    return image, (reg.valid, unbent & bent, inside), s1, norm(d1)
 
 
 def projects_back(target: AbstractSpine, image: Array, s1: Array, distance: Array) -> Array:

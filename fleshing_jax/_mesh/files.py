@@ -54,30 +54,61 @@ def _obj_in_file_order(path: Path, loaded: trimesh.Trimesh) -> trimesh.Trimesh:
     return loaded
 
 
-def write_mesh_atomic(mesh, path: str | os.PathLike) -> None:
-    """Writes `mesh` to `path` in the format of its extension, atomically.
+WRITABLE = ("obj", "ply", "stl", "off", "glb", "xyz")  # single-file formats trimesh exports
 
-    The mesh is exported to a temporary file in the same folder, then renamed over `path`: a
-    failed export never leaves `path` half-written (a previous file there stays intact).
-    Boolean vertex attributes (e.g. `"valid"`) are written as 0/1 bytes where the format
-    stores attributes (PLY).
-    """
+
+def check_output_path(path: str | os.PathLike) -> Path:
+    """Checks, before any work, that a mesh can be written at `path`: an extension of
+    `WRITABLE` and an existing, writable folder. Raises `ValueError` naming the problem."""
     path = Path(path)
     file_type = path.suffix.lower().lstrip(".")
-    if not file_type:
-        raise ValueError(f"{path}: no extension to choose the output format from")
+    if file_type not in WRITABLE:
+        found = f"'.{file_type}'" if file_type else "no extension"
+        raise ValueError(
+            f"{path}: the output format is chosen by the extension, one of "
+            f"{', '.join('.' + w for w in WRITABLE)} (got {found})"
+        )
+    directory = path.parent if str(path.parent) else Path(".")
+    if not directory.is_dir():
+        raise ValueError(f"{path}: the output folder {directory} does not exist")
+    if not os.access(directory, os.W_OK | os.X_OK):
+        raise ValueError(f"{path}: the output folder {directory} is not writable")
+    if path.is_dir():
+        raise ValueError(f"{path}: is a folder, not a file name")
+    return path
+
+
+def write_mesh_atomic(mesh, path: str | os.PathLike) -> None:
+    """Writes `mesh` to `path` in the format of its extension (one of `WRITABLE`), atomically.
+
+    The mesh is exported to a temporary file in the same folder, then renamed over `path`: a
+    failed export never leaves `path` half-written (a previous file there stays intact). The
+    file's permissions follow the umask, as for any new file. Boolean vertex attributes (e.g.
+    `"valid"`) are written as 0/1 bytes where the format stores attributes (PLY). OBJ files
+    are written without materials (no `mtllib` line pointing at a file that is not written).
+    """
+    path = check_output_path(path)
+    file_type = path.suffix.lower().lstrip(".")
     if isinstance(mesh, trimesh.Trimesh):
         mesh = mesh.copy()
         for name, values in list(mesh.vertex_attributes.items()):
             if np.asarray(values).dtype == bool:
                 mesh.vertex_attributes[name] = np.asarray(values, dtype=np.uint8)
+    options = {"include_texture": False} if file_type == "obj" else {}
     directory = path.parent if str(path.parent) else Path(".")
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=directory)
     try:
         with os.fdopen(fd, "wb") as file:
-            data = mesh.export(file_type=file_type)
+            data = mesh.export(file_type=file_type, **options)
             file.write(data.encode() if isinstance(data, str) else data)
+        os.chmod(tmp, 0o666 & ~_umask())  # mkstemp makes it 0600
         os.replace(tmp, path)
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
         raise
+
+
+def _umask() -> int:
+    mask = os.umask(0)  # the only way to read it: set and restore
+    os.umask(mask)
+    return mask

@@ -67,6 +67,11 @@ def _arguments(spine: AbstractSpine) -> dict:
                     f"got {type(spine)}.")  # fmt: skip
 
 
+def spine_json(spine: AbstractSpine) -> str:
+    """`spine` as the JSON text `save_spine` writes (one line; `load_spine` reads it back)."""
+    return json.dumps({"type": type(spine).__name__.lower(), **_arguments(spine)})
+
+
 def save_spine(spine: AbstractSpine, path: str | os.PathLike) -> None:
     """Writes `spine` to the JSON file `path` (`{"type": "<lowercase class name>", …}`).
 

@@ -1,0 +1,132 @@
+"""Why points are invalid, and how far an arc may bend before any point is.
+
+For people bending real meshes: a count of invalid vertices says little; these say which of
+the three conditions failed (the source's reach, the method's bending limit, the target's
+reach) and which arc would have kept every vertex valid.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import ArrayLike
+
+from .._batching.chunks import batch_axes
+from .._numerics import cast_floats
+from .._spines.analytic import Arc, Line
+from .._spines.spine import AbstractSpine
+from .pipeline import bend_checks, pose
+from .projection import Registration
+from .target import TargetFrames
+
+
+class Causes(NamedTuple):
+    """Counts of invalid points by their first failed condition (in this order)."""
+
+    points: int  # all points
+    outside_source: int  # not finite, or not strictly inside the source's reach
+    beyond_limit: int  # the method's unbend/bend equations have no solution (too bent)
+    outside_target: int  # image outside the target's reach or search range, or not projecting
+    # back on it at the mapped arc length
+
+    @property
+    def invalid(self) -> int:
+        return self.outside_source + self.beyond_limit + self.outside_target
+
+
+def diagnose(
+    registration: Registration,
+    target: AbstractSpine,
+    *,
+    method: str = "radial",
+    twist: ArrayLike = 0.0,
+    check_projection: bool = True,
+) -> Causes:
+    """Counts the invalid points of `pose(registration, target, ...)` by cause.
+
+    A point is counted once, under the first condition it fails: the source's reach, the
+    method's bending limit, the target's reach (which includes the projection check).
+    """
+    _, valid = pose(
+        registration, target, method=method, twist=twist, check_projection=check_projection
+    )
+    dtype = registration.points.dtype
+    registered, within = _checks(
+        registration, cast_floats(target, dtype), method, jnp.asarray(twist, dtype)
+    )
+    registered, within, valid = (np.asarray(a) for a in (registered, within, valid))
+    outside_source = int(np.sum(~registered))
+    beyond_limit = int(np.sum(registered & ~within))
+    outside_target = int(np.sum(registered & within & ~valid))
+    return Causes(len(valid), outside_source, beyond_limit, outside_target)
+
+
+@eqx.filter_jit
+def _checks(registration, target, method, twist):
+    frames = TargetFrames(target._prepare(), twist)
+
+    def one(reg):
+        _, (registered, within_limit, _), _, _ = bend_checks(reg, frames, method)
+        return registered, within_limit
+
+    return jax.vmap(one, in_axes=(batch_axes(registration),))(registration)
+
+
+def planar_bend(spine: AbstractSpine, angle: float) -> AbstractSpine:
+    """The arc of `spine`'s length that starts as `spine` does and turns by `angle` (radians)
+    towards its initial normal `I(0)` (a negative angle turns the other way; 0 is a line)."""
+    length = float(spine.length)
+    origin, tangent, normal = _start_frame(spine)
+    if angle == 0:
+        return Line(length, origin=origin, tangent=tangent)
+    if angle < 0:
+        normal, angle = -normal, -angle
+    return Arc(length / angle, length, origin=origin, tangent=tangent, normal=normal)
+
+
+def _start_frame(spine: AbstractSpine):
+    from .._spines.frames import rotation_minimizing_frame
+
+    frame = np.asarray(rotation_minimizing_frame(spine, 0.0), dtype=np.float64)
+    return np.asarray(spine(0.0), dtype=np.float64), frame[0], frame[1]
+
+
+def largest_valid_bend(
+    registration: Registration,
+    source: AbstractSpine,
+    *,
+    method: str = "radial",
+    twist: ArrayLike = 0.0,
+    check_projection: bool = True,
+    sign: float = 1.0,
+    steps: int = 20,
+) -> float:
+    """The largest angle (radians, ≤ 2π·(1 − 1e-6)) of `planar_bend(source, sign·angle)` for
+    which every point whose registration is valid stays valid, by bisection (`steps` poses).
+
+    Validity is assumed monotone in the angle (true for the method limits and the reach of an
+    arc, which tighten as it bends); 0 when no bend at all keeps them valid.
+    """
+    keep = np.asarray(registration.valid)
+
+    def all_valid(angle: float) -> bool:
+        target = planar_bend(source, sign * angle)
+        _, valid = pose(
+            registration, target, method=method, twist=twist, check_projection=check_projection
+        )
+        return bool(np.all(np.asarray(valid)[keep]))
+
+    hi = 2 * np.pi * (1 - 1e-6)
+    if all_valid(hi):
+        return hi
+    lo = 0.0
+    if not all_valid(lo):
+        return 0.0
+    for _ in range(steps):
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if all_valid(mid) else (lo, mid)
+    return lo
