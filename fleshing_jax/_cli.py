@@ -187,9 +187,10 @@ def _deform(args) -> int:
         sign = -1.0 if args.bend_angle is not None and args.bend_angle < 0 else 1.0
         angle = largest_valid_bend(registration, source, sign=sign, **options)
         radius = float(source.length) / angle if angle > 0 else float("inf")
+        degrees = np.floor(100 * np.degrees(angle)) / 100  # rounded down: still valid
         print(
             f"largest bend of the rest spine keeping every vertex valid ({args.method}): "
-            f"{np.degrees(angle):.1f} degrees (arc radius {radius:.6g})"
+            f"{degrees:.2f} degrees (arc radius {radius:.6g})"
         )
     write_mesh_atomic(bent, args.output)
     print(f"wrote {args.output} ({args.method}, {time.perf_counter() - started:.1f} s)")

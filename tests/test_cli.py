@@ -1,5 +1,10 @@
 import json
+import os
+import stat
+import subprocess
+import sys
 
+import jax.numpy as jnp
 import numpy as np
 import pytest
 import trimesh
@@ -181,3 +186,105 @@ def test_demo(tmp_path, capsys):
             assert abs(change) < 1e-3
     png = (out_dir / "demo.png").read_bytes()
     assert png[:8] == b"\x89PNG\r\n\x1a\n" and len(png) > 10_000
+
+
+def test_help_and_version_do_not_import_jax():
+    # `--help` must answer at once: no JAX import before a command runs (fresh process).
+    script = (
+        "import sys\n"
+        "from fleshing_jax._cli import main\n"
+        "assert main(['--version']) == 0\n"
+        "assert main(['deform', '--help']) == 0\n"
+        "assert 'jax' not in sys.modules, 'jax imported'\n"
+    )
+    done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr
+    assert f"fleshing-jax {fj.__version__}" in done.stdout
+    assert '"type": "line"' in done.stdout  # the spine format, with a line example
+
+
+def test_bend_angle_reports_the_largest_valid_bend(files, capsys):
+    tmp, mesh = files
+    out_path = tmp / "out.obj"
+    code, out, err = _run(
+        capsys, "deform", tmp / "in.obj", out_path, "--from", tmp / "a.json", "--bend-angle", 400
+    )
+    assert code == 0, err
+    # 400° of a 4-unit line is far too tight for the creature: invalid vertices, by cause.
+    invalid = int(out.split("invalid vertices: ")[1].split()[0])
+    causes = [int(ln.rsplit(":", 1)[1]) for ln in out.splitlines() if ln.startswith("  ")]
+    assert invalid > 0 and len(causes) == 3 and sum(causes) == invalid
+    angle = float(out.split("keeping every vertex valid (radial): ")[1].split()[0])
+    # At that angle, every vertex is valid (but those outside the rest spine's reach, which no
+    # bend can make valid); 2 % more and some are not.
+    registered = np.asarray(fj.register(np.asarray(mesh.vertices), fj.Line(4.0)).valid)
+    normal = fj.initial_normal(jnp.array([1.0, 0, 0]))
+    for factor, all_valid in ((1.0, True), (1.02, False)):
+        target = fj.Arc(4.0 / np.radians(angle * factor), 4.0, normal=normal)
+        ok = fj.deform_mesh(mesh, fj.Line(4.0), target).vertex_attributes["valid"]
+        assert ok[registered].all() == all_valid
+    assert "mtllib" not in out_path.read_text()
+
+
+def test_output_checked_before_any_work(files, capsys):
+    tmp, _ = files
+    for output, words in (
+        (tmp / "out.xyz123", ["out.xyz123", "extension", ".ply"]),
+        (tmp / "no-extension", ["no-extension", "no extension"]),
+        (tmp / "missing" / "out.obj", ["missing", "does not exist"]),
+    ):
+        code, out, err = _run(
+            capsys, "deform", tmp / "in.obj", output, "--from", tmp / "a.json", "--to",
+            tmp / "b.json",
+        )  # fmt: skip
+        _assert_one_line_error(code, err, *words)
+        assert out == ""  # nothing was bent
+        assert ".tmp" not in err
+
+
+def test_output_permissions_follow_the_umask(files, capsys):
+    tmp, _ = files
+    previous = os.umask(0o022)
+    try:
+        code, _, err = _run(
+            capsys, "deform", tmp / "in.obj", tmp / "o.ply", "--from", tmp / "a.json", "--to",
+            tmp / "b.json",
+        )  # fmt: skip
+    finally:
+        os.umask(previous)
+    assert code == 0, err
+    assert stat.S_IMODE((tmp / "o.ply").stat().st_mode) == 0o644
+
+
+def test_open_mesh_advice_and_cap_holes(tmp_path, capsys):
+    fj.save_spine(fj.Line(4.0), tmp_path / "a.json")
+    fj.save_spine(fj.Arc(3.0, 4.0), tmp_path / "b.json")
+    closed = fj.creature(segments=12, around=8)
+    keep = np.ones(len(closed.faces), bool)
+    keep[:3] = False  # a hole
+    trimesh.Trimesh(closed.vertices, closed.faces[keep], process=False).export(
+        str(tmp_path / "open.obj")
+    )
+    args = ["deform", tmp_path / "open.obj", tmp_path / "o.obj", "--from", tmp_path / "a.json"]
+    code, out, err = _run(capsys, *args, "--to", tmp_path / "b.json")
+    assert code == 0, err
+    assert "not closed" in out and "--cap-holes" in out
+    code, out, err = _run(capsys, *args, "--to", tmp_path / "b.json", "--cap-holes")
+    assert code == 0, err
+    assert "not closed" not in out and "--cap-holes" not in out
+    # Without a rest spine, an open mesh is refused with the way out.
+    code, out, err = _run(capsys, *args[:3], "--bend-angle", 30)
+    _assert_one_line_error(code, err, "closed mesh", "--cap-holes", "--from")
+
+
+def test_compilation_cache_folder(monkeypatch, tmp_path):
+    from fleshing_jax import _cache
+
+    monkeypatch.setenv(_cache.ENVIRONMENT_VARIABLE, "off")
+    assert _cache.cache_folder() is None
+    monkeypatch.setenv(_cache.ENVIRONMENT_VARIABLE, str(tmp_path / "c"))
+    assert _cache.cache_folder() == tmp_path / "c"
+    monkeypatch.delenv(_cache.ENVIRONMENT_VARIABLE)
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "xdg"))
+    if sys.platform.startswith("linux"):
+        assert _cache.cache_folder() == tmp_path / "xdg" / "fleshing-jax" / "jax-compilation-cache"

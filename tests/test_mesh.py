@@ -155,3 +155,31 @@ def test_shapes_are_closed():
     np.testing.assert_allclose(np.asarray(fj.volume(cubes, faces)), 0.25**3)
     c = fj.creature()
     assert c.is_watertight and c.volume > 0
+
+
+def test_write_mesh_atomic_failure_mid_export(tmp_path, bent, monkeypatch):
+    # An export that fails half-way leaves the previous file intact and no temporary file.
+    target = tmp_path / "keep.ply"
+    target.write_text("old")
+
+    def failing_export(self, *args, **kwargs):
+        raise RuntimeError("disk full")
+
+    monkeypatch.setattr(trimesh.Trimesh, "export", failing_export)
+    with pytest.raises(RuntimeError):
+        fj.write_mesh_atomic(bent, target)
+    assert target.read_text() == "old"
+    assert [p.name for p in tmp_path.iterdir()] == ["keep.ply"]
+
+
+def test_write_mesh_atomic_obj_without_materials(tmp_path, small):
+    from PIL import Image
+
+    textured = small.copy()
+    uv = np.random.default_rng(0).uniform(0, 1, (len(small.vertices), 2))
+    textured.visual = trimesh.visual.TextureVisuals(uv=uv, image=Image.new("RGB", (4, 4)))
+    path = tmp_path / "t.obj"
+    fj.write_mesh_atomic(textured, path)
+    assert "mtllib" not in path.read_text()  # no reference to a material file never written
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["t.obj"]
+    np.testing.assert_allclose(fj.load_mesh(path).vertices, small.vertices, atol=1e-7)
