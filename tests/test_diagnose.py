@@ -66,3 +66,14 @@ def test_planar_bend_starts_as_the_spine():
     np.testing.assert_allclose(back.curvature_vector(0.0), -arc.curvature_vector(0.0), atol=1e-12)
     assert isinstance(planar_bend(spine, 0.0), fj.Line)
     assert jax.numpy.isfinite(arc(1.0)).all()
+
+
+def test_local_volume_change_of_the_demo_figure():
+    from fleshing_jax._demo import local_volume_change
+
+    source, target, points = fj.Line(4.0), fj.Arc(3.0, 4.0), _box(64)
+    towards_centre = points @ np.asarray(target.curvature_vector(0.0)) * 3.0  # unit normal
+    # Skinning carries offsets rigidly: the arc-length element at x* is (1 − κ x*) ds.
+    skinning = local_volume_change(points, source, target, "skinning")
+    np.testing.assert_allclose(skinning, -towards_centre / 3.0, atol=1e-6)
+    np.testing.assert_allclose(local_volume_change(points, source, target, "radial"), 0, atol=1e-6)
