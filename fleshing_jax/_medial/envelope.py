@@ -35,7 +35,7 @@ def _block_points(blocks, counts, lo, h):
 
 
 def envelope_arrays(centers, radii, edges, faces, *, resolution: int = 128,
-                    newton_steps: int = 2):
+                    newton_steps: int = 1):
     """Vertices `(V, 3)` and outward faces `(F, 3)` of the envelope of a medial mesh.
 
     **Arguments:** the medial mesh's arrays; `resolution`: grid cells along the longest side
@@ -113,12 +113,12 @@ def _surface_nets(field, lo, h):
 
 def _project(vertices, centers, radii, edges, faces, h):
     """One Newton step of every vertex towards the zero level set (steps capped at `h`)."""
-    delta = 1e-3 * h
-    offsets = np.concatenate([np.zeros((1, 3)), delta * np.eye(3), -delta * np.eye(3)])
+    delta = 1e-4 * h
+    offsets = np.concatenate([np.zeros((1, 3)), delta * np.eye(3)])
     probes = (vertices[:, None, :] + offsets[None]).reshape(-1, 3)
-    values = union_distance(probes, centers, radii, edges, faces, cutoff=4 * h)
-    values = values.reshape(len(vertices), 7)
-    grad = (values[:, 1:4] - values[:, 4:7]) / (2 * delta)
+    values = union_distance(probes, centers, radii, edges, faces, cutoff=2 * h)
+    values = values.reshape(len(vertices), 4)
+    grad = (values[:, 1:4] - values[:, :1]) / delta
     step = values[:, :1] * grad / np.maximum((grad**2).sum(axis=1, keepdims=True), 1e-12)
     norm = np.linalg.norm(step, axis=1, keepdims=True)
     step *= np.minimum(1.0, h / np.maximum(norm, 1e-300))

@@ -30,22 +30,69 @@ def _dot(a, b):
     return np.einsum("ij,ij->i", a, b)
 
 
+class _Cones:
+    """Per-cone quantities of the closed form, computed once per medial mesh."""
+
+    def __init__(self, c0, r0, c1, r1):
+        axis = c1 - c0
+        length = np.linalg.norm(axis, axis=1)
+        self.proper = length > np.abs(r0 - r1) * (1 + 1e-12)  # not one sphere inside the other
+        self.length = np.where(self.proper, length, 1.0)
+        self.u = axis / self.length[:, None]
+        self.s = np.where(self.proper, (r0 - r1) / self.length, 0.0)
+        self.co = np.sqrt(np.maximum(1 - self.s**2, 1e-300))
+        self.c0, self.r0, self.c1, self.r1 = c0, r0, c1, r1
+
+    def distance(self, p, i):
+        """Signed distances of points `p` (M, 3) to cones `i` (M,)."""
+        c0, r0 = self.c0[i], self.r0[i]
+        d0 = p - c0
+        end0 = np.sqrt(_dot(d0, d0)) - r0
+        d1 = p - self.c1[i]
+        end1 = np.sqrt(_dot(d1, d1)) - self.r1[i]
+        x = _dot(d0, self.u[i])
+        y = np.sqrt(np.maximum(_dot(d0, d0) - x * x, 0))
+        s, co, length = self.s[i], self.co[i], self.length[i]
+        t = x - y * s / co
+        lateral = np.where(self.proper[i] & (t >= 0) & (t <= length), x * s + y * co - r0,
+                           np.inf)
+        return np.minimum(np.minimum(end0, end1), lateral)
+
+
+class _Slabs:
+    """Per-slab quantities: the centres' plane and the two tangent planes' normals."""
+
+    def __init__(self, c0, r0, c1, r1, c2, r2):
+        self.a, self.m, self.gamma = slab_tangent_normals(c0, r0, c1, r1, c2, r2)
+        self.c0, self.r0 = c0, r0
+        self.e1, self.e2 = c1 - c0, c2 - c0
+        g11, g12, g22 = _dot(self.e1, self.e1), _dot(self.e1, self.e2), _dot(self.e2, self.e2)
+        det = g11 * g22 - g12 * g12
+        det = np.where(det > 0, det, 1.0)
+        self.gram_inv = np.stack([g22 / det, -g12 / det, g11 / det], 1)
+        self.ok = np.isfinite(self.gamma)
+        self.g = np.nan_to_num(self.gamma, nan=1.0)
+
+    def distance(self, p, i):
+        """Signed distances of `p` (M, 3) to the tangent-plane parts of slabs `i` (M,), `inf`
+        where the minimiser is not inside the triangle."""
+        d = p - self.c0[i]
+        m = self.m[i]
+        height = _dot(d, m)
+        g = self.g[i]
+        n = self.a[i] + (np.where(height >= 0, 1.0, -1.0) * g)[:, None] * m
+        w = d - (np.abs(height) / g)[:, None] * n  # the foot, relative to c0
+        w1, w2 = _dot(w, self.e1[i]), _dot(w, self.e2[i])
+        gi = self.gram_inv[i]
+        b1 = gi[:, 0] * w1 + gi[:, 1] * w2
+        b2 = gi[:, 1] * w1 + gi[:, 2] * w2
+        inside = self.ok[i] & (b1 >= 0) & (b2 >= 0) & (b1 + b2 <= 1)
+        return np.where(inside, _dot(n, d) - self.r0[i], np.inf)
+
+
 def cone_distance(p, c0, r0, c1, r1):
     """Signed distance of points `p` (M, 3) to cones `(c0 (M, 3), r0 (M,), c1, r1)`: (M,)."""
-    end0 = np.linalg.norm(p - c0, axis=1) - r0
-    end1 = np.linalg.norm(p - c1, axis=1) - r1
-    axis = c1 - c0
-    length = np.linalg.norm(axis, axis=1)
-    proper = length > np.abs(r0 - r1) * (1 + 1e-12)
-    safe = np.where(proper, length, 1.0)
-    u = axis / safe[:, None]
-    x = _dot(p - c0, u)
-    y = np.linalg.norm(p - c0 - x[:, None] * u, axis=1)
-    s = np.where(proper, (r0 - r1) / safe, 0.0)
-    co = np.sqrt(np.maximum(1 - s * s, 1e-300))
-    t = (x - y * s / co) / safe
-    lateral = np.where(proper & (t >= 0) & (t <= 1), x * s + y * co - r0, np.inf)
-    return np.minimum(np.minimum(end0, end1), lateral)
+    return _Cones(c0, r0, c1, r1).distance(p, np.arange(len(p)))
 
 
 def slab_tangent_normals(c0, r0, c1, r1, c2, r2):
@@ -71,21 +118,7 @@ def slab_tangent_normals(c0, r0, c1, r1, c2, r2):
 def slab_plane_distance(p, c0, r0, c1, r1, c2, r2):
     """Signed distance of `p` (M, 3) to the tangent-plane part of slabs, `inf` where the
     minimiser is not inside the triangle (there a cone of the slab's edges gives it): (M,)."""
-    a, m, gamma = slab_tangent_normals(c0, r0, c1, r1, c2, r2)
-    height = _dot(p - c0, m)
-    side = np.where(height >= 0, 1.0, -1.0)
-    g = np.nan_to_num(gamma, nan=1.0)
-    n = a + (side * g)[:, None] * m
-    foot = p - (np.abs(height) / g)[:, None] * n
-    # Barycentric coordinates of the foot in the triangle of centres.
-    e1, e2, w = c1 - c0, c2 - c0, foot - c0
-    g11, g12, g22 = _dot(e1, e1), _dot(e1, e2), _dot(e2, e2)
-    det = g11 * g22 - g12 * g12
-    det = np.where(det > 0, det, 1.0)
-    b1 = (g22 * _dot(w, e1) - g12 * _dot(w, e2)) / det
-    b2 = (g11 * _dot(w, e2) - g12 * _dot(w, e1)) / det
-    inside = np.isfinite(gamma) & (b1 >= 0) & (b2 >= 0) & (b1 + b2 <= 1)
-    return np.where(inside, _dot(n, p - c0) - r0, np.inf)
+    return _Slabs(c0, r0, c1, r1, c2, r2).distance(p, np.arange(len(p)))
 
 
 def bounding_spheres(centers, radii, edges, faces):
@@ -108,11 +141,12 @@ def bounding_spheres(centers, radii, edges, faces):
     return kind.astype(np.int8), index.astype(np.int64), centre, radius
 
 
-def union_distance(points, centers, radii, edges, faces, *, cutoff: float, group: int = 256):
+def union_distance(points, centers, radii, edges, faces, *, cutoff: float, group: int = 64):
     """Signed distance of `points` (N, 3) to the union of a medial mesh's primitives.
 
     Only primitives whose bounding sphere comes within `cutoff` of a point are evaluated
-    there; a point with none gets `cutoff` (it is at least that far outside).
+    there; a point with none gets `cutoff` (it is at least that far outside). Values below
+    `-cutoff` are not refined further (the point is deep inside).
 
     **Returns:** `(N,)` array, clipped above at `cutoff`.
     """
@@ -121,6 +155,9 @@ def union_distance(points, centers, radii, edges, faces, *, cutoff: float, group
     if len(points) == 0:
         return out
     kind, index, centre, radius = bounding_spheres(centers, radii, edges, faces)
+    cones = _Cones(centers[edges[:, 0]], radii[edges[:, 0]], centers[edges[:, 1]],
+                   radii[edges[:, 1]])
+    slabs = _Slabs(*(x for k in range(3) for x in (centers[faces[:, k]], radii[faces[:, k]])))
     tree = cKDTree(points)
     # Primitives in groups, so that the (point, primitive) pairs of a group stay small.
     for start in range(0, len(kind), group):
@@ -131,19 +168,14 @@ def union_distance(points, centers, radii, edges, faces, *, cutoff: float, group
             continue
         pts = np.concatenate([np.asarray(x, dtype=np.int64) for x in lists])
         prim = np.repeat(np.arange(start, start + len(lists)), sizes)
-        value = np.full(len(pts), np.inf)
-        p = points[pts]
-        k, i = kind[prim], index[prim]
-        sel = k == 0
-        value[sel] = np.linalg.norm(p[sel] - centers[i[sel]], axis=1) - radii[i[sel]]
-        sel = k == 1
-        e = edges[i[sel]]
-        value[sel] = cone_distance(p[sel], centers[e[:, 0]], radii[e[:, 0]],
-                                   centers[e[:, 1]], radii[e[:, 1]])
-        sel = k == 2
-        f = faces[i[sel]]
-        value[sel] = slab_plane_distance(p[sel], centers[f[:, 0]], radii[f[:, 0]],
-                                         centers[f[:, 1]], radii[f[:, 1]],
-                                         centers[f[:, 2]], radii[f[:, 2]])
+        open_ = out[pts] > -cutoff  # points already deep inside need nothing more
+        pts, prim = pts[open_], prim[open_]
+        value = np.empty(len(pts))
+        k, i, p = kind[prim], index[prim], points[pts]
+        for code, evaluate in ((0, lambda q, j: np.linalg.norm(q - centers[j], axis=1)
+                                - radii[j]), (1, cones.distance), (2, slabs.distance)):
+            sel = k == code
+            if sel.any():
+                value[sel] = evaluate(p[sel], i[sel])
         np.minimum.at(out, pts, value)
     return out

@@ -33,16 +33,29 @@ from __future__ import annotations
 import numpy as np
 
 
-def plane_quadrics(axis, weight_scale: float = 1.0):
-    """Quadrics `(A (n, 4, 4), b (n, 4), c (n,))` of the contact planes of an `InitialAxis`."""
+def contact_quadrics(axis, slide: float = 1.0):
+    """Quadrics `(A (n, 4, 4), b (n, 4), c (n,))` of the contacts of an `InitialAxis`.
+
+    Per contact `(p, n)` with weight `w`: the tangent-plane term `w (n·p − n·c − r)²` (Q-MAT)
+    plus `slide · w |c + r n − p|²`, the squared distance from the sample to the point where
+    the sphere would touch a plane of normal `n` (our own addition). A plane alone is
+    infinite: every sphere on the bisector of two faces of a box is tangent to both, so a
+    whole sheet running into a sharp edge would collapse into its root at no cost; the
+    second term keeps contacts near where the sphere touches.
+    """
     n = axis.normals[axis.contacts]  # (n, 4, 3)
     p = axis.points[axis.contacts]
-    w = axis.weights[axis.contacts] * weight_scale  # (n, 4)
+    w = axis.weights[axis.contacts]  # (n, 4)
     vec = np.concatenate([-n, -np.ones(n.shape[:2] + (1,))], axis=2)  # d = vec·m + delta
     delta = np.einsum("ijk,ijk->ij", n, p)
     A = np.einsum("ij,ijk,ijl->ikl", w, vec, vec)
     b = np.einsum("ij,ij,ijk->ik", w, delta, vec)
     c = np.einsum("ij,ij->i", w, delta**2)
+    # c + r n − p = M m − p with M = [I | n] (3 × 4).
+    M = np.concatenate([np.broadcast_to(np.eye(3), n.shape[:2] + (3, 3)), n[..., None]], -1)
+    A += slide * np.einsum("ij,ijak,ijal->ikl", w, M, M)
+    b -= slide * np.einsum("ij,ijak,ija->ik", w, M, p)
+    c += slide * np.einsum("ij,ija,ija->i", w, p, p)
     return A, b, c
 
 
@@ -156,3 +169,4 @@ def simplify(centers, radii, edges, faces, quadrics, target: int, *, scale: floa
             progress.update(len(chosen))
     order = np.lexsort(edges.T[::-1])
     return spheres[:, :3], spheres[:, 3], edges[order], faces[np.lexsort(faces.T[::-1])]
+
