@@ -55,3 +55,39 @@ def cast_floats(tree, dtype):
 def relative_tolerance(dtype) -> float:
     """A tolerance for "converged" checks: the square root of the dtype's epsilon."""
     return float(np.sqrt(np.finfo(dtype).eps))
+
+
+def polish_root(function, s: Array, params) -> Array:
+    """One last Newton step on `f(s, params) = 0` from an approximate root `s`, as a function of
+    `params` with the implicit-function derivatives to every order.
+
+    `function(s, params)` returns `(f, slope)`, with `slope = ∂f/∂s` (the step is skipped and
+    the derivative is zero where the slope is 0: callers zero it where Newton must not run).
+    The value is `s − f/slope`, computed on stopped gradients; its derivative is
+    `ds = −(∂f/∂params · dparams)/slope`, evaluated at the polished root with the root itself
+    differentiated by this same rule. Being written in differentiable operations, the rule
+    composes: second and higher derivatives (forward or reverse, `jax.hessian`) are those of the
+    exact root, where one Newton step with live gradients would be right to first order only.
+
+    **Arguments:** `function`: `(s, params) → (f, slope)`, scalars; it may close over no
+    traced value (pass every array it uses in `params`, even those without a derivative);
+    `s`: scalar starting root (its gradient is ignored); `params`: pytree of arrays.
+
+    **Returns:** the polished root, scalar.
+    """
+
+    @jax.custom_jvp
+    def root(s, params):
+        s, params = jax.lax.stop_gradient((s, params))
+        f, slope = function(s, params)
+        return s - safe_divide(f, slope)
+
+    @root.defjvp
+    def _root_jvp(primals, tangents):
+        s, params = primals
+        _, dparams = tangents
+        value = root(s, params)
+        (_, slope), (df, _) = jax.jvp(lambda p: function(value, p), (params,), (dparams,))
+        return value, -safe_divide(df, slope)
+
+    return root(s, params)

@@ -2,9 +2,9 @@
 
 The search is a coarse nearest sample followed by safeguarded Newton steps on
 `f(s) = (C(s) − X)·T(s) = 0`, whose derivative is `f'(s) = 1 − k(s)·d` (positive inside the
-reach). Both run on stopped gradients; a last Newton step with live gradients then gives the
-implicit-function-theorem derivative `ds = −(∂f)/f'` exactly (`f ≈ 0` makes the rest vanish),
-in forward and reverse mode alike.
+reach). Both run on stopped gradients; a last Newton step then carries the
+implicit-function-theorem derivative `ds = −(∂f)/f'`, in forward and reverse mode, to every
+order (`_numerics.polish_root`).
 """
 
 from __future__ import annotations
@@ -18,7 +18,7 @@ from jaxtyping import Array, ArrayLike, Bool, Float
 
 from .._batching.chunks import map_chunks
 from .._batching.compact import update_where
-from .._numerics import dot, relative_tolerance, safe_divide
+from .._numerics import dot, polish_root, relative_tolerance
 from .._spines.spine import AbstractSpine
 from .._spines.table import SpineTable, fast_evaluator
 from .reach import LocalReach, search_range
@@ -149,16 +149,24 @@ def _search(spine: AbstractSpine, samples: int) -> _Search:
 
 
 def _polish(spine: AbstractSpine, search: _Search, x: Array, s: Array) -> tuple[Array, Array]:
-    """One Newton step with live gradients (the implicit-function derivative), and whether its
-    result is a stationary point strictly inside the searched range."""
-    f, slope, _ = spine._foot_terms(x, s)
-    s = s - safe_divide(f, jnp.where(slope > 0, slope, 0))
+    """One more Newton step, differentiable to every order in `x` and the spine (the
+    implicit-function derivatives, `_numerics.polish_root`), and whether its result is a
+    stationary point strictly inside the searched range."""
+    s = polish_root(_foot_residual, s, (spine, x))
     # Checked after the step, from the spine there: the values before it are used once (by the
     # step), see `SpineTable._foot_terms`.
     f, _, distance = spine._foot_terms(x, s)
     tol = relative_tolerance(x.dtype)
     converged = (jnp.abs(f) <= tol * (1 + distance)) & (s > search.lo) & (s < search.hi)
     return s, converged
+
+
+def _foot_residual(s: Array, params) -> tuple[Array, Array]:
+    """`f(s) = (C(s) − x)·T(s)` and `f'(s) = 1 − k·d`, zeroed outside the local reach (where
+    Newton would head for a maximum: no step, and no derivative)."""
+    spine, x = params
+    f, slope, _ = spine._foot_terms(x, s)
+    return f, jnp.where(slope > 0, slope, 0)
 
 
 def closest_arc_length(spine: AbstractSpine, x: Array, samples: int | None = None):

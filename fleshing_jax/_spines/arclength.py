@@ -8,10 +8,11 @@ sub-intervals; the length of each is a `GAUSS_NODES`-point Gauss–Legendre sum 
 the sub-interval that holds `s`, from the linear guess, clamped to it (the speed is the derivative
 of `s(u)`: quadratic convergence).
 
-Gradients: the iteration runs on stopped gradients, then one more Newton step with live ones,
-`u ← u − (s(u) − s)/|P'(u)|`. Since `s(u) ≈ s`, its derivative is the implicit-function one:
+Gradients: the iteration runs on stopped gradients, then one more Newton step
+`u ← u − (s(u) − s)/|P'(u)|` whose derivatives are the implicit-function ones,
 `∂u/∂s = 1/|P'(u)|` and `∂u/∂θ = −(∂s(u)/∂θ)/|P'(u)|` for the curve's parameters `θ` (control
-points, knots), in forward and reverse mode.
+points, knots), in forward and reverse mode, to every order (`_numerics.polish_root`: the rule
+is itself differentiable, so `jax.hessian` and nested `jacfwd` of a spine are exact).
 """
 
 from __future__ import annotations
@@ -21,7 +22,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array
 
-from .._numerics import dot, norm, safe_divide
+from .._numerics import dot, norm, polish_root, safe_divide
 
 GAUSS_NODES = 8
 NEWTON_STEPS = 5
@@ -110,7 +111,15 @@ def inverse(coefficients: Array, cumulative: Array, parts: int, s: Array):
         u = u - safe_divide(residual, speed)
         return jnp.where(u < a, a, jnp.where(u > b, b, u))
 
-    u = jax.lax.stop_gradient(jax.lax.fori_loop(0, NEWTON_STEPS, newton, u))
-    live = coefficients[i]
-    residual = cumulative[j] + _partial(live, a, u) - s
-    return i, u - safe_divide(residual, norm(piece_derivative(live, u, 1))), j
+    u = jax.lax.fori_loop(0, NEWTON_STEPS, newton, u)
+
+    # `a` depends on `j` only (no derivative), but goes in the parameters all the same: the
+    # residual may close over nothing traced.
+    params = (coefficients[i], cumulative[j], a, s)
+    return i, polish_root(_residual, u, params), j
+
+
+def _residual(u: Array, params) -> tuple[Array, Array]:
+    """`s(u) − s` on one sub-interval `[a, …]` of a piece, and its derivative in `u` (the speed)."""
+    piece, start, a, s = params
+    return start + _partial(piece, a, u) - s, norm(piece_derivative(piece, u, 1))
