@@ -17,18 +17,68 @@ from jaxtyping import Array, ArrayLike
 def as_float_array(value: ArrayLike, name: str, shape: tuple[int, ...] | None = None) -> Array:
     """Converts `value` to a floating JAX array, checking its shape.
 
-    Integers become the default float type; floating inputs keep their dtype.
-    Raises `ValueError` naming `name` when the shape is not `shape`.
+    Integers (and booleans) become the default float type; floating inputs keep their dtype.
+    Raises `TypeError` naming `name` for values that are not real numbers (`None`, strings,
+    objects, complex numbers: an imaginary part is never dropped silently), and `ValueError`
+    naming `name` when the shape is not `shape`.
     """
     if isinstance(value, jax.Array) and jnp.issubdtype(value.dtype, jnp.floating):
         array = value
     else:
-        array = jnp.asarray(value)
+        if value is None or isinstance(value, str | bytes):
+            raise TypeError(f"`{name}` must be a real number or an array of them, got {value!r}.")
+        try:
+            array = jnp.asarray(value)
+        except (TypeError, ValueError) as error:
+            raise TypeError(
+                f"`{name}` must be a real number or an array of them, got {_short(value)} "
+                f"({error})."
+            ) from None
+        if jnp.issubdtype(array.dtype, jnp.complexfloating):
+            raise TypeError(f"`{name}` must be real, got complex values (dtype {array.dtype}).")
         if not jnp.issubdtype(array.dtype, jnp.floating):
             array = array.astype(jnp.result_type(float))
     if shape is not None and array.shape != shape:
-        raise ValueError(f"`{name}` must have shape {shape}, got shape {array.shape}.")
+        expected = "a scalar" if shape == () else f"shape {shape}"
+        raise ValueError(f"`{name}` must be {expected}, got shape {array.shape}.")
     return array
+
+
+def _short(value) -> str:
+    text = repr(value)
+    return text if len(text) <= 60 else text[:57] + "..."
+
+
+def as_points(points: ArrayLike, name: str, single: bool = False) -> Array:
+    """Converts `points` to a float (N, 3) array (or (3,) when `single`), checking its type.
+
+    Raises `TypeError` naming `name` for non-real values and for half precision (float16,
+    bfloat16: three significant digits cannot resolve a bend; use float32), and `ValueError`
+    for a wrong shape. Values are not checked: non-finite points are flagged per point.
+    """
+    points = as_float_array(points, name)
+    if jnp.finfo(points.dtype).bits < 32:
+        raise TypeError(
+            f"`{name}` must be float32 or float64, got {points.dtype} (too coarse to bend "
+            "with volume preserved: convert it with `.astype(np.float32)`)."
+        )
+    expected = (3,) if single else ("N", 3)
+    if points.ndim != len(expected) or points.shape[-1] != 3:
+        raise ValueError(f"`{name}` must have shape {expected}, got shape {points.shape}.")
+    return points
+
+
+def as_twist(twist: ArrayLike, dtype=None) -> Array:
+    """The twist angle as a scalar float array (in `dtype` if given).
+
+    Raises `TypeError` for a value that is not a real number, `ValueError` for a non-scalar one
+    or, when concrete, a non-finite one (which would make every point invalid). A traced twist
+    is not checked: a non-finite one then flags every point invalid.
+    """
+    twist = as_float_array(twist, "twist", ())
+    if is_concrete(twist) and not np.isfinite(np.asarray(twist)):
+        raise ValueError(f"`twist` must be a finite angle in radians, got {np.asarray(twist)}.")
+    return twist if dtype is None else twist.astype(dtype)
 
 
 def is_concrete(*values) -> bool:

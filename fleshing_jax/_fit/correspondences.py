@@ -145,7 +145,7 @@ def fit_spine(
       must not move, and start from a reasonable guess.
     """
     source = check_cloud(source, "source")
-    target = jnp.asarray(target)
+    target = check_cloud(target, "target")
     if target.shape != source.shape:
         raise ValueError(
             f"`source` and `target` must have the same shape (N, 3): got `source` of shape "

@@ -21,7 +21,7 @@ import numpy as np
 import optimistix as optx
 from jaxtyping import Array, ArrayLike, Bool, Float
 
-from .._checks import as_float_array
+from .._checks import as_float_array, as_points, as_twist
 from .._fleshing.methods import check_method
 from .._fleshing.pipeline import pose, pose_points, register
 from .._fleshing.projection import Registration
@@ -138,10 +138,11 @@ def check_spine(spine, name: str) -> None:
 
 
 def check_cloud(points: ArrayLike, name: str) -> Array:
-    """A finite (N, 3) floating array, else `ValueError` naming `name`."""
-    points = jnp.asarray(points)
-    if not jnp.issubdtype(points.dtype, jnp.floating):
-        points = points.astype(jnp.result_type(float))
+    """A finite (N, 3) floating array, else `ValueError` (`TypeError` for values that are not
+    real numbers, or half precision) naming `name`."""
+    points = as_float_array(points, name)
+    if points.ndim == 2 and points.shape[-1] == 3:
+        points = as_points(points, name)  # the dtype checks
     if points.ndim != 2 or points.shape[-1] != 3 or points.shape[0] == 0:
         raise ValueError(f"`{name}` must have shape (N, 3) with N ≥ 1, got shape {points.shape}.")
     bad = ~np.isfinite(np.asarray(points)).all(axis=-1)
@@ -352,7 +353,7 @@ def prepare(
     dtype = source.dtype
     source_spine, init = cast_floats((source_spine, init), dtype)
     parameters = make_parameters(init, params, fixed)
-    twist = as_float_array(twist, "twist", ()).astype(dtype)
+    twist = as_twist(twist, dtype)
     y0 = parameters.initial(twist if fit_twist else None)
     if sum(v.size for v in y0[0]) == 0 and not fit_twist:
         raise ValueError("nothing to fit: every parameter is `fixed` and `fit_twist` is False.")

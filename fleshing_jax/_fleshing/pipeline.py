@@ -21,7 +21,7 @@ from jaxtyping import Array, ArrayLike, Bool, Float
 from .._batching import chunks as _chunks
 from .._batching.chunks import batch_axes, map_chunks
 from .._batching.compact import update_where
-from .._checks import as_float_array
+from .._checks import as_points, as_twist
 from .._numerics import cast_floats, dot, norm, relative_tolerance
 from .._spines.spine import AbstractSpine
 from .._spines.table import SpineTable, fast_evaluator, tabulates
@@ -211,7 +211,7 @@ class Fleshing(eqx.Module):
         _check_spine(target, "target")
         self.source, self.target = source, target
         self.method = check_method(method)
-        self.twist = as_float_array(twist, "twist", ())
+        self.twist = as_twist(twist)
         self.check_projection = bool(check_projection)
 
     def apply(self, x: ArrayLike) -> tuple[Array, Array]:
@@ -245,13 +245,7 @@ class Fleshing(eqx.Module):
 
 
 def _check_points(points: ArrayLike, name: str, single: bool = False) -> Array:
-    points = jnp.asarray(points)
-    if not jnp.issubdtype(points.dtype, jnp.floating):
-        points = points.astype(jnp.result_type(float))
-    expected = (3,) if single else ("N", 3)
-    if points.ndim != len(expected) or points.shape[-1] != 3:
-        raise ValueError(f"`{name}` must have shape {expected}, got shape {points.shape}.")
-    return points
+    return as_points(points, name, single)
 
 
 def _check_spine(spine, name: str) -> None:
@@ -310,7 +304,7 @@ def pose(
         raise TypeError(f"`registration` must come from `register`, got {type(registration)}.")
     _check_spine(target, "target")
     dtype = registration.points.dtype
-    target, twist = cast_floats((target, jnp.asarray(twist, dtype)), dtype)
+    target, twist = cast_floats((target, as_twist(twist, dtype)), dtype)
     poser = _poser(target, check_method(method), twist, bool(check_projection))
     return _pose(poser, registration)
 
@@ -351,6 +345,7 @@ def flesh(
     _check_spine(source, "source")
     _check_spine(target, "target")
     method, check_projection = check_method(method), bool(check_projection)
+    twist = as_twist(twist, points.dtype)  # checked before any work
     cast_source, cast_target = cast_floats((source, target), points.dtype)
     if points.shape[0] <= _chunks.CHUNK_POINTS or (
         tabulates(cast_source) and tabulates(cast_target)
@@ -364,7 +359,6 @@ def flesh(
             registration, target, method=method, twist=twist, check_projection=check_projection
         )
     samples = source.default_samples()
-    twist = jnp.asarray(twist, points.dtype)
     return _flesh(points, cast_source, cast_target, method, twist, check_projection, samples)
 
 

@@ -12,6 +12,7 @@ import jax.numpy as jnp
 import numpy as np
 import trimesh
 
+from .._checks import as_points, as_twist
 from .._fleshing.methods import check_method
 from .._fleshing.pipeline import pose, register
 from .._spines.spine import AbstractSpine
@@ -39,11 +40,16 @@ def flesh_chunked(
     **Returns:** `(deformed (N, 3), valid (N,) bool)` as NumPy arrays, dtype of `points`.
     """
     check_method(method)
-    points = np.asarray(points)
-    if points.ndim != 2 or points.shape[-1] != 3:
-        raise ValueError(f"`points` must have shape (N, 3), got shape {points.shape}.")
-    if not np.issubdtype(points.dtype, np.floating):
-        points = points.astype(np.float64)
+    twist = float(as_twist(twist))
+    if isinstance(chunk_size, bool) or not isinstance(chunk_size, int | np.integer):
+        raise TypeError(f"`chunk_size` must be a positive int, got {chunk_size!r}.")
+    if chunk_size < 1:
+        raise ValueError(f"`chunk_size` must be a positive int, got {chunk_size}.")
+    if isinstance(points, np.ndarray) and points.dtype in (np.float32, np.float64):
+        if points.ndim != 2 or points.shape[-1] != 3:  # (as below, without a copy)
+            raise ValueError(f"`points` must have shape (N, 3), got shape {points.shape}.")
+    else:  # not real numbers, half precision, a wrong shape: `TypeError`/`ValueError`
+        points = np.asarray(as_points(points, "points"))
     n = len(points)
     size = max(1, min(int(chunk_size), n))
     deformed, valid = np.empty_like(points), np.zeros(n, dtype=bool)
@@ -107,7 +113,7 @@ def deform_mesh(
             f"or an (N, 3) array, got {type(mesh)}."
         )
     deformed, valid = flesh_chunked(
-        np.asarray(points),
+        points,
         source,
         target,
         method=method,

@@ -9,15 +9,16 @@ bilinear patch through its four corners and does not depend on which diagonal on
 
 from __future__ import annotations
 
+import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
+from .._checks import as_float_array, is_concrete
+
 
 def _check(vertices: ArrayLike, faces: ArrayLike) -> tuple[Array, Array]:
-    vertices = jnp.asarray(vertices)
-    if not jnp.issubdtype(vertices.dtype, jnp.floating):
-        vertices = vertices.astype(jnp.result_type(float))
+    vertices = as_float_array(vertices, "vertices")
     if vertices.ndim < 2 or vertices.shape[-1] != 3:
         raise ValueError(f"`vertices` must have shape (..., V, 3), got shape {vertices.shape}.")
     faces = jnp.asarray(faces)
@@ -25,6 +26,18 @@ def _check(vertices: ArrayLike, faces: ArrayLike) -> tuple[Array, Array]:
         raise ValueError(f"`faces` must have shape (F, 3) or (F, 4), got shape {faces.shape}.")
     if not jnp.issubdtype(faces.dtype, jnp.integer):
         raise TypeError(f"`faces` must hold integer vertex indices, got dtype {faces.dtype}.")
+    count = vertices.shape[-2]
+    outside = (faces < 0) | (faces >= count)  # a gather would wrap −1 and give NaN past V
+    if is_concrete(faces):
+        bad = np.argwhere(np.asarray(outside))
+        if bad.size:
+            i, j = bad[0]
+            raise ValueError(
+                f"`faces` must index the {count} vertices (0 to {count - 1}), got "
+                f"faces[{i}, {j}] = {int(faces[i, j])}."
+            )
+    elif faces.size:
+        vertices = eqx.error_if(vertices, jnp.any(outside), "`faces` must index the vertices.")
     return vertices, faces
 
 

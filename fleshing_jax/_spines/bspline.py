@@ -8,7 +8,7 @@ import numpy as np
 from jaxtyping import Array, ArrayLike
 
 from .._checks import as_float_array, check_points, is_concrete
-from .parametric import AbstractParametricSpine, check_subdivisions, static_sizes
+from .parametric import MAX_DEGREE, AbstractParametricSpine, check_subdivisions, static_sizes
 
 
 def clamped_uniform_knots(count: int, degree: int, dtype) -> Array:
@@ -89,8 +89,12 @@ class BSpline(AbstractParametricSpine):
         knots: ArrayLike | None = None,
         subdivisions: int | None = None,
     ):
-        if isinstance(degree, bool) or not isinstance(degree, int | np.integer) or degree < 1:
-            raise ValueError(f"`degree` must be an integer ≥ 1, got {degree!r}.")
+        if (
+            isinstance(degree, bool)
+            or not isinstance(degree, int | np.integer)
+            or not 1 <= degree <= MAX_DEGREE
+        ):
+            raise ValueError(f"`degree` must be an integer from 1 to {MAX_DEGREE}, got {degree!r}.")
         self.degree = int(degree)
         points = check_points(control_points, "control_points", degree + 1, "degree + 1")
         count = points.shape[0]

@@ -9,8 +9,12 @@ subset (missing optional arguments take their defaults).
 
 from __future__ import annotations
 
+import glob
 import json
 import os
+import tempfile
+import time
+from pathlib import Path
 
 import numpy as np
 
@@ -36,6 +40,8 @@ _SCHEMA = {
                                                           "subdivisions": ("int", False)}),
     "polyline": (Polyline, {"points": ("points", True), "step": ("scalar_or_none", False)}),
 }  # fmt: skip
+MAX_FILE_BYTES = 16 * 2**20  # resource bounds on untrusted files (and inside the spines)
+MAX_ROWS = 10_000  # points or control points
 _POSITIONAL = {"line": 1, "arc": 2, "helix": 3, "bspline": 1, "interpolatingpolynomial": 1,
                "polyline": 1}  # fmt: skip
 
@@ -73,15 +79,51 @@ def spine_json(spine: AbstractSpine) -> str:
 
 
 def save_spine(spine: AbstractSpine, path: str | os.PathLike) -> None:
-    """Writes `spine` to the JSON file `path` (`{"type": "<lowercase class name>", …}`).
+    """Writes `spine` to the JSON file `path` (`{"type": "<lowercase class name>", …}`),
+    atomically: written to a temporary file in the same folder, then renamed over `path`, so
+    that a save killed midway never leaves `path` half-written (the previous file there stays
+    intact). Temporary files left by killed saves of the same name are removed.
 
     **Arguments:** `spine`: a `Line`, `Arc`, `Helix`, `BSpline`, `InterpolatingPolynomial` or
     `Polyline` with concrete values; `path`: file name.
     """
     data = {"type": type(spine).__name__.lower(), **_arguments(spine)}
-    with open(path, "w") as file:
-        json.dump(data, file, indent=1)
-        file.write("\n")
+    text = json.dumps(data, indent=1) + "\n"
+    path = Path(path)
+    directory = path.parent if str(path.parent) else Path(".")
+    _remove_stale_temporaries(directory, path.name)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=directory)
+    try:
+        with os.fdopen(fd, "w") as file:
+            file.write(text)
+            file.flush()
+            os.fsync(file.fileno())
+        os.chmod(tmp, 0o666 & ~_umask())  # mkstemp makes it 0600
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+STALE_SECONDS = 60.0  # a temporary file this old belongs to a save that was killed
+
+
+def _remove_stale_temporaries(directory: Path, name: str) -> None:
+    """Removes the temporary files that killed saves of `name` left in `directory` (a save
+    takes milliseconds: older ones are not being written)."""
+    now = time.time()
+    for stale in directory.glob(f".{glob.escape(name)}.*.tmp"):
+        try:
+            if now - stale.stat().st_mtime > STALE_SECONDS:
+                stale.unlink()
+        except OSError:  # removed meanwhile, or not ours to remove
+            pass
+
+
+def _umask() -> int:
+    mask = os.umask(0)  # the only way to read it: set and restore
+    os.umask(mask)
+    return mask
 
 
 def _check_field(path, kind: str, name: str, value):
@@ -109,6 +151,10 @@ def _check_field(path, kind: str, name: str, value):
         )
         if not rows:
             fail("a list of [x, y, z] rows")
+        if len(value) > MAX_ROWS:
+            raise ValueError(
+                f"{path}: field '{name}' must have at most {MAX_ROWS} rows, got {len(value)}."
+            )
     return value
 
 
@@ -117,14 +163,21 @@ def load_spine(path: str | os.PathLike) -> AbstractSpine:
 
     Raises `FileNotFoundError` if `path` does not exist, and `ValueError` naming the file and the
     offending field for malformed files (invalid JSON, unknown `type`, missing, unknown or
-    ill-typed fields, or values the spine rejects).
+    ill-typed fields, or values the spine rejects, including sizes beyond the spines' resource
+    bounds: `subdivisions`, `degree`, a polyline `step` giving too many edges; files over
+    `MAX_FILE_BYTES`).
     """
     if not os.path.isfile(path):
         raise FileNotFoundError(f"{path}: no such spine file")
+    size = os.path.getsize(path)
+    if size > MAX_FILE_BYTES:
+        raise ValueError(
+            f"{path}: {size} bytes, more than a spine file may hold ({MAX_FILE_BYTES} bytes)."
+        )
     try:
         with open(path) as file:
             data = json.load(file)
-    except (json.JSONDecodeError, UnicodeDecodeError) as error:
+    except (json.JSONDecodeError, UnicodeDecodeError, RecursionError) as error:
         raise ValueError(f"{path}: not valid JSON ({error}).") from error
     if not isinstance(data, dict):
         raise ValueError(f"{path}: must hold a JSON object, got {type(data).__name__}.")

@@ -191,9 +191,18 @@ def static_sizes(point_np, span_breaks, spans: int, subdivisions: int | None, na
     return subdivisions, samples
 
 
+MAX_SUBDIVISIONS = 4096  # 8× the most the turning ever asks for: beyond, only memory grows
+MAX_DEGREE = 25  # pieces are evaluated by unrolled loops: compile time grows as the degree²
+
+
 def check_subdivisions(subdivisions) -> None:
-    """Raises `ValueError` unless `subdivisions` is `None` or a positive int."""
+    """Raises `ValueError` unless `subdivisions` is `None` or an int in
+    `[1, MAX_SUBDIVISIONS]` (a bound on memory: spine files are untrusted input)."""
     if subdivisions is not None and (
-        isinstance(subdivisions, bool) or not isinstance(subdivisions, int) or subdivisions < 1
+        isinstance(subdivisions, bool)
+        or not isinstance(subdivisions, int)
+        or not 1 <= subdivisions <= MAX_SUBDIVISIONS
     ):
-        raise ValueError(f"`subdivisions` must be a positive int, got {subdivisions!r}.")
+        raise ValueError(
+            f"`subdivisions` must be an int from 1 to {MAX_SUBDIVISIONS}, got {subdivisions!r}."
+        )

@@ -30,6 +30,8 @@ from .._numerics import dot, norm, safe_divide, safe_sqrt
 from .double_reflection import propagate, reflect_twice
 from .spine import AbstractTabulatedSpine, Evaluators, PreparedSpine, initial_normal
 
+MAX_EDGES = 1_000_000  # a bound on memory (spine files are untrusted input)
+
 
 class Polyline(AbstractTabulatedSpine):
     """The paper's discrete spine: `points` resampled at a constant arc-length step.
@@ -74,7 +76,13 @@ class Polyline(AbstractTabulatedSpine):
                 raise ValueError(f"`step` must be a finite positive number, got {step!r}.")
             if not concrete:
                 raise ValueError("`step` needs concrete `points` (the vertex count is static).")
-            self.step, self.edges = float(step), max(1, int(round(length / step)))
+            edges = length / step
+            if edges > MAX_EDGES:
+                raise ValueError(
+                    f"`step` = {step!r} would cut the polyline of length {length:.6g} into "
+                    f"{edges:.3g} edges, more than {MAX_EDGES}: use a larger step."
+                )
+            self.step, self.edges = float(step), max(1, int(round(edges)))
         turning = 0.0
         if concrete:
             cosines = np.clip(np.sum(units[1:] * units[:-1], axis=-1), -1, 1)
