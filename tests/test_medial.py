@@ -1,0 +1,321 @@
+"""Medial meshes: analytic medial axes (capsule, torus, box), envelopes, distances, `.ma` files
+and bad input. Meshes are small and `samples` low so that the file runs in well under a minute.
+"""
+
+import os
+from pathlib import Path
+
+import numpy as np
+import pytest
+import trimesh
+
+from fleshing_jax._medial.construct import medial_mesh
+from fleshing_jax._medial.distance import medial_distance
+from fleshing_jax._medial.files import load_medial, save_medial
+from fleshing_jax._medial.medial_mesh import MedialMesh
+from fleshing_jax._medial.primitives import cone_distance, slab_plane_distance, union_distance
+
+DATA = Path(__file__).parents[1].parent / "shared" / "data"
+SAMPLES = 4000
+
+
+def _capsule():
+    return trimesh.creation.capsule(height=4.0, radius=0.5, count=[32, 32])
+
+
+def _diagonal(mesh):
+    return float(np.linalg.norm(np.ptp(mesh.vertices, axis=0)))
+
+
+@pytest.fixture(scope="module")
+def capsule_medial():
+    return medial_mesh(_capsule(), 40, samples=SAMPLES, progress=False)
+
+
+def _slab_widths(centers, faces):
+    """Smallest altitude of each face's triangle of centres (its width)."""
+    if len(faces) == 0:
+        return np.zeros(0)
+    a, b, c = (centers[faces[:, k]] for k in range(3))
+    twice_area = np.linalg.norm(np.cross(b - a, c - a), axis=1)
+    longest = np.max([np.linalg.norm(b - a, axis=1), np.linalg.norm(c - b, axis=1),
+                      np.linalg.norm(a - c, axis=1)], axis=0)
+    return twice_area / longest
+
+
+def _betti(n, edges, faces):
+    """Betti numbers (b0, b1, b2) of a small simplicial 2-complex (real coefficients)."""
+    index = {tuple(e): k for k, e in enumerate(np.sort(edges, axis=1).tolist())}
+    d1 = np.zeros((n, len(edges)))
+    d1[edges[:, 0], np.arange(len(edges))] = -1
+    d1[edges[:, 1], np.arange(len(edges))] = 1
+    d2 = np.zeros((len(edges), len(faces)))
+    for f, (a, b, c) in enumerate(np.sort(faces, axis=1).tolist()):
+        d2[index[(a, b)], f], d2[index[(b, c)], f], d2[index[(a, c)], f] = 1, 1, -1
+    r1 = np.linalg.matrix_rank(d1)
+    r2 = np.linalg.matrix_rank(d2) if len(faces) else 0
+    return n - r1, len(edges) - r1 - r2, len(faces) - r2
+
+
+# --- analytic medial axes ---------------------------------------------------------------
+
+
+def test_capsule_is_its_axis(capsule_medial):
+    centers, radii, edges, faces = capsule_medial.numpy()
+    diagonal = _diagonal(_capsule())
+    assert len(centers) == 40
+    # The medial axis of a capsule is its axis segment, with the tube's radius along it.
+    assert np.linalg.norm(centers[:, :2], axis=1).max() < 0.01 * diagonal
+    assert np.abs(centers[:, 2]).max() < 2.0 + 0.01 * diagonal
+    middle = np.abs(centers[:, 2]) < 1.5
+    assert middle.sum() > 20
+    np.testing.assert_allclose(radii[middle], 0.5, rtol=0.02)
+    # A chain of cones: connected, no loop, and no slab of any width.
+    b0, b1, _ = _betti(len(centers), edges, faces)
+    assert (b0, b1) == (1, 0)
+    assert _slab_widths(centers, faces).max(initial=0) < 0.01 * diagonal
+
+
+def test_capsule_envelope_distance_and_volume(capsule_medial):
+    capsule = _capsule()
+    to_envelope, to_surface = medial_distance(capsule_medial, capsule, samples=5000,
+                                              resolution=64)
+    assert to_envelope < 0.01 and to_surface < 0.01
+    assert capsule_medial.volume(resolution=96) == pytest.approx(capsule.volume, rel=0.01)
+
+
+def test_torus_keeps_its_loop():
+    torus = trimesh.creation.torus(2.0, 0.5, major_sections=64, minor_sections=24)
+    medial = medial_mesh(torus, 30, samples=SAMPLES, progress=False)
+    centers, radii, edges, faces = medial.numpy()
+    assert len(centers) - len(edges) + len(faces) <= 0  # Euler characteristic
+    assert _betti(len(centers), edges, faces)[1] >= 1
+    # The medial axis of a round torus is its core circle, with the tube's radius.
+    rho = np.hypot(centers[:, 0], centers[:, 1])
+    diagonal = _diagonal(torus)
+    assert np.abs(rho - 2.0).max() < 0.01 * diagonal
+    assert np.abs(centers[:, 2]).max() < 0.01 * diagonal
+    np.testing.assert_allclose(radii, 0.5, rtol=0.02)
+
+
+def test_box_spheres_lie_on_its_medial_axis():
+    half = np.array([1.5, 1.0, 0.5])
+    box = trimesh.creation.box(2 * half)
+    medial = medial_mesh(box, 60, samples=SAMPLES, progress=False)
+    centers, radii, _, _ = medial.numpy()
+    diagonal = _diagonal(box)
+    # A point is on a box's medial axis where its two nearest faces are equally near; the
+    # medial radius is that distance. Merged spheres are optimised for the error, not kept
+    # exactly medial: they may move off the axis and past the surface by a little.
+    face_distance = np.sort(np.concatenate([half - centers, half + centers], axis=1), axis=1)
+    assert (face_distance[:, 0] > 0).all()
+    off_axis = face_distance[:, 1] - face_distance[:, 0]
+    assert off_axis.max() < 0.03 * diagonal and np.median(off_axis) < 0.01 * diagonal
+    assert (radii <= face_distance[:, 0] + 0.025 * diagonal).all()
+    assert (radii >= face_distance[:, 0] - 0.03 * diagonal).all()
+    # The envelope lies inside the (convex) box and fills most of it.
+    assert medial.volume(resolution=64) == pytest.approx(8 * np.prod(half), rel=0.12)
+    to_envelope, to_surface = medial_distance(medial, box, samples=3000, resolution=48)
+    assert to_envelope < 0.08 and to_surface < 0.06
+
+
+@pytest.mark.skipif(not (DATA / "spot.obj").is_file(), reason=f"{DATA}/spot.obj is absent")
+def test_spot_medial_mesh_approximates_it():
+    spot = trimesh.load(str(DATA / "spot.obj"), process=False)
+    spot.merge_vertices(merge_tex=True, merge_norm=True)
+    medial = medial_mesh(spot, 50, samples=SAMPLES, progress=False)
+    to_envelope, to_surface = medial_distance(medial, spot, samples=3000, resolution=48)
+    assert to_envelope < 0.05 and to_surface < 0.05
+
+
+# --- primitives and envelopes of hand-made medial meshes ------------------------------
+
+
+def test_primitive_distances_match_brute_force():
+    rng = np.random.default_rng(3)
+    centres, radii = rng.normal(size=(3, 3)), rng.uniform(0.2, 0.8, 3)
+    points = 1.5 * rng.normal(size=(400, 3))
+    weights = np.concatenate([rng.dirichlet([1, 1, 1], 40_000), np.eye(3)])
+    t = np.linspace(0, 1, 4001)[:, None]
+    edge = np.concatenate([t, 1 - t, 0 * t], axis=1)
+    for w in (edge, weights):
+        spheres_c, spheres_r = w @ centres, w @ radii
+        brute = np.array([(np.linalg.norm(spheres_c - p, axis=1) - spheres_r).min()
+                          for p in points])
+        if w is edge:
+            n = len(points)
+            exact = cone_distance(points, np.tile(centres[0], (n, 1)), np.full(n, radii[0]),
+                                  np.tile(centres[1], (n, 1)), np.full(n, radii[1]))
+            np.testing.assert_allclose(exact, brute, atol=1e-6)
+        else:
+            exact = union_distance(points, centres, radii, np.array([[0, 1], [1, 2], [0, 2]]),
+                                   np.array([[0, 1, 2]]), cutoff=100.0)
+            assert (exact <= brute + 1e-12).all() and (brute - exact).max() < 2e-3
+    n = len(points)
+    slab = slab_plane_distance(points, *(x for k in range(3) for x in (
+        np.tile(centres[k], (n, 1)), np.full(n, radii[k]))))
+    assert np.isfinite(slab).any() and np.isinf(slab).any()
+
+
+def test_two_sphere_envelope_is_a_closed_capsule():
+    medial = MedialMesh([[0, 0, 0], [4, 0, 0]], [0.5, 0.5], [[0, 1]])
+    envelope = medial.envelope(resolution=64)
+    assert envelope.is_watertight and envelope.is_winding_consistent
+    exact = np.pi * 0.25 * 4 + 4 / 3 * np.pi * 0.125
+    assert envelope.volume == pytest.approx(exact, rel=5e-3)
+    assert medial.volume(resolution=96) == pytest.approx(exact, rel=5e-3)
+    # Every envelope vertex lies on the exact envelope.
+    radial = np.hypot(envelope.vertices[:, 1], envelope.vertices[:, 2])
+    axial = np.clip(envelope.vertices[:, 0], 0, 4)
+    surface = np.hypot(radial, envelope.vertices[:, 0] - axial)
+    np.testing.assert_allclose(surface, 0.5, atol=1e-3)
+    # Against the capsule's own mesh: both distances small, and a thinner medial mesh is
+    # found to be too thin by the right amount.
+    capsule = trimesh.creation.capsule(height=4.0, radius=0.5, count=[32, 32])
+    capsule.apply_translation([2, 0, 0])
+    capsule.apply_transform(trimesh.transformations.rotation_matrix(np.pi / 2, [0, 1, 0],
+                                                                    [2, 0, 0]))
+    d1, d2 = medial_distance(medial, capsule, samples=3000, resolution=48)
+    assert d1 < 0.005 and d2 < 0.005
+    thin = MedialMesh(medial.centers, [0.4, 0.4], medial.edges)
+    d1, d2 = medial_distance(thin, capsule, samples=3000, resolution=48)
+    assert d1 == pytest.approx(0.1 / _diagonal(capsule), rel=0.05)
+
+
+def test_slab_volume_matches_monte_carlo():
+    medial = MedialMesh([[0, 0, 0], [2, 0, 0], [0, 2, 0]], [0.3, 0.5, 0.2],
+                        [[0, 1], [1, 2], [0, 2]], [[0, 1, 2]])
+    rng = np.random.default_rng(0)
+    lo, hi = np.array([-0.5, -0.6, -0.6]), np.array([2.6, 2.3, 0.6])
+    points = rng.uniform(lo, hi, (400_000, 3))
+    inside = union_distance(points, *medial.numpy(), cutoff=0.1) < 0
+    estimate, error = inside.mean() * np.prod(hi - lo), np.prod(hi - lo) / np.sqrt(4e5)
+    assert medial.volume(resolution=96) == pytest.approx(estimate, abs=3 * error + 2e-3)
+
+
+# --- MedialMesh validation ----------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (([[0, 0, 0], [1, 0, 0]], [0.1, 0.1], [[0, 2]]), "index"),
+        (([[0, 0, 0], [1, 0, 0], [0, 1, 0]], [0.1] * 3, [[0, 1], [1, 2]], [[0, 1, 2]]),
+         "edges"),
+        (([[0, 0, 0], [1, 0, 0]], [0.1, -0.1]), ">= 0"),
+        (([[0, 0, np.nan], [1, 0, 0]], [0.1, 0.1]), "finite"),
+        (([[0, 0, 0], [1, 0, 0]], [0.1, np.inf]), "finite"),
+        (([[0, 0], [1, 0]], [0.1, 0.1]), "shape"),
+        (([[0, 0, 0], [1, 0, 0]], [0.1]), "shape"),
+        (([[0, 0, 0], [1, 0, 0]], [0.1, 0.1], [[0, 0]]), "different"),
+    ],
+)
+def test_medial_mesh_validation(args, message):
+    with pytest.raises(ValueError, match=message):
+        MedialMesh(*args)
+
+
+# --- .ma files ---------------------------------------------------------------------------
+
+
+def test_ma_round_trip(tmp_path, capsule_medial):
+    path = tmp_path / "capsule.ma"
+    save_medial(capsule_medial, path)
+    loaded = load_medial(path)
+    for a, b in zip(loaded.numpy(), capsule_medial.numpy()):
+        np.testing.assert_array_equal(a, b)
+    header = path.read_text().splitlines()[0].split()
+    assert [int(x) for x in header] == [len(x) for x in (capsule_medial.centers,
+                                                         capsule_medial.edges,
+                                                         capsule_medial.faces)]
+    assert os.listdir(tmp_path) == ["capsule.ma"]  # no temporary file left behind
+    umask = os.umask(0)
+    os.umask(umask)
+    assert path.stat().st_mode & 0o777 == 0o666 & ~umask
+
+
+def test_ma_reading_adds_missing_face_edges(tmp_path):
+    path = tmp_path / "slab.ma"
+    path.write_text("3 1 1\nv 0 0 0 0.1\nv 1 0 0 0.1\nv 0 1 0 0.2\ne 0 1\nf 0 1 2\n")
+    medial = load_medial(path)
+    assert sorted(map(tuple, medial.edges.tolist())) == [(0, 1), (0, 2), (1, 2)]
+
+
+@pytest.mark.parametrize(
+    "text, message",
+    [
+        ("2 1 0\nv 0 0 0 1\nv 1 0 0 1\n", "announces"),
+        ("2 0 0\nv 0 0 0 1\nv 1 0 0 1\ne 0 1\n", "announces"),
+        ("2 1 0\nv 0 0 0 1\nv 1 0 0 1\ne 0 2\n", ":4: sphere index out of range"),
+        ("2 1 0\nv 0 0 0 1\nv 1 0 0 -1\ne 0 1\n", ":3: a sphere needs"),
+        ("2 1 0\nv 0 0 0 1\nv 1 0 0\ne 0 1\n", ":3: expected a 'v' record"),
+        ("2 1 0\nv 0 0 0 1\nv 1 0 x 1\ne 0 1\n", ":3: non-numeric"),
+        ("two 1 0\n", ":1: header"),
+        ("", "empty"),
+    ],
+)
+def test_ma_bad_files(tmp_path, text, message):
+    path = tmp_path / "bad.ma"
+    path.write_text(text)
+    with pytest.raises(ValueError, match=message):
+        load_medial(path)
+
+
+def test_ma_failed_write_keeps_old_file(tmp_path, monkeypatch, capsule_medial):
+    path = tmp_path / "keep.ma"
+    path.write_text("old")
+
+    def fail(*args):
+        raise OSError("disk full")
+
+    monkeypatch.setattr(os, "replace", fail)
+    with pytest.raises(OSError, match="disk full"):
+        save_medial(capsule_medial, path)
+    assert path.read_text() == "old" and os.listdir(tmp_path) == ["keep.ma"]
+
+
+# --- bad input and determinism ------------------------------------------------------------
+
+
+def test_bad_meshes_are_named():
+    sphere = trimesh.creation.icosphere(2)
+    open_mesh = trimesh.Trimesh(sphere.vertices, sphere.faces[:-3], process=False)
+    with pytest.raises(ValueError, match="not closed.*cap_holes"):
+        medial_mesh(open_mesh, 10, progress=False)
+    grid = trimesh.creation.box([1, 1, 1])
+    flat = grid.vertices.copy()
+    flat[:, 2] = 0  # a closed surface squashed flat: no volume
+    with pytest.raises(ValueError, match="no volume"):
+        medial_mesh((flat, grid.faces), 10, progress=False)
+    sheet = trimesh.Trimesh([[0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0]],
+                            [[0, 1, 2], [1, 3, 2]], process=False)
+    with pytest.raises(ValueError):
+        medial_mesh(sheet, 10, progress=False)
+    bad = sphere.vertices.copy()
+    bad[0, 0] = np.nan
+    with pytest.raises(ValueError, match="non-finite"):
+        medial_mesh((bad, sphere.faces), 10, progress=False)
+    with pytest.raises(ValueError, match="spheres"):
+        medial_mesh(sphere, 1, progress=False)
+    with pytest.raises(ValueError, match="spheres"):
+        medial_mesh(sphere, 2.5, progress=False)
+    with pytest.raises(ValueError, match="oriented"):
+        faces = sphere.faces.copy()
+        faces[0] = faces[0, ::-1]
+        medial_mesh((sphere.vertices, faces), 10, progress=False)
+
+
+def test_inside_out_mesh_is_flipped():
+    sphere = trimesh.creation.icosphere(3)
+    medial = medial_mesh((sphere.vertices, sphere.faces[:, ::-1]), 10, samples=2000,
+                         progress=False)
+    assert np.linalg.norm(medial.centers, axis=1).max() < 0.2
+    assert medial.radii.max() == pytest.approx(1.0, abs=0.01)
+
+
+def test_deterministic_for_a_seed():
+    torus = trimesh.creation.torus(2.0, 0.5, major_sections=48, minor_sections=16)
+    runs = [medial_mesh(torus, 20, samples=2000, seed=s, progress=False) for s in (5, 5, 6)]
+    for a, b in zip(runs[0].numpy(), runs[1].numpy()):
+        np.testing.assert_array_equal(a, b)
+    assert not np.array_equal(runs[0].centers, runs[2].centers)
