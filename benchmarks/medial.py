@@ -1,0 +1,112 @@
+"""Medial meshes against the targets of issue 17.
+
+    python benchmarks/medial.py               # both tables
+    python benchmarks/medial.py --quick       # procedural shapes only, no scaling table
+
+Prints Markdown tables:
+
+1. Accuracy per shape and sphere count: time of `medial_mesh` (sampling, Voronoi,
+   simplification), the one-sided Hausdorff distances surface → envelope and envelope →
+   surface (fractions of the bounding-box diagonal), the envelope's volume error, the Euler
+   characteristic `V − E + F` of the medial mesh, and the widest slab (smallest altitude of
+   a face's triangle of centres, fraction of the diagonal). Shapes: a capsule (radius 0.5,
+   axis 4), a torus (2, 0.5), a box 3 × 2 × 1, a flat ellipsoid 2 × 1.2 × 0.3, and, when
+   `../shared/data` is present, spot (vertices merged) and the Stanford bunny (capped).
+2. Time against mesh size (icospheres stretched into ellipsoids, 2.5k → 41k vertices) and
+   sphere count, with the peak resident memory of the process (an upper bound per run).
+"""
+
+from __future__ import annotations
+
+import argparse
+import resource
+import time
+from pathlib import Path
+
+import numpy as np
+import trimesh
+
+from fleshing_jax._medial.construct import medial_mesh
+from fleshing_jax._medial.distance import medial_distance
+
+DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
+
+
+def _close(mesh):
+    try:
+        from fleshing_jax import cap_holes
+    except ImportError:  # during the package's reorganisation
+        mesh = mesh.copy()
+        trimesh.repair.fill_holes(mesh)
+        return mesh
+    return cap_holes(mesh)
+
+
+def shapes(quick: bool):
+    yield "capsule", trimesh.creation.capsule(height=4.0, radius=0.5, count=[48, 48])
+    yield "torus", trimesh.creation.torus(2.0, 0.5, major_sections=96, minor_sections=32)
+    yield "box", trimesh.creation.box([3, 2, 1])
+    ellipsoid = trimesh.creation.icosphere(4)
+    ellipsoid.vertices *= [2, 1.2, 0.3]
+    yield "flat ellipsoid", ellipsoid
+    if quick or not DATA.is_dir():
+        return
+    if (DATA / "spot.obj").is_file():
+        spot = trimesh.load(str(DATA / "spot.obj"), process=False)
+        spot.merge_vertices(merge_tex=True, merge_norm=True)
+        yield "spot", spot
+    if (DATA / "stanford-bunny.obj").is_file():
+        yield "bunny (capped)", _close(trimesh.load(str(DATA / "stanford-bunny.obj"),
+                                                    process=False))
+
+
+def _widest_slab(centers, faces, diagonal):
+    if len(faces) == 0:
+        return 0.0
+    a, b, c = (centers[faces[:, k]] for k in range(3))
+    longest = np.max([np.linalg.norm(b - a, axis=1), np.linalg.norm(c - b, axis=1),
+                      np.linalg.norm(a - c, axis=1)], axis=0)
+    return float((np.linalg.norm(np.cross(b - a, c - a), axis=1) / longest).max() / diagonal)
+
+
+def accuracy(quick: bool):
+    print("| shape | vertices | spheres | time (s) | surface → envelope | envelope → surface "
+          "| volume error | V − E + F | widest slab |")
+    print("| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |")
+    for name, mesh in shapes(quick):
+        diagonal = float(np.linalg.norm(np.ptp(mesh.vertices, axis=0)))
+        for spheres in (200, 50):
+            start = time.perf_counter()
+            medial = medial_mesh(mesh, spheres, progress=False)
+            elapsed = time.perf_counter() - start
+            to_envelope, to_surface = medial_distance(medial, mesh)
+            centers, _, edges, faces = medial.numpy()
+            volume = medial.volume() / mesh.volume - 1
+            print(f"| {name} | {len(mesh.vertices)} | {spheres} | {elapsed:.1f} | "
+                  f"{100 * to_envelope:.2f} % | {100 * to_surface:.2f} % | {100 * volume:+.2f} % "
+                  f"| {len(centers) - len(edges) + len(faces)} | "
+                  f"{100 * _widest_slab(centers, faces, diagonal):.2f} % |", flush=True)
+
+
+def scaling():
+    print("\n| mesh vertices | spheres | time (s) | peak memory (GiB) |")
+    print("| ---: | ---: | ---: | ---: |")
+    for level in (4, 5, 6):
+        mesh = trimesh.creation.icosphere(level)
+        mesh.vertices *= [2, 1.2, 0.6]
+        for spheres in (50, 200, 800):
+            start = time.perf_counter()
+            medial_mesh(mesh, spheres, progress=False)
+            elapsed = time.perf_counter() - start
+            peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20
+            print(f"| {len(mesh.vertices)} | {spheres} | {elapsed:.1f} | {peak:.2f} |",
+                  flush=True)
+
+
+if __name__ == "__main__":
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--quick", action="store_true")
+    args = parser.parse_args()
+    accuracy(args.quick)
+    if not args.quick:
+        scaling()
