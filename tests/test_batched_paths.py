@@ -251,3 +251,39 @@ def test_flesh_in_chunks_equals_one_point_path(monkeypatch):
     assert 0.3 < float(jnp.mean(expected[1])) < 0.99
     monkeypatch.undo()
     jax.clear_caches()
+
+
+@pytest.mark.parametrize("dtype", ["float32", "float64"])
+def test_eager_two_phase_paths_equal_the_one_program_paths(dtype):
+    # Called eagerly, `register` and `pose` run the global searches in a second program, on
+    # the pending points only; under `jit`, in one program. Same results, point for point, on
+    # a target that comes back near itself (many pending points), over more than one chunk.
+    from fleshing_jax._fleshing import eager, pipeline
+
+    turn = fj.BSpline(np.array([[0, 0, 0], [1, 0, 0], [2, 0, 0], [2.3, 0.6, 0], [1, 0.8, 0],
+                                [0, 0.8, 0]], dtype))  # fmt: skip
+    source = fj.BSpline(np.array([[0, 0, 0], [0.6, 0.1, 0], [1.2, 0, 0.1], [1.8, 0, 0],
+                                  [2.5, 0.1, 0]], dtype), degree=3)  # fmt: skip
+    rng = np.random.default_rng(1)
+    n = 3000 if dtype == "float32" else chunks.CHUNK_POINTS + 100
+    points = jnp.asarray(rng.uniform(-0.3, 0.3, (n, 3)) + [1.0, 0.2, 0], dtype)
+    far = jnp.asarray(rng.uniform(-3, 3, (40, 3)), dtype)  # beyond the reach bounds: searched
+    points = points.at[:40].set(far)
+    registrar = pipeline._registrar(source, source.default_samples())
+    assert eager._register_certified(registrar, points)[1].sum() > 0  # both phases run
+    one_program = fj.Registration(points, *pipeline._register(registrar, points))
+    registration = fj.register(points, source)
+    # (The programs are fused differently: floats agree to their last bits, flags exactly.)
+    atol = 1e-5 if dtype == "float32" else 1e-12
+    for a, b in zip(jax.tree.leaves(registration), jax.tree.leaves(one_program)):
+        np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=0, atol=atol)
+    poser = pipeline._poser(turn, "radial", jnp.asarray(0.0, dtype), True)
+    assert eager._pose_certified(poser, registration)[2].sum() > 0
+    images, valid = fj.pose(registration, turn)
+    images_one, valid_one = pipeline._pose(poser, registration)
+    np.testing.assert_array_equal(np.asarray(valid), np.asarray(valid_one))
+    np.testing.assert_allclose(np.asarray(images), np.asarray(images_one), rtol=0, atol=atol)
+    # The U-turn makes the projection check reject points: returned unchanged.
+    rejected = np.asarray(fj.pose(registration, turn, check_projection=False)[1]) & ~valid
+    assert rejected.sum() > 50
+    np.testing.assert_array_equal(np.asarray(images)[rejected], np.asarray(points)[rejected])

@@ -21,10 +21,11 @@ from jaxtyping import Array, ArrayLike, Bool, Float
 from .._batching import chunks as _chunks
 from .._batching.chunks import batch_axes, map_chunks
 from .._batching.compact import update_where
-from .._checks import as_points, as_twist
+from .._checks import as_points, as_twist, is_concrete
 from .._numerics import cast_floats, dot, norm, relative_tolerance
 from .._spines.spine import AbstractSpine
 from .._spines.table import SpineTable, fast_evaluator, tabulates
+from .eager import pose_eagerly, register_eagerly
 from .maps import BEND, UNBEND
 from .methods import check_method
 from .projection import (
@@ -129,21 +130,37 @@ class Poser(eqx.Module):
     def pose(self, registration: Registration) -> tuple[Array, Array]:
         """`pose_point` for a batch of registered points (`length` shared or repeated per
         point): `(images (n, 3), valid (n,))`."""
-
-        def bend(reg):
-            return bend_point(reg, self.frames, self.method)
-
-        def projects(reg):
-            image, _, s1, distance = bend(reg)
-            return projects_back(self.target, image, s1, distance)
-
-        image, valid, s1, distance = jax.vmap(bend, in_axes=(batch_axes(registration),))(
-            registration
-        )
+        image, valid, certified = self._bend(registration)
         if self.check_projection:
-            certified = valid & (distance < jax.vmap(self.reach)(s1))
-            valid = update_where(valid & ~certified, projects, certified, registration)
+            valid = update_where(valid & ~certified, self._projects, certified, registration)
         return jnp.where(valid[:, None], image, registration.points), valid
+
+    def pose_certified(self, registration: Registration) -> tuple[Array, Array, Array]:
+        """`pose` without the global projection check: `(images, valid, pending)`, where the
+        pending points (valid but not certified by the reach bound) have their image but are
+        not valid yet, for `eager` to check them."""
+        image, valid, certified = self._bend(registration)
+        kept = jnp.where(valid[:, None], image, registration.points)
+        return kept, certified, valid & ~certified
+
+    def projects(self, registration: Registration) -> Array:
+        """The global projection check of each registered point (n,), bent again."""
+        return jax.vmap(self._projects, in_axes=(batch_axes(registration),))(registration)
+
+    def _bend(self, registration: Registration) -> tuple[Array, Array, Array]:
+        """`(images, valid, certified)`: valid before the projection check, and certified by
+        the reach bound (or valid, without the check)."""
+        image, valid, s1, distance = jax.vmap(
+            lambda reg: bend_point(reg, self.frames, self.method),
+            in_axes=(batch_axes(registration),),
+        )(registration)
+        if not self.check_projection:
+            return image, valid, valid
+        return image, valid, valid & (distance < jax.vmap(self.reach)(s1))
+
+    def _projects(self, reg: Registration) -> Array:
+        image, _, s1, distance = bend_point(reg, self.frames, self.method)
+        return projects_back(self.target, image, s1, distance)
 
     def pose_all(self, registration: Registration) -> tuple[Array, Array]:
         """`pose` for any number of registered points: in chunks (`map_chunks`) with exact
@@ -267,6 +284,8 @@ def register(points: ArrayLike, source: AbstractSpine, *, samples: int | None = 
     samples = source.default_samples() if samples is None else int(samples)
     registrar = _registrar(cast_floats(source, points.dtype), samples)
     # The points are put in outside the compiled call: returned from it, they would be copied.
+    if is_concrete(points):  # called eagerly: the global search compiled only if needed
+        return Registration(points, *register_eagerly(registrar, points))
     return Registration(points, *_register(registrar, points))
 
 
@@ -306,6 +325,8 @@ def pose(
     dtype = registration.points.dtype
     target, twist = cast_floats((target, as_twist(twist, dtype)), dtype)
     poser = _poser(target, check_method(method), twist, bool(check_projection))
+    if is_concrete(registration):  # called eagerly: the global check compiled only if needed
+        return pose_eagerly(poser, registration)
     return _pose(poser, registration)
 
 

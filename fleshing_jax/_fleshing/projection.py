@@ -227,14 +227,39 @@ class Registrar(eqx.Module):
         fixed = jax.lax.stop_gradient(points)
         s, certified = jax.vmap(self.start)(fixed)
         s, unique = update_where(~certified, self.search.global_start, (s, certified), fixed)
+        return self._polished(points, s, unique)
+
+    def closest_certified(self, points: Array) -> tuple[Array, Array, Array]:
+        """`closest` without the global search: `(s, converged, pending)`, the points the
+        fast path does not certify reported unconverged and `pending` (see `eager`)."""
+        s, certified = jax.vmap(self.start)(jax.lax.stop_gradient(points))
+        s, converged = self._polished(points, s, certified)
+        return s, converged, ~certified
+
+    def closest_global(self, points: Array) -> tuple[Array, Array]:
+        """`closest` by the global search for every point (the pending ones, see `eager`)."""
+        s, unique = jax.vmap(self.search.global_start)(jax.lax.stop_gradient(points))
+        return self._polished(points, s, unique)
+
+    def _polished(self, points: Array, s: Array, unique: Array) -> tuple[Array, Array]:
         s, converged = jax.vmap(lambda x, s: _polish(self.spine, self.search, x, s))(points, s)
         return s, converged & unique
 
-    def register(self, points: Array) -> Registration:
-        """The registration of a batch of points (n, 3); its `length` is repeated per point."""
+    def register(self, points: Array, closest=None) -> Registration:
+        """The registration of a batch of points (n, 3); its `length` is repeated per point.
+        `closest`: the search (default `self.closest`; `closest_global` for pending points)."""
         finite = jnp.all(jnp.isfinite(points), axis=-1)
-        s, converged = self.closest(jnp.where(finite[:, None], points, 0))
+        closest = self.closest if closest is None else closest
+        s, converged = closest(jnp.where(finite[:, None], points, 0))
         return jax.vmap(lambda *a: _local_coordinates(self.spine, *a))(points, s, converged)
+
+    def register_certified(self, points: Array) -> tuple[Registration, Array]:
+        """`register` without the global search: `(registration, pending (n,))`, the finite
+        points the fast path does not certify marked invalid and pending (see `eager`)."""
+        finite = jnp.all(jnp.isfinite(points), axis=-1)
+        s, converged, pending = self.closest_certified(jnp.where(finite[:, None], points, 0))
+        coordinates = jax.vmap(lambda *a: _local_coordinates(self.spine, *a))
+        return coordinates(points, s, converged), pending & finite
 
     def register_all(self, points: Array) -> Registration:
         """`register` for any number of points (N, 3): in chunks (`map_chunks`) on exact

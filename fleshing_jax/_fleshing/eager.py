@@ -1,0 +1,84 @@
+"""The batched paths called eagerly: two phases, the global searches compiled only if needed.
+
+Under `jit`, `Registrar.register` and `Poser.pose` carry their global fallback (the
+multi-candidate search for the points that the reach bounds do not certify) inside the
+program, behind `update_where`: it is compiled even when no point needs it, and it is most of
+the program (a line → arc pose: 4383 operations with it, 598 without; its compilation 8× the
+rest's). Called with concrete points, `register` and `pose` instead run a lean program that
+says which points are pending, and compile and run the fallback for those points only,
+gathered into a batch of a power-of-two size (so that a few programs serve every count). A
+command-line call on a tame target therefore never compiles a global search. Results are
+those of the one-program path, point for point (tested).
+"""
+
+from __future__ import annotations
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array
+
+from .._batching.chunks import map_chunks
+from .projection import Registrar, Registration
+
+MINIMUM_BATCH = 64  # the smallest batch of pending points (then 128, 256, …)
+
+
+def pending_index(pending: Array) -> np.ndarray:
+    """Indices of the pending points, padded to a power of two ≥ `MINIMUM_BATCH` with copies
+    of the last one (recomputed identically, so that writing them back twice is harmless)."""
+    index = np.flatnonzero(np.asarray(pending)).astype(np.int32)
+    size = max(MINIMUM_BATCH, 1 << max(len(index) - 1, 0).bit_length())
+    return np.pad(index, (0, size - len(index)), mode="edge")
+
+
+def register_eagerly(registrar: Registrar, points: Array) -> tuple:
+    """The fields of `registrar.register_all(points)` after `Registration.points`."""
+    registration, pending, any_pending = _register_certified(registrar, points)
+    if bool(any_pending):
+        registration = _register_pending(registrar, points, registration, pending_index(pending))
+    r = registration
+    return r.arc_length, r.offset, r.curvature, r.valid, r.length
+
+
+def pose_eagerly(poser, registration: Registration) -> tuple[Array, Array]:
+    """`poser.pose_all(registration)` (`poser`: a `pipeline.Poser`)."""
+    images, valid, pending, any_pending = _pose_certified(poser, registration)
+    if bool(any_pending):
+        index = pending_index(pending)
+        images, valid = _pose_pending(poser, registration, images, valid, index)
+    return images, valid
+
+
+@eqx.filter_jit
+def _register_certified(registrar, points):
+    registration, pending = map_chunks(registrar.register_certified, points, whole=registrar.fused)
+    registration = eqx.tree_at(lambda r: r.length, registration, registrar.spine.length)
+    return registration, pending, jnp.any(pending)
+
+
+@eqx.filter_jit
+def _register_pending(registrar, points, registration, index):
+    part = registrar.register(points[index], closest=registrar.closest_global)
+    fields = ("arc_length", "offset", "curvature", "valid")
+
+    def update(r):
+        return tuple(getattr(r, name) for name in fields)
+
+    values = tuple(a.at[index].set(b) for a, b in zip(update(registration), update(part)))
+    return eqx.tree_at(update, registration, values)
+
+
+@eqx.filter_jit
+def _pose_certified(poser, registration):
+    images, valid, pending = map_chunks(poser.pose_certified, registration, whole=poser.fused)
+    return images, valid, pending, jnp.any(pending)
+
+
+@eqx.filter_jit
+def _pose_pending(poser, registration, images, valid, index):
+    part = jax.tree.map(lambda a: a[index] if jnp.ndim(a) > 0 else a, registration)
+    ok = poser.projects(part)
+    images = images.at[index].set(jnp.where(ok[:, None], images[index], part.points))
+    return images, valid.at[index].set(ok)
