@@ -1,0 +1,48 @@
+"""A picture of a medial mesh: its spheres, cones and slabs inside a translucent surface."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .medial_mesh import MedialMesh
+
+
+def plot_medial(medial: MedialMesh, surface=None, *, ax=None, elev=10.0, azim=-60.0):
+    """Draws `medial` on a matplotlib 3D axis: slabs as triangles between their sphere
+    centres, cones as lines, spheres as points whose area follows their radius, and the
+    `surface` (a `trimesh.Trimesh`, optional) translucent around them.
+
+    **Returns:** the axis (a new figure's when `ax` is `None`).
+    """
+    import matplotlib.pyplot as plt
+    from mpl_toolkits.mplot3d.art3d import Line3DCollection, Poly3DCollection
+
+    centers, radii, edges, faces = medial.numpy()
+    if ax is None:
+        ax = plt.figure(figsize=(6, 5)).add_subplot(projection="3d")
+    points = centers
+    if surface is not None:
+        vertices = np.asarray(surface.vertices)
+        shell = Poly3DCollection(
+            vertices[np.asarray(surface.faces)], facecolor=(0.6, 0.6, 0.6, 0.06), linewidths=0
+        )
+        ax.add_collection3d(shell)
+        points = np.concatenate([centers, vertices])
+    if len(faces):
+        slabs = Poly3DCollection(
+            centers[faces], facecolor=(0.95, 0.55, 0.2, 0.55), edgecolor=(0.6, 0.3, 0.1, 0.3),
+            linewidths=0.3,
+        )  # fmt: skip
+        ax.add_collection3d(slabs)
+    if len(edges):
+        ax.add_collection3d(Line3DCollection(centers[edges], colors="tab:blue", linewidths=1.0))
+    scale = 60.0 / max(float(radii.max()), 1e-300)
+    ax.scatter(*centers.T, s=scale * radii, color="tab:blue", alpha=0.6, depthshade=False)
+    lo, hi = points.min(axis=0), points.max(axis=0)
+    centre, half = (lo + hi) / 2, (hi - lo).max() / 2
+    for setter, c in zip((ax.set_xlim, ax.set_ylim, ax.set_zlim), centre):
+        setter(c - half, c + half)
+    ax.set_box_aspect((1, 1, 1), zoom=1.2)
+    ax.view_init(elev=elev, azim=azim)
+    ax.set_axis_off()
+    return ax
