@@ -10,6 +10,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from conftest import cloud
 
 import fleshing_jax as fj
 from fleshing_jax._batching import chunks
@@ -287,3 +288,21 @@ def test_eager_two_phase_paths_equal_the_one_program_paths(dtype):
     rejected = np.asarray(fj.pose(registration, turn, check_projection=False)[1]) & ~valid
     assert rejected.sum() > 50
     np.testing.assert_array_equal(np.asarray(images)[rejected], np.asarray(points)[rejected])
+
+
+def test_large_batches_flesh_in_blocks(monkeypatch, capsys):
+    # Above `BLOCK_POINTS`, eager `flesh` works a block at a time into the output (bounded
+    # memory), the last block overlapping the one before; same result as one batch.
+    from fleshing_jax._fleshing import pipeline
+
+    source, target = fj.Line(4.0), fj.Arc(3.0, 4.0)
+    points = jnp.asarray(cloud(source, n=1000, overshoot=0.1), jnp.float32)
+    points = points.at[3].set(jnp.nan)
+    whole, whole_valid = fj.pose(fj.register(points, source), target, twist=0.2)
+    monkeypatch.setattr(pipeline, "BLOCK_POINTS", 256)  # 4 blocks, the last one overlapping
+    images, valid = fj.flesh(points, source, target, twist=0.2, progress=True)
+    np.testing.assert_array_equal(np.asarray(valid), np.asarray(whole_valid))
+    np.testing.assert_array_equal(np.asarray(images)[3], np.asarray(points)[3])
+    np.testing.assert_allclose(np.asarray(images), np.asarray(whole), rtol=0, atol=1e-6)
+    assert images.dtype == jnp.float32 and not valid[3]
+    assert "flesh" in capsys.readouterr().err  # the progress bar

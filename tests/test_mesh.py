@@ -183,3 +183,14 @@ def test_write_mesh_atomic_obj_without_materials(tmp_path, small):
     assert "mtllib" not in path.read_text()  # no reference to a material file never written
     assert sorted(p.name for p in tmp_path.iterdir()) == ["t.obj"]
     np.testing.assert_allclose(fj.load_mesh(path).vertices, small.vertices, atol=1e-7)
+
+
+def test_flesh_chunked_default_progress_bar(monkeypatch, capsys, small):
+    from fleshing_jax._mesh import deform
+
+    points = np.asarray(small.vertices)
+    monkeypatch.setattr(deform, "PROGRESS_POINTS", len(points))  # as for large inputs
+    out, ok = deform.flesh_chunked(points, fj.Line(4.0), fj.Arc(1.6, 4.0), chunk_size=40)
+    assert "vertices" in capsys.readouterr().err
+    expected = fj.deform_mesh(small, fj.Line(4.0), fj.Arc(1.6, 4.0))
+    np.testing.assert_allclose(out, expected.vertices, atol=1e-12)

@@ -348,6 +348,7 @@ def flesh(
     method: str = "radial",
     twist: ArrayLike = 0.0,
     check_projection: bool = True,
+    progress: bool | None = None,
 ) -> tuple[Float[Array, "N 3"], Bool[Array, " N"]]:
     """Bends `points` from around `source` to around `target`, preserving local volume.
 
@@ -358,6 +359,12 @@ def flesh(
     - `method`: `"radial"`, `"normal"`, `"binormal"` or `"skinning"`.
     - `twist`: scalar twist in radians.
     - `check_projection`: see `Fleshing`.
+    - `progress`: show a progress bar (`tqdm`, on stderr) over the blocks of a large batch
+      (default: when there are at least `PROGRESS_BLOCKS` of them).
+
+    Memory stays bounded on large batches: called eagerly on tabulated spines, more than
+    `BLOCK_POINTS` points are fleshed a block at a time into the output (whose buffer is
+    updated in place), so that the peak is the input and output arrays plus one block's work.
 
     **Returns:** `(deformed (N, 3), valid (N,) bool)`. Invalid points (outside the valid space,
     or not finite) are returned unchanged and flagged `False`; they never raise.
@@ -375,10 +382,10 @@ def flesh(
         # program, and compiled apart, the registration is compiled once for all the methods
         # and targets a shape is fleshed onto. (In one program XLA fuses the registration's
         # lookups into the pose's kernels, ~1.5× slower than the two calls.)
-        registration = register(points, source)
-        return pose(
-            registration, target, method=method, twist=twist, check_projection=check_projection
-        )
+        options = dict(method=method, twist=twist, check_projection=check_projection)
+        if is_concrete(points) and points.shape[0] > BLOCK_POINTS:
+            return _flesh_in_blocks(points, source, target, options, progress)
+        return pose(register(points, source), target, **options)
     samples = source.default_samples()
     return _flesh(points, cast_source, cast_target, method, twist, check_projection, samples)
 
@@ -386,3 +393,35 @@ def flesh(
 @eqx.filter_jit
 def _flesh(points, source, target, method, twist, check_projection, samples):
     return flesh_points(points, source, target, method, twist, check_projection, samples)
+
+
+BLOCK_POINTS = 1 << 21  # points fleshed at a time in large eager batches (~100 MB of work)
+PROGRESS_BLOCKS = 4  # the default progress bar is shown from this many blocks on
+
+
+def _flesh_in_blocks(points, source, target, options, progress):
+    """`flesh` a block of `BLOCK_POINTS` at a time (the last one padded with copies of the
+    last point, so that every block runs the same compiled programs), each written into the
+    output in place."""
+    n, size = points.shape[0], BLOCK_POINTS
+    count = -(-n // size)
+    show = count >= PROGRESS_BLOCKS if progress is None else bool(progress)
+    images = jnp.zeros_like(points)
+    valid = jnp.zeros(n, bool)
+    blocks = range(count)
+    if show:
+        from tqdm.auto import tqdm
+
+        blocks = tqdm(blocks, desc="flesh", unit="block", leave=False)
+    for b in blocks:
+        start = min(b * size, n - size)  # the last block overlaps the one before: same size
+        block = jax.lax.dynamic_slice_in_dim(points, start, size)
+        image, ok = pose(register(block, source), target, **options)
+        images, valid = _write_block(images, valid, image, ok, jnp.asarray(start, jnp.int32))
+    return images, valid
+
+
+@eqx.filter_jit(donate="all")
+def _write_block(images, valid, image, ok, start):
+    update = jax.lax.dynamic_update_slice_in_dim
+    return update(images, image, start, 0), update(valid, ok, start, 0)

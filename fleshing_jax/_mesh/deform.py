@@ -18,6 +18,7 @@ from .._fleshing.pipeline import pose, register
 from .._spines.spine import AbstractSpine
 
 CHUNK_SIZE = 200_000
+PROGRESS_POINTS = 4_000_000
 
 
 def flesh_chunked(
@@ -35,7 +36,8 @@ def flesh_chunked(
     Every chunk has the same shape (the last one is padded), so the work compiles once.
 
     **Arguments:** `points`: (N, 3) array; spines, `method` and `twist` as for `flesh`;
-    `progress(done, total)`: called after each chunk.
+    `progress(done, total)`: called after each chunk (default: a `tqdm` progress bar on
+    stderr from `PROGRESS_POINTS` points on, work of a few seconds or more).
 
     **Returns:** `(deformed (N, 3), valid (N,) bool)` as NumPy arrays, dtype of `points`.
     """
@@ -53,6 +55,8 @@ def flesh_chunked(
     n = len(points)
     size = max(1, min(int(chunk_size), n))
     deformed, valid = np.empty_like(points), np.zeros(n, dtype=bool)
+    if progress is None and n >= PROGRESS_POINTS:
+        progress = _progress_bar(n)
     for start in range(0, n, size):
         chunk = points[start : start + size]
         m = len(chunk)
@@ -133,3 +137,17 @@ def deform_mesh(
         cloud.colors = mesh.colors
     cloud.metadata["valid"] = valid
     return cloud
+
+
+def _progress_bar(total: int) -> Callable[[int, int], None]:
+    """A `progress(done, total)` callback drawing a `tqdm` bar, closed when done."""
+    from tqdm.auto import tqdm
+
+    bar = tqdm(total=total, desc="vertices", unit="pt", unit_scale=True, leave=False)
+
+    def report(done: int, _: int) -> None:
+        bar.update(done - bar.n)
+        if done >= total:
+            bar.close()
+
+    return report
