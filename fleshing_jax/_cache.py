@@ -2,8 +2,9 @@
 
 Compiling the batched paths takes seconds; the work on a typical mesh takes milliseconds. The
 command line therefore keeps XLA's compiled programs in the user's cache folder, so that every
-call after the first starts from them. The library itself never changes JAX's configuration:
-only `fleshing-jax` commands call `enable_compilation_cache`.
+call after the first starts from them. The library never changes JAX's configuration: only
+`fleshing-jax` commands call `enable_compilation_cache`, which sets JAX's environment
+variables for the command's own process before JAX is imported.
 
 `FLESHING_JAX_CACHE` moves the cache (a folder) or turns it off (`0`, `off`, `false`, `none` or
 empty).
@@ -41,11 +42,13 @@ def cache_folder() -> Path | None:
 
 
 def enable_compilation_cache() -> Path | None:
-    """Points JAX's persistent compilation cache at `cache_folder()`; returns the folder.
+    """Asks JAX for its persistent compilation cache in `cache_folder()`; returns the folder.
 
-    Every program is cached, however fast it compiled: the command line's programs are few,
-    and the small ones add up over a call. A folder that cannot be created leaves the cache
-    off (the command still runs, compiling as usual).
+    Through JAX's own environment variables, set before JAX is imported (the command line
+    imports it only once a command runs), never through `jax.config`: a JAX already
+    configured by the process, or variables the user set, win. Every program is cached,
+    however fast it compiled: the command line's programs are few, and the small ones add up
+    over a call. A folder that cannot be created leaves the cache off.
     """
     folder = cache_folder()
     if folder is None:
@@ -54,9 +57,7 @@ def enable_compilation_cache() -> Path | None:
         folder.mkdir(parents=True, exist_ok=True)
     except OSError:
         return None
-    import jax
-
-    jax.config.update("jax_compilation_cache_dir", str(folder))
-    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
-    jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
+    os.environ.setdefault("JAX_COMPILATION_CACHE_DIR", str(folder))
+    os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "0")
+    os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_ENTRY_SIZE_BYTES", "0")
     return folder

@@ -288,3 +288,25 @@ def test_compilation_cache_folder(monkeypatch, tmp_path):
     monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "xdg"))
     if sys.platform.startswith("linux"):
         assert _cache.cache_folder() == tmp_path / "xdg" / "fleshing-jax" / "jax-compilation-cache"
+
+
+def test_compilation_cache_through_jax_environment_variables(monkeypatch, tmp_path):
+    # The commands ask for the cache through JAX's variables, read when JAX is imported by the
+    # command's process; `jax.config` is never changed, and a user's own setting wins.
+    import jax
+
+    from fleshing_jax import _cache
+
+    before = jax.config.jax_compilation_cache_dir
+    for name in ("DIR", "MIN_COMPILE_TIME_SECS", "MIN_ENTRY_SIZE_BYTES"):
+        prefix = "JAX_COMPILATION_CACHE_" if name == "DIR" else "JAX_PERSISTENT_CACHE_"
+        monkeypatch.delenv(prefix + name, raising=False)  # restored after the test
+    monkeypatch.setenv(_cache.ENVIRONMENT_VARIABLE, str(tmp_path / "c"))
+    assert _cache.enable_compilation_cache() == tmp_path / "c"
+    assert os.environ["JAX_COMPILATION_CACHE_DIR"] == str(tmp_path / "c")
+    assert (tmp_path / "c").is_dir() and jax.config.jax_compilation_cache_dir == before
+    monkeypatch.setenv("JAX_COMPILATION_CACHE_DIR", str(tmp_path / "mine"))
+    _cache.enable_compilation_cache()
+    assert os.environ["JAX_COMPILATION_CACHE_DIR"] == str(tmp_path / "mine")
+    monkeypatch.setenv(_cache.ENVIRONMENT_VARIABLE, "off")
+    assert _cache.enable_compilation_cache() is None

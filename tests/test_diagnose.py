@@ -35,6 +35,7 @@ def test_causes_match_the_bending_limit(method):
 def test_points_outside_the_source_are_counted_first():
     source, points = fj.Line(4.0), _box()
     points[:7, 0] = 50.0  # far past the end: beyond the search range of the line
+    points[:7, 1:] = 3.0  # and far off the line: beyond the bending limit too, counted once
     points[7, 0] = np.nan
     causes = diagnose(fj.register(points, source), planar_bend(source, 1.0))
     assert causes.outside_source == 8 and causes.invalid == 8

@@ -18,6 +18,7 @@ from jaxtyping import ArrayLike
 from .._batching.chunks import batch_axes
 from .._numerics import cast_floats
 from .._spines.analytic import Arc, Line
+from .._spines.frames import rotation_minimizing_frame
 from .._spines.spine import AbstractSpine
 from .pipeline import bend_checks, pose
 from .projection import Registration
@@ -30,8 +31,9 @@ class Causes(NamedTuple):
     points: int  # all points
     outside_source: int  # not finite, or not strictly inside the source's reach
     beyond_limit: int  # the method's unbend/bend equations have no solution (too bent)
-    outside_target: int  # image outside the target's reach or search range, or not projecting
-    # back on it at the mapped arc length
+    # the image outside the target's reach or search range, or not projecting back on it at
+    # the mapped arc length:
+    outside_target: int
 
     @property
     def invalid(self) -> int:
@@ -89,8 +91,6 @@ def planar_bend(spine: AbstractSpine, angle: float) -> AbstractSpine:
 
 
 def _start_frame(spine: AbstractSpine):
-    from .._spines.frames import rotation_minimizing_frame
-
     frame = np.asarray(rotation_minimizing_frame(spine, 0.0), dtype=np.float64)
     return np.asarray(spine(0.0), dtype=np.float64), frame[0], frame[1]
 
