@@ -8,7 +8,8 @@ rest's). Called with concrete points, `register` and `pose` instead run a lean p
 says which points are pending, and compile and run the fallback for those points only,
 gathered into a batch of a power-of-two size (so that a few programs serve every count). A
 command-line call on a tame target therefore never compiles a global search. Results are
-those of the one-program path, point for point (tested).
+those of the one-program path: the same flags, and floats equal to their last bits (the two
+programs are fused differently; tested).
 """
 
 from __future__ import annotations
