@@ -19,11 +19,14 @@ from ._fleshing.projection import (
     closest_arc_length as closest_arc_length,
 )
 from ._fleshing.verify import jacobian_determinant as jacobian_determinant
+from ._medial.arap import arap_medial as arap_medial
 from ._medial.construct import medial_mesh as medial_mesh
 from ._medial.distance import medial_distance as medial_distance
 from ._medial.figure import plot_medial as plot_medial
 from ._medial.files import load_medial as load_medial, save_medial as save_medial
 from ._medial.medial_mesh import MedialMesh as MedialMesh
+from ._medial.pose import MedialPose as MedialPose
+from ._medial.rig import MedialRig as MedialRig
 from ._medial.rest_spine import rest_spine as rest_spine
 from ._mesh.deform import deform_mesh as deform_mesh, flesh_chunked as flesh_chunked
 from ._mesh.files import load_mesh as load_mesh, write_mesh_atomic as write_mesh_atomic

@@ -10,5 +10,7 @@ initial medial axis: inner Voronoi complex of the samples), `simplify` (Q-MAT's
 sphere-quadric edge collapses), `construct` (`medial_mesh`), `medial_mesh` (`MedialMesh`),
 `primitives` (closed-form distances to spheres, cones, slabs and their union), `envelope`
 (surface nets of the union), `distance` (`medial_distance`), `files` (`.ma` files),
-`rest_spine` (a Fleshing rest spine along the medial graph's longest path).
+`rest_spine` (a Fleshing rest spine along the medial graph's longest path), `footprint`
+(binding vertices to footprint spheres), `skin` (medial / LBS / DQS skins), `implicit` (the
+implicit-skinning correction), `rig` (`MedialRig`).
 """

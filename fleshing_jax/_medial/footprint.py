@@ -1,0 +1,249 @@
+"""Footprint binding of surface vertices to a medial mesh (NumPy preprocessing).
+
+Follows Lan et al. 2017 (appendix): a vertex `p` is bound to the medial primitive (sphere,
+cone = edge, slab = face) whose envelope is nearest, and on it to its *footprint sphere*, the
+sphere `(c(β), r(β))` interpolated linearly over the primitive that minimises the power
+distance `E_m(β) = |p − c(β)|² − r(β)²`. Its Hessian is the Gram matrix of the Minkowski
+products of `(c_a − c_k, r_a − r_k)`, positive definite for a slab whose spheres are not
+nested or collinear, so `β` solves a 2×2 linear system on a slab (1×1 on a cone); when the
+minimiser is outside the primitive (or the Hessian is not positive definite) the minimum lies
+on its boundary: the best of the edges' clamped 1D minima (a convex problem's constrained
+minimum; for a non-convex one the boundary holds it anyway).
+
+Our own choices: candidates are pruned with the primitives' bounding spheres (a primitive
+whose bounding sphere is farther than the nearest sphere's envelope cannot be nearest); the
+primitives the implicit field later uses are chosen here too (`field_cones` nearest cones,
+lone spheres counted as cones of length 0, and `field_slabs` nearest slabs).
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from .primitives import _Cones, _Slabs
+
+CHUNK = 4096  # points per block of the (point, primitive) bound matrix
+
+
+class Binding(NamedTuple):
+    """Per-vertex footprint data (NumPy). `spheres`, `beta`: (N, 3) the footprint's spheres
+    and barycentric weights (a cone as `(i, j, j)`, a lone sphere as `(i, i, i)`, unused
+    weights 0); `offset`: (N, 3) `p − c(β)`; `distance`: (N,) signed distance to the nearest
+    primitive's envelope; `valid`: (N,); `cones`: (C, 2) the segment table (edges, then lone
+    spheres as `(i, i)`); `field_cones` (N, kc) and `field_slabs` (N, ks): each vertex's
+    field candidates (indices into `cones` and the medial faces); `iso`: (N,) the field of
+    the rest envelope at the rest vertex over those candidates."""
+
+    spheres: np.ndarray
+    beta: np.ndarray
+    offset: np.ndarray
+    distance: np.ndarray
+    valid: np.ndarray
+    cones: np.ndarray
+    field_cones: np.ndarray
+    field_slabs: np.ndarray
+    iso: np.ndarray
+
+
+def _dot(a, b):
+    return np.einsum("...i,...i->...", a, b)
+
+
+def segment_footprint(p, ca, ra, cb, rb):
+    """Minimiser `t ∈ [0, 1]` of `E(t) = |p − c(t)|² − r(t)²` on segments `(ca, ra)–(cb, rb)`
+    (all (M, ·)), with `E` there: `(t (M,), E (M,))`."""
+    d, dr, w = cb - ca, rb - ra, p - ca
+    h = _dot(d, d) - dr * dr  # the 1×1 Hessian (halved): a Minkowski norm
+    convex = h > 1e-14 * np.maximum(_dot(d, d), 1e-300)
+    t = np.clip((_dot(w, d) + ra * dr) / np.where(convex, h, 1.0), 0.0, 1.0)
+
+    def energy(t):
+        q = w - t[:, None] * d
+        return _dot(q, q) - (ra + t * dr) ** 2
+
+    e0, e1 = energy(np.zeros_like(t)), energy(np.ones_like(t))
+    t = np.where(convex, t, np.where(e1 < e0, 1.0, 0.0))
+    return t, energy(t)
+
+
+def slab_footprint(p, c, r):
+    """Footprint weights on slabs of spheres `c (M, 3, 3)`, `r (M, 3)` for points `p (M, 3)`:
+    `β (M, 3)` over the three spheres, summing to 1, all >= 0."""
+    ck, rk = c[:, 2], r[:, 2]
+    e = c[:, :2] - ck[:, None]  # (M, 2, 3)
+    dr = r[:, :2] - rk[:, None]
+    w = p - ck
+    h11 = _dot(e[:, 0], e[:, 0]) - dr[:, 0] ** 2
+    h12 = _dot(e[:, 0], e[:, 1]) - dr[:, 0] * dr[:, 1]
+    h22 = _dot(e[:, 1], e[:, 1]) - dr[:, 1] ** 2
+    g1 = _dot(e[:, 0], w) + dr[:, 0] * rk
+    g2 = _dot(e[:, 1], w) + dr[:, 1] * rk
+    det = h11 * h22 - h12 * h12
+    scale = np.maximum(_dot(e[:, 0], e[:, 0]) * _dot(e[:, 1], e[:, 1]), 1e-300)
+    definite = (h11 > 0) & (det > 1e-12 * scale)
+    safe = np.where(definite, det, 1.0)
+    bi, bj = (h22 * g1 - h12 * g2) / safe, (h11 * g2 - h12 * g1) / safe
+    inside = definite & (bi >= 0) & (bj >= 0) & (bi + bj <= 1)
+    beta = np.stack([bi, bj, 1 - bi - bj], axis=1)
+    # Boundary: the three edges' clamped minima, the best one kept.
+    best = np.full(len(p), np.inf)
+    edge_beta = np.zeros_like(beta)
+    for a, b in ((0, 1), (1, 2), (0, 2)):
+        t, energy = segment_footprint(p, c[:, a], r[:, a], c[:, b], r[:, b])
+        better = energy < best
+        best = np.where(better, energy, best)
+        candidate = np.zeros_like(beta)
+        candidate[:, a], candidate[:, b] = 1 - t, t
+        edge_beta = np.where(better[:, None], candidate, edge_beta)
+    return np.where(inside[:, None], beta, edge_beta)
+
+
+def _edge_of(edges, n, pairs):
+    """Index into `edges` of each sorted pair in `pairs` (M, 2)."""
+    keys = np.sort(edges, axis=1) @ np.array([n, 1])
+    order = np.argsort(keys)
+    want = np.sort(pairs, axis=1) @ np.array([n, 1])
+    return order[np.searchsorted(keys[order], want)]
+
+
+def _rank(points):
+    """Rank of each pair within its point's group, for pairs sorted by point."""
+    starts = np.r_[0, np.flatnonzero(np.diff(points)) + 1]
+    sizes = np.diff(np.r_[starts, len(points)])
+    return np.arange(len(points)) - np.repeat(starts, sizes)
+
+
+def _nearest_k(pts, prim, dist, n_points, k, fallback):
+    """The `k` nearest primitives per point from pairs `(pts, prim, dist)`; rows with fewer
+    repeat their nearest (duplicates do not change a minimum), `fallback` for none."""
+    out = np.full((n_points, k), fallback, dtype=np.int64)
+    if k == 0 or len(pts) == 0:
+        return out
+    order = np.lexsort((dist, pts))
+    pts, prim = pts[order], prim[order]
+    rank = _rank(pts)
+    first = rank == 0
+    out[pts[first]] = prim[first][:, None]
+    keep = rank < k
+    out[pts[keep], rank[keep]] = prim[keep]
+    return out
+
+
+def bind(points, centers, radii, edges, faces, *, field_cones=4, field_slabs=2,
+         max_distance=None) -> Binding:
+    """Binds `points` (N, 3) to the medial mesh `(centers, radii, edges, faces)` (NumPy
+    float64 / int64). See the module docstring; **returns** a `Binding`."""
+    n, m = len(centers), len(points)
+    lone = np.setdiff1d(np.arange(n), edges.reshape(-1))
+    cones = np.concatenate([edges, np.stack([lone, lone], 1)]).astype(np.int64)
+    finite = np.isfinite(points).all(axis=1)
+    p_all = np.where(finite[:, None], points, 0.0)
+    if max_distance is None:
+        lo, hi = (centers - radii[:, None]).min(0), (centers + radii[:, None]).max(0)
+        max_distance = float(np.linalg.norm(hi - lo))
+
+    seg = _Cones(centers[cones[:, 0]], radii[cones[:, 0]], centers[cones[:, 1]],
+                 radii[cones[:, 1]])
+    slabs = _Slabs(*(x for k in range(3) for x in (centers[faces[:, k]], radii[faces[:, k]])))
+    face_edges = (np.stack([_edge_of(edges, n, faces[:, [a, b]])
+                            for a, b in ((0, 1), (1, 2), (0, 2))], 1)
+                  if len(faces) else np.zeros((0, 3), np.int64))
+
+    # Bounding spheres: cones (segments), then slabs.
+    c0, c1 = centers[cones[:, 0]], centers[cones[:, 1]]
+    b_centre = [(c0 + c1) / 2]
+    b_radius = [np.linalg.norm(c1 - c0, axis=1) / 2 + np.maximum(radii[cones[:, 0]],
+                                                                 radii[cones[:, 1]])]
+    if len(faces):
+        tri = centers[faces]
+        mid = tri.mean(axis=1)
+        b_centre.append(mid)
+        b_radius.append((np.linalg.norm(tri - mid[:, None], axis=2) + radii[faces]).max(1))
+    b_centre, b_radius = np.concatenate(b_centre), np.concatenate(b_radius)
+    n_cones = len(cones)
+
+    # Upper bound of the nearest envelope: the nearest spheres' (each sphere is inside the
+    # union). A margin of half the median radius keeps a few more primitives for the field.
+    k = min(n, 8)
+    dist, idx = cKDTree(centers).query(p_all, k=k)
+    dist, idx = dist.reshape(m, k), idx.reshape(m, k)
+    upper = (dist - radii[idx]).min(axis=1) + 0.5 * float(np.median(radii))
+
+    pts_l, prim_l = [], []
+    for start in range(0, m, CHUNK):
+        block = p_all[start:start + CHUNK]
+        gap = np.linalg.norm(block[:, None] - b_centre[None], axis=2) - b_radius[None]
+        i, j = np.nonzero(gap <= upper[start:start + CHUNK, None])
+        pts_l.append(i + start)
+        prim_l.append(j)
+    pts, prim = np.concatenate(pts_l), np.concatenate(prim_l)
+
+    is_cone = prim < n_cones
+    pc, qc = pts[is_cone], prim[is_cone]
+    dc = seg.distance(p_all[pc], qc)
+    ps, qs = pts[~is_cone], prim[~is_cone] - n_cones
+    plane = slabs.distance(p_all[ps], qs)  # inf where the foot is outside the triangle
+    edge_d = [seg.distance(p_all[ps], face_edges[qs, a]) for a in range(3)]
+    full = np.minimum(plane, np.minimum.reduce(edge_d)) if len(ps) else plane
+
+    # The nearest primitive of each point (ties: the cone, listed first).
+    all_pts, all_d = np.concatenate([pc, ps]), np.concatenate([dc, full])
+    all_prim = np.concatenate([qc, qs + n_cones])
+    order = np.lexsort((all_d, all_pts))
+    first = np.r_[True, np.diff(all_pts[order]) != 0]
+    nearest = np.zeros(m, np.int64)
+    distance = np.full(m, np.inf)
+    nearest[all_pts[order][first]] = all_prim[order][first]
+    distance[all_pts[order][first]] = all_d[order][first]
+
+    spheres = np.zeros((m, 3), np.int64)
+    beta = np.zeros((m, 3))
+    on_cone = nearest < n_cones
+    ic = nearest[on_cone]
+    a, b = cones[ic, 0], cones[ic, 1]
+    t, _ = segment_footprint(p_all[on_cone], centers[a], radii[a], centers[b], radii[b])
+    spheres[on_cone] = np.stack([a, b, b], 1)
+    beta[on_cone] = np.stack([1 - t, t, np.zeros_like(t)], 1)
+    on_slab = ~on_cone
+    f = faces[nearest[on_slab] - n_cones] if on_slab.any() else np.zeros((0, 3), np.int64)
+    spheres[on_slab] = f
+    beta[on_slab] = slab_footprint(p_all[on_slab], centers[f], radii[f])
+    # Lone spheres (cones (i, i)) and weights that vanish: first slot only.
+    offset = p_all - np.einsum("mk,mkd->md", beta, centers[spheres])
+
+    valid = finite & np.isfinite(distance) & (distance <= max_distance)
+    fc = _nearest_k(pc, qc, dc, m, field_cones, 0)
+    fs = _nearest_k(ps, qs, full, m, field_slabs, 0)
+    # Points with no slab nearby get their nearest slab from the whole list (by bounding
+    # sphere); with no faces at all the slab part of the field is empty.
+    if len(faces) and field_slabs:
+        seen = np.zeros(m, bool)
+        seen[ps] = True
+        if (~seen).any():
+            gap = np.linalg.norm(p_all[~seen][:, None] - b_centre[None, n_cones:], axis=2)
+            fs[~seen] = np.argmin(gap - b_radius[None, n_cones:], axis=1)[:, None]
+    # Cone candidates missing (a point seen by no cone): its nearest cone by bounding sphere.
+    seen = np.zeros(m, bool)
+    seen[pc] = True
+    if (~seen).any():
+        gap = np.linalg.norm(p_all[~seen][:, None] - b_centre[None, :n_cones], axis=2)
+        fc[~seen] = np.argmin(gap - b_radius[None, :n_cones], axis=1)[:, None]
+    iso = rest_field(p_all, seg, slabs, fc, fs if len(faces) else fs[:, :0])
+    return Binding(spheres, beta, offset, np.where(valid, distance, 0.0), valid, cones,
+                   fc, fs if len(faces) else fs[:, :0], np.where(valid, iso, 0.0))
+
+
+def rest_field(points, seg, slabs, field_cones, field_slabs):
+    """The rest envelope's field over each point's candidates: the minimum of the cones'
+    distances and the slabs' tangent-plane distances, as `implicit.field` computes it."""
+    m, kc = field_cones.shape
+    values = seg.distance(np.repeat(points, kc, 0), field_cones.reshape(-1)).reshape(m, kc)
+    out = values.min(axis=1)
+    ks = field_slabs.shape[1]
+    if ks:
+        plane = slabs.distance(np.repeat(points, ks, 0), field_slabs.reshape(-1))
+        out = np.minimum(out, plane.reshape(m, ks).min(axis=1))
+    return out
