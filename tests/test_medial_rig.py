@@ -123,8 +123,11 @@ def test_jax_field_matches_the_numpy_union_distance():
     expected = union_distance(points, centers, radii, edges, faces, cutoff=100.0)
     cones = cone_table(jnp.asarray(centers), jnp.asarray(radii), jnp.asarray(edges))
     slabs = slab_table(jnp.asarray(centers), jnp.asarray(radii), jnp.asarray(faces))
+    slab_edges = jax.tree.map(lambda x: x[None], cone_table(
+        jnp.asarray(centers), jnp.asarray(radii), jnp.asarray([[0, 1], [1, 2], [0, 2]])))
     cv, cg = jax.vmap(jax.vmap(cone_field, (None, 0)), (0, None))(jnp.asarray(points), cones)
-    sv, sg = jax.vmap(jax.vmap(slab_field, (None, 0)), (0, None))(jnp.asarray(points), slabs)
+    sv, sg = jax.vmap(jax.vmap(slab_field, (None, 0, 0)), (0, None, None))(
+        jnp.asarray(points), slabs, slab_edges)
     ours = np.minimum(np.asarray(cv).min(1), np.asarray(sv).min(1))
     assert np.allclose(ours, expected, atol=1e-9)
     # The gradients are the distance's: unit vectors, equal to finite differences.
@@ -166,3 +169,168 @@ def test_rest_and_rigid_poses(capsule, method, implicit):
                        jnp.asarray(np.broadcast_to(rotation, (SPHERES, 3, 3))))
     x, _ = rig.pose(posed, method, implicit=implicit)
     assert np.abs(np.asarray(x) - (v @ rotation.T + shift)).max() <= 1e-4
+
+
+@pytest.mark.parametrize("angle", [np.pi / 2, np.pi])
+def test_bent_capsule_keeps_its_volume(capsule, angle):
+    mesh, medial, rig = capsule
+    faces = np.asarray(mesh.faces)
+    before = float(fj.volume(mesh.vertices, faces))
+    posed = bent(medial, angle)
+    change = {}
+    for method in METHODS:
+        x, valid = rig.pose(posed, method, implicit=method == "medial")
+        assert bool(valid.all()) and np.isfinite(np.asarray(x)).all()
+        change[method] = float(fj.volume(x, faces)) / before - 1
+    assert abs(change["medial"]) <= 0.01, change
+    # The skin follows the arc: the end cap's centre lands at the arc's end.
+    x = np.asarray(rig.pose(posed)[0])
+    top = mesh.vertices[:, 2] > LENGTH / 2 + 0.49
+    tip = np.asarray(posed.centers[-1]) + np.asarray(posed.rotations[-1]) @ [0, 0, RADIUS]
+    assert np.linalg.norm(x[top].mean(0) - tip) < 0.02
+
+
+def test_twisted_capsule_keeps_its_volume(capsule):
+    mesh, medial, rig = capsule
+    faces = np.asarray(mesh.faces)
+    before = float(fj.volume(mesh.vertices, faces))
+    x, _ = rig.pose(twisted(medial, np.pi))
+    assert abs(float(fj.volume(x, faces)) / before - 1) <= 0.01
+    # Cross-sections turn rigidly: every vertex keeps its distance to the axis and its height.
+    x = np.asarray(x)
+    v = np.asarray(mesh.vertices)
+    assert np.allclose(np.linalg.norm(x[:, :2], axis=1), np.linalg.norm(v[:, :2], axis=1),
+                       atol=2e-3)
+    assert np.allclose(x[:, 2], v[:, 2], atol=2e-3)
+
+
+def test_implicit_correction_restores_the_iso_values(capsule):
+    # After a bend, the skinned vertices' distances to the posed envelope drift from their
+    # rest values (the inner side is pressed, the outer stretched); the correction brings
+    # them back, and the surface stays smooth: no edge stretched or squashed much.
+    mesh, medial, rig = capsule
+    posed = bent(medial, np.pi)
+    dm = MedialMesh(np.asarray(posed.centers), np.asarray(medial.radii),
+                    np.asarray(medial.edges))
+
+    def drift(x):
+        d = union_distance(np.asarray(x), *dm.numpy(), cutoff=10.0)
+        d0 = union_distance(mesh.vertices, *medial.numpy(), cutoff=10.0)
+        return np.abs(d - d0).max()
+
+    raw, _ = rig.pose(posed, implicit=False)
+    fixed, _ = rig.pose(posed)
+    assert drift(fixed) < 0.5 * drift(raw) and drift(fixed) < 0.01
+    edges = np.asarray(mesh.edges_unique)
+    rest = np.linalg.norm(np.diff(mesh.vertices[edges], axis=1)[:, 0], axis=1)
+    posed_length = np.linalg.norm(np.diff(np.asarray(fixed)[edges], axis=1)[:, 0], axis=1)
+    ratio = posed_length / rest
+    assert 0.5 < ratio.min() and ratio.max() < 2.0
+
+
+def test_float32_poses_stay_float32(capsule):
+    mesh, medial, rig = capsule
+    posed = bent(medial, np.pi / 2)
+    single = MedialPose(medial, posed.centers.astype(jnp.float32),
+                        posed.rotations.astype(jnp.float32))
+    x32, valid = rig.pose(single)
+    x64, _ = rig.pose(posed)
+    assert x32.dtype == jnp.float32 and valid.dtype == jnp.bool_
+    assert np.abs(np.asarray(x32) - np.asarray(x64)).max() < 1e-4
+    x, _ = rig.pose(MedialPose.rest(MedialMesh(np.asarray(medial.centers, np.float32),
+                                               np.asarray(medial.radii, np.float32),
+                                               medial.edges)))
+    assert x.dtype == jnp.float32
+    assert np.abs(np.asarray(x) - mesh.vertices).max() <= 1e-6 * diagonal(mesh.vertices)
+
+
+def test_jit_and_gradients(capsule):
+    mesh, medial, rig = capsule
+    posed = bent(medial, 1.0)
+    x, _ = rig.pose(posed)
+    xj, _ = jax.jit(rig.pose)(posed)
+    assert np.allclose(np.asarray(xj), np.asarray(x), atol=1e-12)
+    weights = jnp.asarray(np.random.default_rng(2).normal(size=x.shape))
+
+    def loss(centers):
+        return jnp.sum(weights * rig.pose(MedialPose(medial, centers, posed.rotations))[0])
+
+    grad = jax.grad(loss)(posed.centers)
+    assert np.isfinite(np.asarray(grad)).all()
+    check_grads(loss, (posed.centers,), order=1, modes=["rev"])
+    # At the rest pose too (identity rotations: the quaternion blend's degenerate branch).
+    rest = MedialPose.rest(medial)
+    g = jax.grad(lambda c: jnp.sum(rig.pose(MedialPose(medial, c, rest.rotations))[0] ** 2))
+    assert np.isfinite(np.asarray(g(rest.centers))).all()
+
+
+def test_rotation_blend_across_primitives_closes_cracks():
+    # A capsule whose medial mesh is two chains with no edge between them: the vertices on
+    # either side of the gap bind to different chains, which share no sphere. Turning the
+    # two chains apart tears the surface there unless the rotation weights are smoothed.
+    mesh = capsule_mesh()
+    n = SPHERES
+    medial = chain(n)
+    keep = np.ones(n - 1, bool)
+    keep[n // 2 - 1] = False
+    split = MedialMesh(medial.centers, medial.radii, np.asarray(medial.edges)[keep])
+    centers = np.asarray(medial.centers)
+    theta = np.where(np.arange(n) >= n // 2, 0.4, 0.0)  # the upper chain turns about a hinge
+    hinge = centers[n // 2 - 1] * 0.5 + centers[n // 2] * 0.5
+    rotations = np.stack([rot_y(t) for t in theta])
+    posed_centers = hinge + np.einsum("nij,nj->ni", rotations, centers - hinge)
+    posed = MedialPose(split, jnp.asarray(posed_centers), jnp.asarray(rotations))
+    edges = np.asarray(mesh.edges_unique)
+    rest = np.linalg.norm(np.diff(mesh.vertices[edges], axis=1)[:, 0], axis=1)
+
+    def worst(rig, pose=posed):
+        x = np.asarray(rig.pose(pose, implicit=False)[0])
+        ratio = np.linalg.norm(np.diff(x[edges], axis=1)[:, 0], axis=1) / rest
+        return np.abs(np.log(ratio)).max()
+
+    sharp = worst(MedialRig(mesh.vertices, split, faces=mesh.faces, smoothing=0))
+    smooth = worst(MedialRig(mesh.vertices, split, faces=mesh.faces))
+    # The reference: the same hinge on the connected chain, rotations blended over each
+    # cone only (the hinge's own kink stretches the outer side there too).
+    connected = worst(MedialRig(mesh.vertices, medial, faces=mesh.faces, smoothing=0),
+                      MedialPose(medial, posed.centers, posed.rotations))
+    assert smooth < 0.3 * sharp and smooth <= connected
+
+
+# --- bad input and invalid vertices ---------------------------------------------------
+
+
+def test_invalid_vertices_are_flagged_not_nan(capsule):
+    mesh, medial, _ = capsule
+    v = np.array(mesh.vertices)
+    v[3] = np.nan
+    v[7] = [100.0, 0, 0]  # far from every primitive
+    rig = MedialRig(v, medial, faces=mesh.faces)
+    x, valid = rig.pose(bent(medial, 1.0))
+    assert not valid[3] and not valid[7] and int(valid.sum()) == len(v) - 2
+    assert np.isfinite(np.asarray(x)).all()
+    assert np.allclose(np.asarray(x)[7], v[7])
+
+
+def test_bad_input(capsule):
+    mesh, medial, rig = capsule
+    with pytest.raises(ValueError, match="vertices"):
+        MedialRig(np.zeros((4, 2)), medial)
+    with pytest.raises(ValueError, match="vertices"):
+        MedialRig(np.array(["a", "b", "c"])[None], medial)
+    with pytest.raises(ValueError, match="medial.*sphere"):
+        MedialRig(mesh.vertices, MedialMesh(np.zeros((0, 3)), np.zeros(0)))
+    with pytest.raises(ValueError, match="medial"):
+        MedialRig(mesh.vertices, "not a medial mesh")
+    with pytest.raises(ValueError, match="faces"):
+        MedialRig(mesh.vertices, medial, faces=np.array([[0, 1, len(mesh.vertices)]]))
+    with pytest.raises(ValueError, match="faces"):
+        MedialRig(mesh.vertices, medial, faces=np.zeros((3, 2), int))
+    with pytest.raises(ValueError, match="smoothing"):
+        MedialRig(mesh.vertices, medial, smoothing=-1)
+    with pytest.raises(ValueError, match="posed.*9 spheres"):
+        rig.pose(MedialPose.rest(chain(5)))
+    with pytest.raises(ValueError, match="posed"):
+        rig.pose(np.zeros((SPHERES, 3)))
+    with pytest.raises(ValueError, match="method.*'medial', 'lbs', 'dqs'.*'spline'"):
+        rig.pose(MedialPose.rest(medial), "spline")

@@ -13,7 +13,8 @@ minimum; for a non-convex one the boundary holds it anyway).
 Our own choices: candidates are pruned with the primitives' bounding spheres (a primitive
 whose bounding sphere is farther than the nearest sphere's envelope cannot be nearest); the
 primitives the implicit field later uses are chosen here too (`field_cones` nearest cones,
-lone spheres counted as cones of length 0, and `field_slabs` nearest slabs).
+lone spheres counted as cones of length 0, and `field_slabs` nearest slabs), with the rest
+iso-values of that field.
 """
 
 from __future__ import annotations
@@ -35,7 +36,8 @@ class Binding(NamedTuple):
     primitive's envelope; `valid`: (N,); `cones`: (C, 2) the segment table (edges, then lone
     spheres as `(i, i)`); `field_cones` (N, kc) and `field_slabs` (N, ks): each vertex's
     field candidates (indices into `cones` and the medial faces); `iso`: (N,) the field of
-    the rest envelope at the rest vertex over those candidates."""
+    the rest envelope at the rest vertex over those candidates; `width`: (N,) the smooth
+    union's width there (`blend` times the footprint radius)."""
 
     spheres: np.ndarray
     beta: np.ndarray
@@ -46,6 +48,7 @@ class Binding(NamedTuple):
     field_cones: np.ndarray
     field_slabs: np.ndarray
     iso: np.ndarray
+    width: np.ndarray
 
 
 def _dot(a, b):
@@ -101,12 +104,35 @@ def slab_footprint(p, c, r):
     return np.where(inside[:, None], beta, edge_beta)
 
 
-def _edge_of(edges, n, pairs):
-    """Index into `edges` of each sorted pair in `pairs` (M, 2)."""
-    keys = np.sort(edges, axis=1) @ np.array([n, 1])
-    order = np.argsort(keys)
-    want = np.sort(pairs, axis=1) @ np.array([n, 1])
-    return order[np.searchsorted(keys[order], want)]
+class _SlabEdges:
+    """The three edge cones of every slab, `(i, j), (j, k), (i, k)`, as one `_Cones`."""
+
+    def __init__(self, centers, radii, faces):
+        pairs = faces[:, [[0, 1], [1, 2], [0, 2]]].reshape(-1, 2)
+        self.cones = _Cones(centers[pairs[:, 0]], radii[pairs[:, 0]], centers[pairs[:, 1]],
+                            radii[pairs[:, 1]])
+
+    def distance(self, p, i):
+        """Distance of `p` (M, 3) to the nearest edge cone of slabs `i` (M,)."""
+        return np.minimum.reduce([self.cones.distance(p, 3 * i + a) for a in range(3)])
+
+
+def slab_distance(p, slabs, edges, i):
+    """Signed distance of `p` (M, 3) to the whole slabs `i` (M,): the tangent-plane part
+    where the foot is in the triangle, else the nearest edge cone."""
+    plane = slabs.distance(p, i)
+    return np.where(np.isfinite(plane), plane, edges.distance(p, i))
+
+
+def smooth_union(values, width):
+    """The smooth union of `implicit.smooth_union`, folded over the last axis of `values`
+    (M, k) in order, `width` (M,)."""
+    out = values[:, 0]
+    for k in range(1, values.shape[1]):
+        b = values[:, k]
+        h = np.clip(0.5 + 0.5 * (b - out) / width, 0, 1)
+        out = b + h * (out - b) - width * h * (1 - h)
+    return out
 
 
 def _rank(points):
@@ -133,7 +159,7 @@ def _nearest_k(pts, prim, dist, n_points, k, fallback):
 
 
 def bind(points, centers, radii, edges, faces, *, field_cones=4, field_slabs=2,
-         max_distance=None) -> Binding:
+         max_distance=None, blend=0.1) -> Binding:
     """Binds `points` (N, 3) to the medial mesh `(centers, radii, edges, faces)` (NumPy
     float64 / int64). See the module docstring; **returns** a `Binding`."""
     n, m = len(centers), len(points)
@@ -148,9 +174,7 @@ def bind(points, centers, radii, edges, faces, *, field_cones=4, field_slabs=2,
     seg = _Cones(centers[cones[:, 0]], radii[cones[:, 0]], centers[cones[:, 1]],
                  radii[cones[:, 1]])
     slabs = _Slabs(*(x for k in range(3) for x in (centers[faces[:, k]], radii[faces[:, k]])))
-    face_edges = (np.stack([_edge_of(edges, n, faces[:, [a, b]])
-                            for a, b in ((0, 1), (1, 2), (0, 2))], 1)
-                  if len(faces) else np.zeros((0, 3), np.int64))
+    slab_edges = _SlabEdges(centers, radii, faces)
 
     # Bounding spheres: cones (segments), then slabs.
     c0, c1 = centers[cones[:, 0]], centers[cones[:, 1]]
@@ -165,18 +189,30 @@ def bind(points, centers, radii, edges, faces, *, field_cones=4, field_slabs=2,
     b_centre, b_radius = np.concatenate(b_centre), np.concatenate(b_radius)
     n_cones = len(cones)
 
-    # Upper bound of the nearest envelope: the nearest spheres' (each sphere is inside the
-    # union). A margin of half the median radius keeps a few more primitives for the field.
-    k = min(n, 8)
-    dist, idx = cKDTree(centers).query(p_all, k=k)
-    dist, idx = dist.reshape(m, k), idx.reshape(m, k)
-    upper = (dist - radii[idx]).min(axis=1) + 0.5 * float(np.median(radii))
+    # Upper bounds of the k-th nearest cone's and slab's distances: the actual distances of
+    # the k primitives with the nearest bounding-sphere centres. A primitive whose bounding
+    # sphere is farther than the bound of its kind cannot be among the k nearest (nor the
+    # nearest: at least one slab is kept for binding even when the field uses none).
+    n_slabs = len(faces)
+    kc, ks = min(field_cones, n_cones), min(max(field_slabs, 1), n_slabs)
+    _, near = cKDTree(b_centre[:n_cones]).query(p_all, k=kc)
+    near = near.reshape(m, kc)
+    upper_c = seg.distance(np.repeat(p_all, kc, 0), near.reshape(-1)).reshape(m, kc).max(1)
+    upper_s = np.full(m, -np.inf)
+    if n_slabs:
+        _, near = cKDTree(b_centre[n_cones:]).query(p_all, k=ks)
+        near = near.reshape(m, ks)
+        upper_s = slab_distance(np.repeat(p_all, ks, 0), slabs, slab_edges,
+                                near.reshape(-1)).reshape(m, ks).max(1)
 
     pts_l, prim_l = [], []
     for start in range(0, m, CHUNK):
         block = p_all[start:start + CHUNK]
-        gap = np.linalg.norm(block[:, None] - b_centre[None], axis=2) - b_radius[None]
-        i, j = np.nonzero(gap <= upper[start:start + CHUNK, None])
+        diff = block[:, None] - b_centre[None]
+        gap = np.sqrt(np.einsum("ijk,ijk->ij", diff, diff)) - b_radius[None]
+        bound = np.where(np.arange(len(b_centre)) < n_cones, upper_c[start:start + CHUNK, None],
+                         upper_s[start:start + CHUNK, None])
+        i, j = np.nonzero(gap <= bound * (1 + 1e-9) + 1e-12)
         pts_l.append(i + start)
         prim_l.append(j)
     pts, prim = np.concatenate(pts_l), np.concatenate(prim_l)
@@ -185,9 +221,7 @@ def bind(points, centers, radii, edges, faces, *, field_cones=4, field_slabs=2,
     pc, qc = pts[is_cone], prim[is_cone]
     dc = seg.distance(p_all[pc], qc)
     ps, qs = pts[~is_cone], prim[~is_cone] - n_cones
-    plane = slabs.distance(p_all[ps], qs)  # inf where the foot is outside the triangle
-    edge_d = [seg.distance(p_all[ps], face_edges[qs, a]) for a in range(3)]
-    full = np.minimum(plane, np.minimum.reduce(edge_d)) if len(ps) else plane
+    full = slab_distance(p_all[ps], slabs, slab_edges, qs)
 
     # The nearest primitive of each point (ties: the cone, listed first).
     all_pts, all_d = np.concatenate([pc, ps]), np.concatenate([dc, full])
@@ -231,19 +265,20 @@ def bind(points, centers, radii, edges, faces, *, field_cones=4, field_slabs=2,
     if (~seen).any():
         gap = np.linalg.norm(p_all[~seen][:, None] - b_centre[None, :n_cones], axis=2)
         fc[~seen] = np.argmin(gap - b_radius[None, :n_cones], axis=1)[:, None]
-    iso = rest_field(p_all, seg, slabs, fc, fs if len(faces) else fs[:, :0])
+    fs = fs if len(faces) else fs[:, :0]
+    width = blend * np.maximum((beta * radii[spheres]).sum(1), 1e-3 * float(radii.max()) + 1e-12)
+    iso = rest_field(p_all, seg, slabs, slab_edges, fc, fs, width)
     return Binding(spheres, beta, offset, np.where(valid, distance, 0.0), valid, cones,
-                   fc, fs if len(faces) else fs[:, :0], np.where(valid, iso, 0.0))
+                   fc, fs, np.where(valid, iso, 0.0), width)
 
 
-def rest_field(points, seg, slabs, field_cones, field_slabs):
-    """The rest envelope's field over each point's candidates: the minimum of the cones'
-    distances and the slabs' tangent-plane distances, as `implicit.field` computes it."""
+def rest_field(points, seg, slabs, slab_edges, field_cones, field_slabs, width):
+    """The rest envelope's field over each point's candidates, as `implicit.field` computes
+    it: the smooth union (`width`) of the cones' and whole slabs' distances."""
     m, kc = field_cones.shape
-    values = seg.distance(np.repeat(points, kc, 0), field_cones.reshape(-1)).reshape(m, kc)
-    out = values.min(axis=1)
+    values = [seg.distance(np.repeat(points, kc, 0), field_cones.reshape(-1)).reshape(m, kc)]
     ks = field_slabs.shape[1]
     if ks:
-        plane = slabs.distance(np.repeat(points, ks, 0), field_slabs.reshape(-1))
-        out = np.minimum(out, plane.reshape(m, ks).min(axis=1))
-    return out
+        values.append(slab_distance(np.repeat(points, ks, 0), slabs, slab_edges,
+                                    field_slabs.reshape(-1)).reshape(m, ks))
+    return smooth_union(np.concatenate(values, axis=1), width)

@@ -6,10 +6,10 @@ the closed forms of `primitives.py` (derived there), written here for one primit
 point. Each closed form returns the distance and its gradient in the point, `(p − q)/|p − q|`
 at the nearest footprint sphere's centre `q` (the envelope theorem: the minimising
 parameter's own derivative drops out); a slab's tangent-plane part returns its plane's
-normal, and a large value where the foot leaves the triangle (an edge cone takes over there,
-with the same value on the boundary). The union's field is the minimum over a fixed, small
-set of candidate primitives per vertex chosen at bind time (`footprint.py`), so that a pose
-costs `O(vertices · candidates)` and stays `jit`/`vmap` friendly.
+normal, and its nearest edge cone's where the foot leaves the triangle. The union's field is
+a smooth union (see `field`) over a fixed, small set of candidate primitives per vertex
+chosen at bind time (`footprint.py`), so that a pose costs `O(vertices · candidates)` and
+stays `jit`/`vmap` friendly.
 
 The correction (Vaillant et al. 2013): each skinned vertex is moved along the field's
 gradient back to its rest iso-value (the rest envelope's field at its rest position) by a
@@ -31,9 +31,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Float, Int
 
-from .._numerics import dot, safe_divide, safe_sqrt
-
-FAR = 1e10  # the field value of a slab's plane part where its foot is outside the triangle
+from .._numerics import dot, norm, safe_divide, safe_sqrt
 
 
 class Cones(eqx.Module):
@@ -113,9 +111,11 @@ def slab_table(centers: Array, radii: Array, faces: Int[Array, "F 3"]) -> Slabs:
     return Slabs(c0, e1, e2, gram_inv, m, a, safe_sqrt(gamma2), r0, ok)
 
 
-def slab_field(p: Float[Array, " 3"], slab: Slabs) -> tuple[Array, Array]:
-    """Signed distance of `p` to one slab's tangent-plane part (`FAR` where the foot of `p`
-    is outside the triangle of centres), and its gradient (the plane's normal)."""
+def slab_field(p: Float[Array, " 3"], slab: Slabs, edges: Cones) -> tuple[Array, Array]:
+    """Signed distance of `p` to one whole slab (fields of `slab` unbatched, `edges` its
+    three edge cones), and its gradient: the tangent plane's where the foot of `p` is in the
+    triangle of centres, else the nearest edge cone's (continuous across the boundary, and
+    differentiable outside: the slab is convex)."""
     d = p - slab.c0
     h = dot(d, slab.m)
     n = slab.a + jnp.where(h >= 0, 1, -1) * slab.gamma * slab.m
@@ -124,31 +124,57 @@ def slab_field(p: Float[Array, " 3"], slab: Slabs) -> tuple[Array, Array]:
     g = slab.gram_inv
     b1, b2 = g[0] * w1 + g[1] * w2, g[1] * w1 + g[2] * w2
     inside = slab.ok & (b1 >= 0) & (b2 >= 0) & (b1 + b2 <= 1)
-    return jnp.where(inside, dot(n, d) - slab.r0, FAR), n
+    ev, eg = jax.vmap(cone_field, (None, 0))(p, edges)
+    nearest = jnp.arange(3) == jnp.argmin(ev)
+    edge_value = jnp.min(ev)
+    edge_grad = jnp.sum(jnp.where(nearest[:, None], eg, 0), axis=0)
+    return (jnp.where(inside, dot(n, d) - slab.r0, edge_value),
+            jnp.where(inside, n, edge_grad))
 
 
-def field(p: Float[Array, " 3"], cones: Cones, slabs: Slabs | None) -> tuple[Array, Array]:
-    """The union's field over one vertex's candidates (`cones`, `slabs` batched over them)."""
+def smooth_union(a, ga, b, gb, width):
+    """Polynomial smooth minimum of two fields (and its gradient): the minimum where they
+    differ by more than `width`, a quadratic blend `mix(b, a, h) − width·h(1 − h)`,
+    `h = clip(½ + (b − a)/(2 width), 0, 1)`, near their crease; continuously differentiable,
+    with gradient `h ∇a + (1 − h) ∇b`."""
+    h = jnp.clip(0.5 + 0.5 * (b - a) / width, 0, 1)
+    return b + h * (a - b) - width * h * (1 - h), gb + h * (ga - gb)
+
+
+def field(p: Float[Array, " 3"], width: Array, cones: Cones,
+          slabs: tuple[Slabs, Cones] | None) -> tuple[Array, Array]:
+    """The union's field over one vertex's candidates (`cones`, `slabs` batched over them):
+    a smooth union (`smooth_union`, folded over the candidates in their order: cones, then
+    slabs), and its gradient.
+
+    A smooth union (our choice, in the spirit of Vaillant et al.'s composition operators)
+    rather than the union's exact minimum: the minimum has creases where two primitives are
+    equally near (on a chain of spheres, at every sphere), across which the projected
+    vertices — and derivatives with respect to the pose — would jump. Away from the creases
+    it is the exact distance; the rest iso-values use the same field, so the blend's offset
+    near creases cancels."""
     values, grads = jax.vmap(cone_field, (None, 0))(p, cones)
     if slabs is not None:
-        sv, sg = jax.vmap(slab_field, (None, 0))(p, slabs)
+        sv, sg = jax.vmap(slab_field, (None, 0, 0))(p, *slabs)
         values, grads = jnp.concatenate([values, sv]), jnp.concatenate([grads, sg])
-    nearest = jnp.arange(values.shape[0]) == jnp.argmin(values)
-    return jnp.min(values), jnp.sum(jnp.where(nearest[:, None], grads, 0), axis=0)
+    value, grad = values[0], grads[0]
+    for k in range(1, values.shape[0]):
+        value, grad = smooth_union(value, grad, values[k], grads[k], width)
+    return value, grad
 
 
 class Correction(eqx.Module):
     """What the correction needs per vertex, besides the pose: candidate indices, rest
-    iso-values, one-ring (directed edges `src → dst` sorted by `dst`, weights `1/valence`,
-    `self_weight` 1 for vertices with no neighbour) and rest Laplacian vectors."""
+    iso-values and the smooth union's widths, the one-ring as a gather table (`ring`,
+    `ring_weights` summing to 1 per row) and the rest Laplacian vectors (rest vertex minus
+    its rest one-ring mean; `None` without faces)."""
 
     field_cones: Int[Array, "n kc"]
     field_slabs: Int[Array, "n ks"]
     iso: Float[Array, " n"]
-    src: Int[Array, " e"] | None
-    dst: Int[Array, " e"] | None
-    weight: Float[Array, " e"] | None
-    self_weight: Float[Array, " n"] | None
+    width: Float[Array, " n"]
+    ring: Int[Array, "n w"] | None
+    ring_weights: Float[Array, "n w"] | None
     laplacian: Float[Array, "n 3"] | None
 
 
@@ -172,28 +198,39 @@ def correct(
     cone_rows = jax.tree.map(lambda x: x[data.field_cones], cone_table(centers, radii, cones))
     slab_rows = None
     if data.field_slabs.shape[1] and faces.shape[0]:
-        slab_rows = jax.tree.map(lambda x: x[data.field_slabs], slab_table(centers, radii,
-                                                                          faces))
-    evaluate = jax.vmap(field, (0, 0, 0 if slab_rows is not None else None))
+        edges = cone_table(centers, radii, faces[:, jnp.array([[0, 1], [1, 2], [0, 2]])]
+                           .reshape(-1, 2))
+        edges = jax.tree.map(lambda x: x.reshape(faces.shape[0], 3, *x.shape[1:]), edges)
+        slab_rows = jax.tree.map(lambda x: x[data.field_slabs],
+                                 (slab_table(centers, radii, faces), edges))
+
+    def evaluate(x):
+        return jax.vmap(field, (0, 0, 0, 0 if slab_rows is not None else None))(
+            x, data.width, cone_rows, slab_rows)
     cos_max = jnp.cos(jnp.deg2rad(contact_angle)).astype(skinned.dtype)
 
     def project(x, active, g_prev):
-        f, g = evaluate(x, cone_rows, slab_rows)
-        active = active & (dot(g, g_prev) >= cos_max)
-        x = jnp.where(active[:, None], x - (f - data.iso)[:, None] * g, x)
+        f, g = evaluate(x)
+        # The angle test of Vaillant et al. on unit gradients; a smooth union's gradient can
+        # be short where two primitives' gradients oppose, so the step's denominator is kept
+        # away from 0 (it is 1 wherever one primitive dominates).
+        if g_prev is not None:  # (the first step has nothing to compare with)
+            active = active & (dot(g, g_prev) >= cos_max * norm(g) * norm(g_prev))
+        step = (f - data.iso) / jnp.maximum(dot(g, g), 0.25)
+        x = jnp.where(active[:, None], x - step[:, None] * g, x)
         return x, active, g
 
-    x = skinned
+    x, g = skinned, None
     active = jnp.ones(x.shape[0], bool)
-    _, g = evaluate(x, cone_rows, slab_rows)
     for _ in range(newton_steps):
         x, active, g = project(x, active, g)
-    if data.src is not None:
+    if data.ring is not None and relax_iterations:
+        if g is None:
+            _, g = evaluate(x)
         delta = jnp.einsum("nij,nj->ni", rotations, data.laplacian)
         for _ in range(relax_iterations):
-            ring = jax.ops.segment_sum(data.weight[:, None] * x[data.src], data.dst,
-                                       num_segments=x.shape[0], indices_are_sorted=True)
-            move = ring + data.self_weight[:, None] * x + delta - x
+            ring = jnp.sum(data.ring_weights[:, :, None] * x[data.ring], axis=1)
+            move = ring + delta - x
             move = move - dot(move, g)[:, None] * g
             x = jnp.where(active[:, None], x + relax_step * move, x)
             x, active, g = project(x, active, g)

@@ -46,6 +46,7 @@ from .skin import (
 )
 
 METHODS = ("medial", "lbs", "dqs")
+RING = 8  # neighbours per vertex in the relaxation's one-ring table
 
 
 def _check_vertices(vertices) -> np.ndarray:
@@ -80,13 +81,31 @@ def _one_ring(faces, n, valid):
     weight = 1/valence, self_weight)` (self weight 1 where a vertex has no neighbour)."""
     pairs = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
     pairs = np.concatenate([pairs, pairs[:, ::-1]])
-    pairs = np.unique(pairs, axis=0)
+    keys = np.unique(pairs[:, 0] * np.int64(n) + pairs[:, 1])
+    pairs = np.stack([keys // n, keys % n], 1)
     pairs = pairs[valid[pairs[:, 0]] & valid[pairs[:, 1]] & (pairs[:, 0] != pairs[:, 1])]
     order = np.lexsort((pairs[:, 0], pairs[:, 1]))
     src, dst = pairs[order, 0], pairs[order, 1]
     valence = np.bincount(dst, minlength=n).astype(np.float64)
     weight = 1.0 / valence[dst]
     return src, dst, weight, (valence == 0).astype(np.float64)
+
+
+def _ring_table(src, dst, n, width):
+    """The one-ring as a gather table: `(neighbours (n, width), weights (n, width))`, the
+    first `width` neighbours of each vertex with equal weights (padding: the vertex itself
+    with weight 0; a vertex with no neighbour: itself with weight 1). A table, not a
+    scatter-add over edges, which XLA's CPU backend runs several times slower; vertices of
+    higher valence (poles) average over `width` of their neighbours, the same at rest."""
+    starts = np.r_[0, np.cumsum(np.bincount(dst, minlength=n))]
+    rank = np.arange(len(dst)) - starts[dst]
+    keep = rank < width
+    table = np.repeat(np.arange(n)[:, None], width, axis=1)
+    table[dst[keep], rank[keep]] = src[keep]
+    count = np.minimum(np.diff(starts), width)
+    weights = (np.arange(width)[None] < count[:, None]) / np.maximum(count, 1)[:, None]
+    weights[count == 0, 0] = 1.0
+    return table, weights
 
 
 def _rotation_weights(spheres, beta, n_spheres, ring, smoothing, slots):
@@ -127,12 +146,14 @@ class MedialRig(eqx.Module):
     - `medial`: the rest `MedialMesh` (at least one sphere).
     - `faces`: optional `(f, 3)` (or quads `(f, 4)`) vertex indices of the surface: enables the
       rotation-weight smoothing and the implicit step's tangential relaxation.
-    - `smoothing`: rounds of one-ring smoothing of the rotation weights (default 4); `slots`:
+    - `smoothing`: rounds of one-ring smoothing of the rotation weights (default 8); `slots`:
       spheres kept per vertex (default 4).
     - `field_cones`, `field_slabs`: candidate primitives per vertex for the implicit field
       (defaults 4 and 2).
     - `max_distance`: vertices farther than this from the envelope are invalid (default: the
       envelope's bounding-box diagonal).
+    - `blend`: width of the implicit field's smooth union, relative to each vertex's footprint
+      radius (default 0.1).
     - `newton_steps` (3), `relax_iterations` (2), `relax_step` (0.5), `contact_angle` (55°):
       the implicit correction's fixed iteration counts and thresholds.
 
@@ -165,11 +186,12 @@ class MedialRig(eqx.Module):
         medial: MedialMesh,
         *,
         faces: ArrayLike | None = None,
-        smoothing: int = 4,
+        smoothing: int = 8,
         slots: int = 4,
         field_cones: int = 4,
         field_slabs: int = 2,
         max_distance: float | None = None,
+        blend: float = 0.1,
         newton_steps: int = 3,
         relax_iterations: int = 2,
         relax_step: float = 0.5,
@@ -189,22 +211,22 @@ class MedialRig(eqx.Module):
                                  ("relax_iterations", relax_iterations, 0)):
             if not isinstance(value, int | np.integer) or value < low:
                 raise ValueError(f"`{name}` must be an integer >= {low}, got {value!r}")
+        if not blend > 0:
+            raise ValueError(f"`blend` must be > 0, got {blend!r}")
         if max_distance is not None and not max_distance > 0:
             raise ValueError(f"`max_distance` must be > 0, got {max_distance!r}")
 
         b = bind(v, centers, radii, edges, mfaces, field_cones=field_cones,
-                 field_slabs=field_slabs, max_distance=max_distance)
+                 field_slabs=field_slabs, max_distance=max_distance, blend=blend)
         ring = None if f is None or len(f) == 0 else _one_ring(f, n, b.valid)
         idx, weights = _rotation_weights(b.spheres, b.beta, len(centers), ring, smoothing,
                                          slots)
         rest = np.where(np.isfinite(v), v, 0.0)
         if ring is None:
-            src = dst = weight = self_weight = laplacian = None
+            table = table_weights = laplacian = None
         else:
-            src, dst, weight, self_weight = ring
-            mean = np.zeros_like(rest)
-            np.add.at(mean, dst, weight[:, None] * rest[src])
-            laplacian = rest - mean - self_weight[:, None] * rest
+            table, table_weights = _ring_table(ring[0], ring[1], n, RING)
+            laplacian = rest - np.einsum("nk,nkd->nd", table_weights, rest[table])
 
         def f_(x):
             return None if x is None else jnp.asarray(x)
@@ -217,12 +239,20 @@ class MedialRig(eqx.Module):
         self.rotation_spheres, self.rotation_weights = i_(idx), f_(weights)
         self.valid = jnp.asarray(b.valid)
         self.cones, self.medial_faces = i_(b.cones), i_(mfaces)
-        self.correction = Correction(i_(b.field_cones), i_(b.field_slabs), f_(b.iso), i_(src),
-                                     i_(dst), f_(weight), f_(self_weight), f_(laplacian))
+        self.correction = Correction(i_(b.field_cones), i_(b.field_slabs), f_(b.iso),
+                                     f_(b.width), i_(table), f_(table_weights), f_(laplacian))
         self.faces = i_(f)
         self.n_spheres = len(centers)
         self.newton_steps, self.relax_iterations = int(newton_steps), int(relax_iterations)
         self.relax_step, self.contact_angle = float(relax_step), float(contact_angle)
+
+    # Identity hash and equality (not equinox's, over the array leaves, which cannot be
+    # hashed): so that `jax.jit(rig.pose)` works, with the rig's arrays as constants.
+    def __hash__(self):
+        return id(self)
+
+    def __eq__(self, other):
+        return self is other
 
     def pose(
         self,
