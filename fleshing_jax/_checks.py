@@ -27,21 +27,38 @@ def as_float_array(value: ArrayLike, name: str, shape: tuple[int, ...] | None = 
     else:
         if value is None or isinstance(value, str | bytes):
             raise TypeError(f"`{name}` must be a real number or an array of them, got {value!r}.")
+        array = _to_device(value, name)
+    if shape is not None and array.shape != shape:
+        expected = "a scalar" if shape == () else f"shape {shape}"
+        raise ValueError(f"`{name}` must be {expected}, got shape {array.shape}.")
+    return array
+
+
+def _to_device(value, name: str) -> Array:
+    """`value` (not a floating JAX array) as a floating JAX array, converted on the host and
+    put on the device as it is: `jnp.asarray` would compile a program per shape."""
+    if isinstance(value, jax.Array):
+        host = value
+    else:
         try:
-            array = jnp.asarray(value)
+            host = np.asarray(value)
         except (TypeError, ValueError) as error:
             raise TypeError(
                 f"`{name}` must be a real number or an array of them, got {_short(value)} "
                 f"({error})."
             ) from None
-        if jnp.issubdtype(array.dtype, jnp.complexfloating):
-            raise TypeError(f"`{name}` must be real, got complex values (dtype {array.dtype}).")
-        if not jnp.issubdtype(array.dtype, jnp.floating):
-            array = array.astype(jnp.result_type(float))
-    if shape is not None and array.shape != shape:
-        expected = "a scalar" if shape == () else f"shape {shape}"
-        raise ValueError(f"`{name}` must be {expected}, got shape {array.shape}.")
-    return array
+        if host.dtype.kind not in "biufc":
+            raise TypeError(
+                f"`{name}` must be a real number or an array of them, got {_short(value)} "
+                f"(dtype {host.dtype})."
+            )
+    if jnp.issubdtype(host.dtype, jnp.complexfloating):
+        raise TypeError(f"`{name}` must be real, got complex values (dtype {host.dtype}).")
+    if not jnp.issubdtype(host.dtype, jnp.floating):
+        return jnp.asarray(host, jnp.result_type(float))
+    if isinstance(host, np.ndarray) and host.dtype == np.float64 != jnp.result_type(float):
+        host = host.astype(np.float32)  # what `jnp.asarray` gives without float64
+    return jax.device_put(host) if isinstance(host, np.ndarray) else jnp.asarray(host)
 
 
 def _short(value) -> str:

@@ -19,6 +19,7 @@ import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike, Bool, Float
 
 from .._batching import chunks as _chunks
+from .._batching.buckets import bucket, pad_batch, unpad_batch
 from .._batching.chunks import batch_axes, map_chunks
 from .._batching.compact import update_where
 from .._checks import as_points, as_twist, is_concrete
@@ -285,7 +286,9 @@ def register(points: ArrayLike, source: AbstractSpine, *, samples: int | None = 
     registrar = _registrar(cast_floats(source, points.dtype), samples)
     # The points are put in outside the compiled call: returned from it, they would be copied.
     if is_concrete(points):  # called eagerly: the global search compiled only if needed
-        return Registration(points, *register_eagerly(registrar, points))
+        n = points.shape[0]  # and the batch padded to a bucket size (`_batching.buckets`)
+        fields = register_eagerly(registrar, pad_batch(points, bucket(n)))
+        return Registration(points, *unpad_batch(fields, n))
     return Registration(points, *_register(registrar, points))
 
 
@@ -326,7 +329,8 @@ def pose(
     target, twist = cast_floats((target, as_twist(twist, dtype)), dtype)
     poser = _poser(target, check_method(method), twist, bool(check_projection))
     if is_concrete(registration):  # called eagerly: the global check compiled only if needed
-        return pose_eagerly(poser, registration)
+        n = registration.points.shape[0]  # and the batch padded to a bucket size
+        return unpad_batch(pose_eagerly(poser, pad_batch(registration, bucket(n))), n)
     return _pose(poser, registration)
 
 
@@ -387,7 +391,11 @@ def flesh(
             return _flesh_in_blocks(points, source, target, options, progress)
         return pose(register(points, source), target, **options)
     samples = source.default_samples()
-    return _flesh(points, cast_source, cast_target, method, twist, check_projection, samples)
+    n = points.shape[0]
+    padded = pad_batch(points, bucket(n)) if is_concrete(points) else points
+    images, valid = _flesh(padded, cast_source, cast_target, method, twist, check_projection,
+                           samples)
+    return unpad_batch((images, valid), n)
 
 
 @eqx.filter_jit

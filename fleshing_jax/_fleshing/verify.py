@@ -7,6 +7,8 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike, Float
 
+from .._batching.buckets import bucket, pad_batch, unpad_batch
+from .._checks import is_concrete
 from .pipeline import Fleshing, _check_points
 
 
@@ -23,7 +25,11 @@ def jacobian_determinant(fleshing: Fleshing, points: ArrayLike) -> Float[Array, 
     """
     if not isinstance(fleshing, Fleshing):
         raise TypeError(f"`fleshing` must be a `Fleshing`, got {type(fleshing)}.")
-    return _determinants(fleshing, _check_points(points, "points"))
+    points = _check_points(points, "points")
+    if not is_concrete(points):
+        return _determinants(fleshing, points)
+    n = points.shape[0]  # called eagerly: one program per bucket of sizes (`_batching.buckets`)
+    return unpad_batch(_determinants(fleshing, pad_batch(points, bucket(n))), n)
 
 
 @eqx.filter_jit
