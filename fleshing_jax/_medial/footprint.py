@@ -189,39 +189,57 @@ def bind(points, centers, radii, edges, faces, *, field_cones=4, field_slabs=2,
     b_centre, b_radius = np.concatenate(b_centre), np.concatenate(b_radius)
     n_cones = len(cones)
 
-    # Upper bounds of the k-th nearest cone's and slab's distances: the actual distances of
-    # the k primitives with the nearest bounding-sphere centres. A primitive whose bounding
-    # sphere is farther than the bound of its kind cannot be among the k nearest (nor the
-    # nearest: at least one slab is kept for binding even when the field uses none).
+    # Candidates: the k primitives of each kind with the nearest bounding-sphere centres
+    # (their distances computed), plus every primitive whose bounding sphere is within the
+    # smallest of those distances (none farther can be the nearest). The field's candidates
+    # are the nearest of these.
     n_slabs = len(faces)
     kc, ks = min(field_cones, n_cones), min(max(field_slabs, 1), n_slabs)
-    _, near = cKDTree(b_centre[:n_cones]).query(p_all, k=kc)
-    near = near.reshape(m, kc)
-    upper_c = seg.distance(np.repeat(p_all, kc, 0), near.reshape(-1)).reshape(m, kc).max(1)
-    upper_s = np.full(m, -np.inf)
+    _, near_c = cKDTree(b_centre[:n_cones]).query(p_all, k=kc)
+    near_c = near_c.reshape(m, kc)
+    d_near_c = seg.distance(np.repeat(p_all, kc, 0), near_c.reshape(-1)).reshape(m, kc)
+    upper = d_near_c.min(1)
+    near_s = np.zeros((m, 0), np.int64)
+    d_near_s = np.zeros((m, 0))
     if n_slabs:
-        _, near = cKDTree(b_centre[n_cones:]).query(p_all, k=ks)
-        near = near.reshape(m, ks)
-        upper_s = slab_distance(np.repeat(p_all, ks, 0), slabs, slab_edges,
-                                near.reshape(-1)).reshape(m, ks).max(1)
+        _, near_s = cKDTree(b_centre[n_cones:]).query(p_all, k=ks)
+        near_s = near_s.reshape(m, ks)
+        d_near_s = slab_distance(np.repeat(p_all, ks, 0), slabs, slab_edges,
+                                 near_s.reshape(-1)).reshape(m, ks)
+        upper = np.minimum(upper, d_near_s.min(1))
 
+    b_square = (b_centre * b_centre).sum(1)
+    scale = float(np.abs(b_centre).max() + np.abs(p_all).max())
     pts_l, prim_l = [], []
     for start in range(0, m, CHUNK):
         block = p_all[start:start + CHUNK]
-        diff = block[:, None] - b_centre[None]
-        gap = np.sqrt(np.einsum("ijk,ijk->ij", diff, diff)) - b_radius[None]
-        bound = np.where(np.arange(len(b_centre)) < n_cones, upper_c[start:start + CHUNK, None],
-                         upper_s[start:start + CHUNK, None])
-        i, j = np.nonzero(gap <= bound * (1 + 1e-9) + 1e-12)
+        # |p − b| ≤ upper + radius compared squared, |p − b|² expanded as a matrix product
+        # (the (points, primitives, 3) differences would cost several times more); the
+        # margin covers its rounding.
+        square = (block * block).sum(1)[:, None] - 2 * block @ b_centre.T + b_square[None]
+        reach = np.maximum(upper[start:start + CHUNK, None] + b_radius[None] + 1e-7 * scale, 0)
+        i, j = np.nonzero(square <= reach * reach)
         pts_l.append(i + start)
         prim_l.append(j)
-    pts, prim = np.concatenate(pts_l), np.concatenate(prim_l)
+    pts = np.concatenate(pts_l + [np.repeat(np.arange(m), kc + near_s.shape[1])])
+    prim = np.concatenate(prim_l + [np.concatenate([near_c, near_s + n_cones], 1).reshape(-1)])
+    known = np.concatenate([np.full(len(pts) - m * (kc + near_s.shape[1]), np.nan),
+                            np.concatenate([d_near_c, d_near_s], 1).reshape(-1)])
+    # Each (point, primitive) pair once: the near ones (distances known) win.
+    key = pts * np.int64(len(b_centre)) + prim
+    _, first = np.unique(key[::-1], return_index=True)
+    keep = len(key) - 1 - first
+    pts, prim, known = pts[keep], prim[keep], known[keep]
 
     is_cone = prim < n_cones
     pc, qc = pts[is_cone], prim[is_cone]
-    dc = seg.distance(p_all[pc], qc)
+    dc = known[is_cone]
+    todo = np.isnan(dc)
+    dc[todo] = seg.distance(p_all[pc[todo]], qc[todo])
     ps, qs = pts[~is_cone], prim[~is_cone] - n_cones
-    full = slab_distance(p_all[ps], slabs, slab_edges, qs)
+    full = known[~is_cone]
+    todo = np.isnan(full)
+    full[todo] = slab_distance(p_all[ps[todo]], slabs, slab_edges, qs[todo])
 
     # The nearest primitive of each point (ties: the cone, listed first).
     all_pts, all_d = np.concatenate([pc, ps]), np.concatenate([dc, full])

@@ -154,7 +154,7 @@ class MedialRig(eqx.Module):
       envelope's bounding-box diagonal).
     - `blend`: width of the implicit field's smooth union, relative to each vertex's footprint
       radius (default 0.1).
-    - `newton_steps` (3), `relax_iterations` (2), `relax_step` (0.5), `contact_angle` (55°):
+    - `newton_steps` (2), `relax_iterations` (1), `relax_step` (0.5), `contact_angle` (55°):
       the implicit correction's fixed iteration counts and thresholds.
 
     Binding is NumPy/SciPy (about 1 s for 30k vertices and 200 spheres); the fields are JAX
@@ -192,8 +192,8 @@ class MedialRig(eqx.Module):
         field_slabs: int = 2,
         max_distance: float | None = None,
         blend: float = 0.1,
-        newton_steps: int = 3,
-        relax_iterations: int = 2,
+        newton_steps: int = 2,
+        relax_iterations: int = 1,
         relax_step: float = 0.5,
         contact_angle: float = 55.0,
     ):
