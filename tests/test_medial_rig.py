@@ -334,3 +334,22 @@ def test_bad_input(capsule):
         rig.pose(np.zeros((SPHERES, 3)))
     with pytest.raises(ValueError, match="method.*'medial', 'lbs', 'dqs'.*'spline'"):
         rig.pose(MedialPose.rest(medial), "spline")
+
+
+def test_lone_spheres_bind_and_follow():
+    # A medial mesh of two spheres and no edge: each vertex follows its own sphere rigidly.
+    a = trimesh.creation.icosphere(subdivisions=1, radius=0.5)
+    b = a.copy()
+    b.apply_translation([2.0, 0, 0])
+    mesh = trimesh.util.concatenate([a, b])
+    medial = MedialMesh(np.array([[0.0, 0, 0], [2.0, 0, 0]]), np.array([0.5, 0.5]))
+    rig = MedialRig(mesh.vertices, medial, faces=mesh.faces)
+    assert np.array_equal(np.asarray(rig.spheres)[:, 0], (mesh.vertices[:, 0] > 1).astype(int))
+    turn = rot_z(0.5)
+    posed = MedialPose(medial, jnp.asarray([[0.0, 0, 0], [2.0, 1.0, 0]]),
+                       jnp.asarray(np.stack([np.eye(3), turn])))
+    x, valid = rig.pose(posed)
+    v = mesh.vertices
+    right = v[:, 0] > 1
+    expected = np.where(right[:, None], (v - [2, 0, 0]) @ turn.T + [2, 1, 0], v)
+    assert bool(valid.all()) and np.abs(np.asarray(x) - expected).max() < 1e-6
