@@ -20,6 +20,14 @@ Prints Markdown tables:
    compilation.)
 4. With `--resolution`: registration cost against spine resolution (B-spline control points
    8 → 256, polyline vertices 64 → 4096) at a fixed N.
+5. With `--tube` (issue 19's per-frame case; `--tube-only` for that table alone): the
+   vertices of a closed tube (radius 0.3, length 4, 1,024,258 vertices: 256 around, 4001
+   rings and the two cap centres) along a line, bent onto an arc of radius 1.2 of the same
+   length, float32, radial, default checks: `pose` and `flesh` (medians of `--repeats`
+   runs), against a roofline: the bytes each must move per point (pose: reads the
+   registration, 33 B, writes the image and its flag, 13 B; flesh: reads a point, writes an
+   image and a flag, 25 B) at the bandwidth of a plain array copy measured in the same run
+   (`np.copyto` of 48 MB of float32 into a buffer already touched: 96 MB moved).
 """
 
 from __future__ import annotations
@@ -353,6 +361,39 @@ def resolution(args) -> None:
 # ---------------------------------------------------------------------------------- main
 
 
+# ---------------------------------------------------------------------------------- tube
+
+
+POSE_BYTES = 12 + 4 + 8 + 8 + 1 + 12 + 1  # points, s, offset, curvature, flag in; image, flag out
+FLESH_BYTES = 12 + 12 + 1
+
+
+def tube(args) -> None:
+    """Issue 19's per-frame table: `pose` and `flesh` on a 1M-vertex tube, with a roofline."""
+    angle = np.linspace(0.0, 2 * np.pi, 256, endpoint=False)
+    contour = 0.3 * np.column_stack([np.cos(angle), np.sin(angle)])
+    points = jax.numpy.asarray(np.asarray(fj.extrusion(contour, 4.0, 4000).vertices, np.float32))
+    n = points.shape[0]
+    source = fj.Line(np.float32(4.0))
+    target = fj.Arc(np.float32(1.2), np.float32(4.0))
+    registration = fj.register(points, source)
+    _, pose_s, (_, valid) = timed(lambda: fj.pose(registration, target), args.repeats)
+    _, flesh_s, _ = timed(lambda: fj.flesh(points, source, target), args.repeats)
+    block = np.random.default_rng(0).random((n, 12), np.float32)  # 48 MB, pages touched
+    copy = np.empty_like(block)
+    _, stream_s, _ = timed(lambda: np.copyto(copy, block), max(args.repeats, 10), clear=False)
+    bandwidth = 2 * block.nbytes / stream_s
+    print(f"\n## Tube: {n} vertices, Line(4) → Arc(1.2, 4), float32, radial "
+          f"({int(np.sum(valid))} valid)\n")
+    print(f"plain array copy: {bandwidth / 1e9:.1f} GB/s (median of {max(args.repeats, 10)})\n")
+    print("| call | median | M points/s | bytes/point | roofline M points/s | fraction |")
+    print("| --- | ---: | ---: | ---: | ---: | ---: |")
+    for name, seconds, moved in (("pose", pose_s, POSE_BYTES), ("flesh", flesh_s, FLESH_BYTES)):
+        limit = bandwidth / moved
+        print(f"| {name} | {1e3 * seconds:.1f} ms | {n / seconds / 1e6:.1f} | {moved} | "
+              f"{limit / 1e6:.0f} | {n / seconds / limit:.0%} |")
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--sizes", default="1e4,1e5,1e6,4e6", help="comma-separated N")
@@ -371,6 +412,8 @@ def main(argv=None) -> int:
     parser.add_argument("--throughput", action=argparse.BooleanOptionalAction, default=True)
     parser.add_argument("--resolution", action="store_true", help="run the resolution study")
     parser.add_argument("--resolution-size", type=lambda x: int(float(x)), default=100_000)
+    parser.add_argument("--tube", action="store_true", help="also the 1M-vertex tube table")
+    parser.add_argument("--tube-only", action="store_true", help="only the tube table")
     parser.add_argument("--_probe", help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
     if args._probe:
@@ -385,12 +428,17 @@ def main(argv=None) -> int:
     jax.config.update("jax_enable_x64", "float64" in args.dtypes)
     print(f"jax {jax.__version__}, {jax.devices()[0].platform}, {os.cpu_count()} cores\n")
     ok = True
+    if args.tube_only:
+        tube(args)
+        return 0
     if args.throughput:
         ok = throughput(args)
     if args.memory and sys.platform.startswith("linux"):
         memory(args)
     if args.resolution:
         resolution(args)
+    if args.tube:
+        tube(args)
     if not ok:
         print("\nNumPy reference and fj.flesh disagree (see the table).", file=sys.stderr)
     return 0 if ok else 1
