@@ -13,13 +13,18 @@ Prints Markdown tables:
    axis 4), a torus (2, 0.5), a box 3 × 2 × 1, a flat ellipsoid 2 × 1.2 × 0.3, and, when
    `../shared/data` is present, spot (vertices merged) and the Stanford bunny (capped).
 2. Time against mesh size (icospheres stretched into ellipsoids, 2.5k → 41k vertices) and
-   sphere count, with the peak resident memory of the process (an upper bound per run).
+   sphere count.
+3. Memory of one `medial_mesh` run alone (`--memory`; the capped bunny and the 41k-vertex
+   ellipsoid, 200 spheres): each in a fresh subprocess, the peak resident set (`ru_maxrss`)
+   of the call minus the resident set after importing and loading the mesh.
 """
 
 from __future__ import annotations
 
 import argparse
 import resource
+import subprocess
+import sys
 import time
 from pathlib import Path
 
@@ -103,10 +108,50 @@ def scaling():
                   flush=True)
 
 
+def _resident_gib() -> float:
+    with open("/proc/self/status") as status:
+        line = next(ln for ln in status if ln.startswith("VmRSS:"))
+    return int(line.split()[1]) / 2**20
+
+
+def _probe(name: str) -> None:
+    """One medial_mesh run in this (fresh) process: prints the peak and the baseline."""
+    if name == "bunny":
+        mesh = _close(trimesh.load(str(DATA / "stanford-bunny.obj"), process=False))
+    else:
+        mesh = trimesh.creation.icosphere(6)
+        mesh.vertices *= [2, 1.2, 0.6]
+    base = _resident_gib()
+    start = time.perf_counter()
+    medial_mesh(mesh, 200, progress=False)
+    elapsed = time.perf_counter() - start
+    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20
+    print(f"{len(mesh.vertices)} {elapsed:.1f} {peak - base:.2f} {base:.2f}")
+
+
+def memory():
+    print("\n| mesh | vertices | spheres | time (s) | peak memory of the run (GiB) |")
+    print("| --- | ---: | ---: | ---: | ---: |")
+    names = (["bunny"] if (DATA / "stanford-bunny.obj").is_file() else []) + ["ellipsoid"]
+    for name in names:
+        done = subprocess.run([sys.executable, __file__, "--_probe", name], capture_output=True,
+                              text=True, check=True)
+        vertices, elapsed, peak, _ = done.stdout.split()
+        print(f"| {name} | {vertices} | 200 | {elapsed} | {peak} |", flush=True)
+
+
 if __name__ == "__main__":
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true")
+    parser.add_argument("--memory", action="store_true", help="only the memory table")
+    parser.add_argument("--_probe", help=argparse.SUPPRESS)
     args = parser.parse_args()
-    accuracy(args.quick)
-    if not args.quick:
-        scaling()
+    if args._probe:
+        _probe(args._probe)
+    elif args.memory:
+        memory()
+    else:
+        accuracy(args.quick)
+        if not args.quick:
+            scaling()
+            memory()
