@@ -38,7 +38,7 @@ class MedialPose(eqx.Module):
                              f"{self.rotations.shape}")
 
     @classmethod
-    def rest(cls, medial: MedialMesh) -> "MedialPose":
+    def rest(cls, medial: MedialMesh) -> MedialPose:
         """The rest pose: rest centres and identity rotations."""
         centers = jnp.asarray(medial.centers)
         eye = jnp.broadcast_to(jnp.eye(3, dtype=centers.dtype), (centers.shape[0], 3, 3))
