@@ -21,6 +21,7 @@ from ._fleshing.projection import (
 from ._fleshing.verify import jacobian_determinant as jacobian_determinant
 from ._medial.arap import arap_medial as arap_medial
 from ._medial.construct import medial_mesh as medial_mesh
+from ._medial.deform import deform_medial as deform_medial
 from ._medial.distance import medial_distance as medial_distance
 from ._medial.figure import plot_medial as plot_medial
 from ._medial.files import load_medial as load_medial, save_medial as save_medial
