@@ -25,10 +25,11 @@ from ._medial.deform import deform_medial as deform_medial
 from ._medial.distance import medial_distance as medial_distance
 from ._medial.figure import plot_medial as plot_medial
 from ._medial.files import load_medial as load_medial, save_medial as save_medial
+from ._medial.fit_handles import fit_handles as fit_handles
 from ._medial.medial_mesh import MedialMesh as MedialMesh
 from ._medial.pose import MedialPose as MedialPose
-from ._medial.rig import MedialRig as MedialRig
 from ._medial.rest_spine import rest_spine as rest_spine
+from ._medial.rig import MedialRig as MedialRig
 from ._mesh.deform import deform_mesh as deform_mesh, flesh_chunked as flesh_chunked
 from ._mesh.files import load_mesh as load_mesh, write_mesh_atomic as write_mesh_atomic
 from ._mesh.holes import cap_holes as cap_holes

@@ -3,6 +3,8 @@
     fleshing-jax deform IN OUT [--from A.json] (--to B.json | --bend-angle DEG) [--method M]
                                [--twist RAD] [--cap-holes]
     fleshing-jax medial IN OUT.ma [--spheres N] [--envelope ENV.obj]
+    fleshing-jax medial-deform IN OUT --medial IN.ma --handles H.json [--method M]
+                                      [--no-implicit]
     fleshing-jax demo [--out DIR]
     fleshing-jax --version
 
@@ -95,6 +97,28 @@ def _parser() -> argparse.ArgumentParser:
         "--envelope", metavar="ENV.obj", help="also write the medial mesh's envelope (a mesh)"
     )
     medial.add_argument("--cap-holes", action="store_true", help="close IN's holes first")
+    medial_deform = commands.add_parser(
+        "medial-deform",
+        help="deform a mesh by moving spheres of its medial mesh (Lan et al. 2017)",
+        description="Bind IN to its medial mesh (--medial, from `medial`), move the handle "
+        "spheres to their targets (--handles) as rigidly as possible, skin IN from the "
+        "deformed medial mesh and write OUT in the format of its extension; print the volumes "
+        "before and after.",
+        epilog="handle files (JSON): " + _handles_format(),
+    )
+    medial_deform.add_argument("input", metavar="IN", help="input mesh")
+    medial_deform.add_argument("output", metavar="OUT", help="output file (format from extension)")
+    medial_deform.add_argument("--medial", required=True, metavar="IN.ma", help="medial mesh")
+    medial_deform.add_argument(
+        "--handles", required=True, metavar="H.json", help="handle spheres and their targets"
+    )
+    medial_deform.add_argument(
+        "--method", choices=("medial", "lbs", "dqs"), default="medial", help="default: medial"
+    )
+    medial_deform.add_argument(
+        "--no-implicit", action="store_true", help="skip the implicit-skinning correction"
+    )
+    medial_deform.add_argument("--cap-holes", action="store_true", help="close IN's holes first")
     demo = commands.add_parser(
         "demo",
         help="bend a built-in creature with the four methods; write meshes, a figure, a table",
@@ -269,6 +293,39 @@ def _medial(args) -> int:
     return 0
 
 
+def _handles_format() -> str:
+    from ._medial.handle_files import HANDLES_FORMAT
+
+    return HANDLES_FORMAT
+
+
+def _medial_deform(args) -> int:
+    import numpy as np
+    import trimesh
+
+    from ._medial.deform import deform_medial
+    from ._medial.files import load_medial
+    from ._medial.handle_files import load_handles
+    from ._mesh.files import check_output_path, write_mesh_atomic
+    from ._mesh.volume import volume
+
+    check_output_path(args.output)
+    medial = load_medial(args.medial)
+    handles, targets, rotations = load_handles(args.handles)
+    mesh = _load_input(args.input, args.cap_holes)
+    if not (isinstance(mesh, trimesh.Trimesh) and len(mesh.faces)):
+        raise ValueError(f"{args.input}: medial-deform needs a mesh with faces")
+    started = time.perf_counter()
+    bent = deform_medial(mesh, medial, handles, targets, args.method, rotations=rotations,
+                         implicit=not args.no_implicit)
+    valid = np.asarray(bent.vertex_attributes["valid"], dtype=bool)
+    _print_volumes(mesh, bent, volume)
+    print(f"invalid vertices: {int(np.sum(~valid))} of {len(valid)}")
+    write_mesh_atomic(bent, args.output)
+    print(f"wrote {args.output} ({args.method}, {time.perf_counter() - started:.1f} s)")
+    return 0
+
+
 def _demo(args) -> int:
     from ._demo import format_table, run_demo
 
@@ -279,7 +336,12 @@ def _demo(args) -> int:
     return 0
 
 
-COMMANDS = {"deform": _deform, "medial": _medial, "demo": _demo}
+COMMANDS = {
+    "deform": _deform,
+    "medial": _medial,
+    "medial-deform": _medial_deform,
+    "demo": _demo,
+}
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -1,0 +1,200 @@
+"""Medial-axis-driven deformation (Lan et al. 2017) against the targets of issue 18.
+
+    python benchmarks/medial_deform.py            # volumes, then speed
+    python benchmarks/medial_deform.py --quick    # the capsule only, no speed table
+
+Prints Markdown tables:
+
+1. Volumes: a capsule (radius 0.5, axis 4, medial mesh from `fj.medial_mesh`) bent 90° and
+   180° by moving its spheres of the first and last quarter onto an arc of the axis' length
+   (the others free), and twisted 180° by rotating its last quarter's spheres about the axis
+   (rotations prescribed, no centre moved); spot's head turned and a front leg swung by 30°
+   about a pivot, its body's core held. For each: `|ΔV/V|` of `medial` (with the implicit
+   correction), LBS and DQS (without it, as baselines), and Fleshing's radial map on the
+   bent capsule (rest spine: its axis through the caps; target: an arc of the same
+   curvature; Fleshing's twist is a rigid rotation, so there is no twist to compare). Total
+   volume hides redistribution (DQS keeps it by bulging), so the capsule rows also give the **radius
+   error**: over the vertices of the capsule's cylinder, the largest `|d/0.5 − 1|` of their
+   distance `d` to the bent (or twisted) axis.
+2. Speed: binding a capsule of about 30k vertices; one frame (ARAP on about 300 spheres +
+   skin of about 100k vertices, float32, one compiled program) and its parts, medians of 20
+   after compilation.
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import trimesh
+
+import fleshing_jax as fj
+
+DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
+METHODS = (("medial", True), ("lbs", False), ("dqs", False))
+
+
+def capsule(sections: int, edge: float) -> trimesh.Trimesh:
+    """A closed capsule along z (radius 0.5, cylinder length 4) with edges at most `edge`
+    long (trimesh's own capsule spans its cylinder with single long triangles)."""
+    mesh = trimesh.creation.capsule(height=4.0, radius=0.5, count=[sections, sections])
+    vertices, faces = trimesh.remesh.subdivide_to_size(mesh.vertices, mesh.faces, edge)
+    return trimesh.Trimesh(vertices, faces, process=False)
+
+
+def _rotation(axis, angle):
+    axis = np.asarray(axis, float) / np.linalg.norm(axis)
+    k = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
+    return np.eye(3) + np.sin(angle) * k + (1 - np.cos(angle)) * k @ k
+
+
+def _on_arc(points, radius):
+    """Points near the z axis (z in [−2, 2]) carried onto an arc of radius `radius` in the
+    x–z plane, tangent to the axis at z = −2: the bend the handles are given."""
+    s = points[:, 2] + 2.0
+    t = s / radius
+    centre = np.column_stack([radius * (1 - np.cos(t)), np.zeros_like(t), radius * np.sin(t) - 2])
+    normal = np.column_stack([-np.cos(t), np.zeros_like(t), np.sin(t)])  # towards the outside
+    return centre - points[:, :1] * normal + points[:, 1:2] * np.array([0.0, 1.0, 0.0])
+
+
+def _capsule_case(name, mesh, medial, degrees=None, twist=None):
+    centers = np.asarray(medial.centers)
+    z = centers[:, 2]
+    first, last = np.flatnonzero(z < -1.0), np.flatnonzero(z > 1.0)
+    handles = np.r_[first, last]
+    rotations = None
+    if degrees is not None:
+        radius = 4.0 / np.radians(degrees)
+        targets = _on_arc(centers[handles], radius)
+    else:
+        targets = centers[handles]
+        rotations = np.stack([np.eye(3)] * len(first) + [_rotation([0, 0, 1], twist)] * len(last))
+    row = {"case": name}
+    cylinder = np.abs(np.asarray(mesh.vertices)[:, 2]) < 2.0
+    v0 = fj.volume(mesh.vertices, mesh.faces)
+    for method, implicit in METHODS:
+        out = fj.deform_medial(mesh, medial, handles, targets, method, rotations=rotations,
+                               implicit=implicit)
+        row[method] = (float(fj.volume(out.vertices, out.faces) / v0 - 1),
+                       _radius_error(np.asarray(out.vertices)[cylinder], degrees))
+    row["fleshing"] = None  # Fleshing's twist is global (rigid): no graded twist to compare
+    if degrees is not None:  # the same curvature along the rest spine through the caps
+        source = fj.Line(5.0, origin=(0, 0, -2.5), tangent=(0, 0, 1))
+        target = fj.Arc(4.0 / np.radians(degrees), 5.0, origin=(0, 0, -2.5), tangent=(0, 0, 1),
+                        normal=(1, 0, 0))
+        out = fj.deform_mesh(mesh, source, target, method="radial")
+        row["fleshing"] = (float(fj.volume(out.vertices, out.faces) / v0 - 1), None)
+    return row
+
+
+def _radius_error(vertices, degrees):
+    """Largest `|d/0.5 − 1|` of the distance of cylinder vertices to the bent axis (the arc
+    of radius 4/angle through the handles' targets), or to the straight axis."""
+    if degrees is None:
+        d = np.linalg.norm(vertices[:, :2], axis=1)
+    else:
+        radius = 4.0 / np.radians(degrees)
+        centre = np.array([radius, 0.0, -2.0])  # the arc's centre, in the x–z plane
+        in_plane = np.linalg.norm((vertices - centre)[:, [0, 2]], axis=1)
+        d = np.hypot(in_plane - radius, vertices[:, 1])
+    return float(np.max(np.abs(d / 0.5 - 1)))
+
+
+def _spot_case(name, mesh, medial, moved, pivot, axis, angle):
+    centers = np.asarray(medial.centers)
+    core = np.flatnonzero((np.abs(centers[:, 2] + 0.1) < 0.25) & (centers[:, 1] > -0.1))
+    handles = np.r_[moved, np.setdiff1d(core, moved)]
+    rotation = _rotation(axis, angle)
+    targets = centers[handles].copy()
+    targets[: len(moved)] = (centers[moved] - pivot) @ rotation.T + pivot
+    rotations = np.stack([rotation] * len(moved) + [np.eye(3)] * (len(handles) - len(moved)))
+    v0 = fj.volume(mesh.vertices, mesh.faces)
+    row = {"case": name}
+    for method, implicit in METHODS:
+        out = fj.deform_medial(mesh, medial, handles, targets, method, rotations=rotations,
+                               implicit=implicit)
+        row[method] = (float(fj.volume(out.vertices, out.faces) / v0 - 1), None)
+    row["fleshing"] = None
+    return row
+
+
+def volumes(quick: bool):
+    tube = capsule(24, 0.2)
+    medial = fj.medial_mesh(tube, 60, progress=False)
+    rows = [
+        _capsule_case("capsule bent 90°", tube, medial, degrees=90),
+        _capsule_case("capsule bent 180°", tube, medial, degrees=180),
+        _capsule_case("capsule twisted 180°", tube, medial, twist=np.pi),
+    ]
+    if not quick and (DATA / "spot.obj").is_file():
+        spot = trimesh.load(str(DATA / "spot.obj"), process=False)
+        spot.merge_vertices(merge_tex=True, merge_norm=True)
+        spot_medial = fj.medial_mesh(spot, 200, progress=False)
+        c = np.asarray(spot_medial.centers)
+        head = np.flatnonzero(c[:, 2] > 0.6)
+        leg = np.flatnonzero((c[:, 1] < -0.45) & (c[:, 0] > 0) & (c[:, 2] > 0))
+        rows.append(_spot_case("spot: head turned 30°", spot, spot_medial, head,
+                               np.array([0.0, 0.2, 0.55]), [0, 1, 0], np.radians(30)))
+        rows.append(_spot_case("spot: front leg swung 30°", spot, spot_medial, leg,
+                               np.array([0.2, -0.2, 0.4]), [1, 0, 0], np.radians(-30)))
+    print("| case | medial ΔV/V | LBS ΔV/V | DQS ΔV/V | Fleshing (radial) ΔV/V "
+          "| radius error medial / LBS / DQS |")
+    print("| --- | ---: | ---: | ---: | ---: | ---: |")
+    for row in rows:
+        cells = [f"{100 * row[m][0]:+.2f} %" for m, _ in METHODS]
+        cells.append("—" if row["fleshing"] is None else f"{100 * row['fleshing'][0]:+.3f} %")
+        radius = [row[m][1] for m, _ in METHODS]
+        cells.append("—" if radius[0] is None else " / ".join(f"{100 * r:.1f} %" for r in radius))
+        print(f"| {row['case']} | " + " | ".join(cells) + " |", flush=True)
+
+
+def speed():
+    mesh = capsule(40, 0.1)
+    medial = fj.medial_mesh(mesh, 300, progress=False)
+    start = time.perf_counter()
+    fj.MedialRig(mesh.vertices, medial, faces=mesh.faces)
+    binding = time.perf_counter() - start
+    big = capsule(36, 0.06)
+    rig = fj.MedialRig(big.vertices, medial, faces=big.faces)
+    centers = np.asarray(medial.centers)
+    handles = np.r_[np.flatnonzero(centers[:, 2] < -1.0), np.flatnonzero(centers[:, 2] > 1.0)]
+    targets = jnp.asarray(_on_arc(centers[handles], 4.0 / np.radians(90)), jnp.float32)
+
+    posed = fj.arap_medial(medial, handles, targets)
+    calls = {  # name: (compiled call, its argument)
+        "frame: ARAP + skin (medial, implicit)": (jax.jit(
+            lambda t: rig.pose(fj.arap_medial(medial, handles, t), "medial")), targets),
+        "ARAP alone": (jax.jit(lambda t: fj.arap_medial(medial, handles, t).centers), targets),
+        "skin alone (medial, implicit)": (jax.jit(lambda p: rig.pose(p, "medial")), posed),
+        "skin alone (medial, no implicit)": (jax.jit(
+            lambda p: rig.pose(p, "medial", implicit=False)), posed),
+        "skin alone (DQS, no implicit)": (jax.jit(lambda p: rig.pose(p, "dqs",
+                                                                     implicit=False)), posed),
+    }
+    print("\n| task | size | median |\n| --- | --- | ---: |")
+    print(f"| binding (`MedialRig`) | {len(mesh.vertices)} vertices, {len(centers)} spheres "
+          f"| {binding:.2f} s |")
+    for name, (call, argument) in calls.items():
+        jax.block_until_ready(call(argument))
+        times = []
+        for _ in range(20):
+            start = time.perf_counter()
+            jax.block_until_ready(call(argument))
+            times.append(time.perf_counter() - start)
+        print(f"| {name}, float32 | {len(centers)} spheres, {len(big.vertices)} vertices "
+              f"| {1e3 * np.median(times):.1f} ms |", flush=True)
+
+
+if __name__ == "__main__":
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--quick", action="store_true")
+    args = parser.parse_args()
+    jax.config.update("jax_enable_x64", True)  # float64 for the volumes; the frame is float32
+    volumes(args.quick)
+    if not args.quick:
+        speed()

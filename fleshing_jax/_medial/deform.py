@@ -1,0 +1,76 @@
+"""`deform_medial`: a mesh deformed through its medial mesh, from handles to skin, in one call."""
+
+from __future__ import annotations
+
+import numpy as np
+import trimesh
+from jaxtyping import ArrayLike
+
+from .arap import ITERATIONS, arap_medial
+from .medial_mesh import MedialMesh
+from .rig import MedialRig
+
+
+def deform_medial(
+    mesh,
+    medial: MedialMesh,
+    handles: ArrayLike,
+    targets: ArrayLike,
+    method: str = "medial",
+    *,
+    rotations: ArrayLike | None = None,
+    implicit: bool = True,
+    iterations: int = ITERATIONS,
+    solver: str = "global",
+):
+    """Deforms `mesh` by moving handle spheres of its medial mesh (Lan et al. 2017).
+
+    The chain: bind the surface to `medial` (`MedialRig`), deform the medial mesh as rigidly
+    as possible with the handles at `targets` (`arap_medial`), and skin the surface from it
+    (`rig.pose`). For many poses of one shape, build the rig once and call `arap_medial` and
+    `rig.pose` per frame instead.
+
+    **Arguments:**
+
+    - `mesh`: a `trimesh.Trimesh`, a `(vertices (N, 3), faces (F, 3 or 4))` pair of arrays, or
+      an `(N, 3)` array of points (no faces: no smoothing of the skin's rotation weights and no
+      tangential relaxation).
+    - `medial`: the rest `MedialMesh` of the shape (e.g. `fj.medial_mesh(mesh)`).
+    - `handles`: `(h,)` sphere indices; `targets`: `(h, 3)` their new centres;
+      `rotations`: optional `(h, 3, 3)` prescribed handle rotations.
+    - `method`: `"medial"` (the paper's footprint skin), `"lbs"` or `"dqs"` (baselines with
+      the same weights); `implicit`: the implicit-skinning correction.
+    - `iterations`, `solver`: of `arap_medial`.
+
+    **Returns:** like `deform_mesh`: for a `Trimesh`, a new `Trimesh` with the input's faces,
+    vertex count and order, and the per-vertex validity (N,) bool in
+    `result.vertex_attributes["valid"]`; for a `(vertices, faces)` pair,
+    `(deformed vertices (N, 3), faces, valid (N,))`; for an array, `(deformed, valid)`.
+    Invalid vertices are left where they were.
+    """
+    if not isinstance(medial, MedialMesh):
+        raise TypeError(f"`medial` must be a MedialMesh, got {type(medial).__name__}.")
+    faces = None
+    if isinstance(mesh, trimesh.Trimesh):
+        vertices, faces = np.asarray(mesh.vertices), np.asarray(mesh.faces)
+    elif isinstance(mesh, tuple) and len(mesh) == 2:
+        vertices, faces = mesh
+    elif hasattr(mesh, "shape") or isinstance(mesh, list):
+        vertices = mesh
+    else:
+        raise TypeError(
+            "`mesh` must be a trimesh.Trimesh, a (vertices, faces) pair or an (N, 3) array, "
+            f"got {type(mesh).__name__}."
+        )
+    rig = MedialRig(vertices, medial, faces=faces)
+    posed = arap_medial(medial, handles, targets, rotations=rotations, iterations=iterations,
+                        solver=solver)
+    deformed, valid = rig.pose(posed, method, implicit=implicit)
+    if isinstance(mesh, trimesh.Trimesh):
+        result = mesh.copy()
+        result.vertices = np.asarray(deformed, dtype=np.float64)
+        result.vertex_attributes["valid"] = np.asarray(valid)
+        return result
+    if isinstance(mesh, tuple):
+        return deformed, faces, valid
+    return deformed, valid
