@@ -96,13 +96,14 @@ def test_fit_rotation_matches_svd_with_reflections_fixed():
 def test_fit_rotation_derivatives():
     rng = np.random.default_rng(1)
     m = jnp.asarray(rng.normal(size=(3, 3)))
-    check_grads(fit_rotation, (m,), order=2, modes=("fwd", "rev"), atol=1e-5, rtol=1e-5)
+    fit = jax.jit(fit_rotation)
+    check_grads(fit, (m,), order=2, modes=("fwd", "rev"), atol=1e-5, rtol=1e-5)
     # Repeated singular values (the identity; a rank-one matrix plus a multiple of it), where
     # the SVD's derivative is not finite.
     for m in (jnp.eye(3), jnp.outer(jnp.array([1.0, 0, 0]), jnp.array([1.0, 0, 0])) + 0.1 *
               jnp.eye(3)):
-        check_grads(fit_rotation, (m,), order=1, modes=("fwd", "rev"), atol=1e-5, rtol=1e-5)
-        jac = jax.jacfwd(fit_rotation)(m)
+        check_grads(fit, (m,), order=1, modes=("fwd", "rev"), atol=1e-5, rtol=1e-5)
+        jac = jax.jacfwd(fit)(m)
         assert np.isfinite(np.asarray(jac)).all()
 
 
@@ -317,3 +318,41 @@ def test_bad_input():
         fj.arap_medial(c, ENDS, t)
     with pytest.raises(ValueError, match="handles.*concrete"):
         jax.jit(lambda h: fj.arap_medial(CHAIN, h, t))(ENDS)
+
+
+# --- fit_handles -----------------------------------------------------------------------------
+
+
+def _capsule_rig():
+    """A capsule around CHAIN (cylinder from x = 0 to 4, radius 0.5), bound to it."""
+    import trimesh
+
+    a = np.linspace(-np.pi / 2, 0, 4)
+    cap = np.stack([0.5 * np.cos(a), 0.5 * np.sin(a)], 1)
+    x = np.linspace(0, LENGTH, 13)[1:-1]
+    profile = np.concatenate([cap, np.stack([np.full_like(x, 0.5), x], 1),
+                              cap[::-1] * [1, -1] + [0, LENGTH]])
+    profile[[0, -1], 0] = 0
+    mesh = trimesh.creation.revolve(profile, sections=10)
+    vertices = np.asarray(mesh.vertices)[:, [2, 0, 1]]  # the revolution axis z becomes x
+    return vertices, fj.MedialRig(vertices, CHAIN, faces=mesh.faces)
+
+
+def test_fit_handles_recovers_a_known_pose():
+    vertices, rig = _capsule_rig()
+    truth, _ = _bend_targets(np.pi / 3)
+    posed, valid = rig.pose(fj.arap_medial(CHAIN, ENDS, truth), implicit=False)
+    assert np.asarray(valid).all()
+    ids = np.arange(0, len(vertices), 3)
+    fit = fj.fit_handles(rig, ENDS, ids, np.asarray(posed)[ids], medial=CHAIN)
+    assert fit.converged, fit.message
+    assert float(fit.loss) < 1e-12 and float(fit.rms) < 1e-6
+    np.testing.assert_allclose(fit.targets, truth, atol=1e-5)
+    np.testing.assert_allclose(fit.vertices, np.asarray(posed)[ids], atol=1e-6)
+    # Bad input names the argument.
+    with pytest.raises(ValueError, match="vertex_ids"):
+        fj.fit_handles(rig, ENDS, [len(vertices)], np.zeros((1, 3)))
+    with pytest.raises(ValueError, match="vertex_targets"):
+        fj.fit_handles(rig, ENDS, ids, np.zeros((len(ids) + 1, 3)))
+    with pytest.raises(ValueError, match="method"):
+        fj.fit_handles(rig, ENDS, ids, np.asarray(posed)[ids], method="skinning")
