@@ -12,5 +12,7 @@ sphere-quadric edge collapses), `construct` (`medial_mesh`), `medial_mesh` (`Med
 (surface nets of the union), `distance` (`medial_distance`), `files` (`.ma` files),
 `rest_spine` (a Fleshing rest spine along the medial graph's longest path), `footprint`
 (binding vertices to footprint spheres), `skin` (medial / LBS / DQS skins), `implicit` (the
-implicit-skinning correction), `rig` (`MedialRig`).
+implicit-skinning correction), `rig` (`MedialRig`), `cells` and `arap` (ARAP
+deformation of the medial mesh by handles: `arap_medial`), `fit_handles` (handle targets
+fitted to vertex targets).
 """
