@@ -15,7 +15,11 @@ where the paper leaves room (see `cells` for the energy):
   step converges in far fewer iterations. Measured from the same first guess, iterations to
   bring the energy within 1e-4 (relative) of its minimum, global / local: 21 / 87 for a
   20-sphere chain whose last quarter is moved onto a 90° arc, 16 / 140 for 180°, 9 / 22 for a
-  6 × 5 sheet bent 90° (1e-6: 47 / 249, 40 / 298, 14 / 34).
+  6 × 5 sheet bent 90° (1e-6: 47 / 249, 40 / 298, 14 / 34). Alternating minimisation stays
+  slow on soft modes: on spot's 200-sphere medial mesh with its head turned 30° (41 handle
+  spheres moved, 61 fixed), 20 global iterations leave the centres within 0.5 % of the
+  diagonal of the converged pose (50: 0.2 %; the local update: 400 iterations for 2 % of the
+  energy). Anderson acceleration would be the next step.
 - **Rotation update**: Gauss–Seidel over a colouring of the medial graph (cells of one colour
   share no smoothness term, so each colour's rotations are fitted exactly and the energy
   never increases), with a small proximal term `ε|R − R_old|²` that keeps the fitting matrix
