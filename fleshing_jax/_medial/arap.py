@@ -28,11 +28,14 @@ where the paper leaves room (see `cells` for the energy):
   a derivative by the implicit-function rule of the optimality condition (`Rᵀ M` symmetric),
   so that gradients stay finite where `jnp.linalg.svd`'s are not (repeated or zero singular
   values: collinear cells of a straight chain).
-- **First guess**: the handles' prescribed rotations interpolated harmonically over the
-  medial graph as quaternions (a twist of up to 180° between handles is carried from the
-  start), identity rotations without prescribed ones.
+- **First guess** (both solvers): the handles' rotations (prescribed, else fitted to the
+  handles' own targets, see `_initial_rotations`) interpolated harmonically over the medial
+  graph as quaternions (a twist of up to 180° between handles is carried from the start),
+  and the exact centres for those rotations.
 - **Iterations**: a fixed count (`lax.scan`), differentiated step by step: the returned pose
-  is a smooth function of `targets` and `rotations`, and `jax.grad` of it is exact.
+  is a smooth function of `targets` and `rotations` (away from the measure-zero switches of
+  the rotation fit's reflection test and the quaternions' branches), and `jax.grad` of it is
+  exact, second derivatives included.
 """
 
 from __future__ import annotations
