@@ -267,8 +267,9 @@ def bind(points, centers, radii, edges, faces, *, field_cones=4, field_slabs=2,
     offset = p_all - np.einsum("mk,mkd->md", beta, centers[spheres])
 
     valid = finite & np.isfinite(distance) & (distance <= max_distance)
-    fc = _nearest_k(pc, qc, dc, m, field_cones, 0)
-    fs = _nearest_k(ps, qs, full, m, field_slabs, 0)
+    # No more candidates than primitives: repeats would cost field evaluations for nothing.
+    fc = _nearest_k(pc, qc, dc, m, min(field_cones, n_cones), 0)
+    fs = _nearest_k(ps, qs, full, m, min(field_slabs, n_slabs), 0)
     # Points with no slab nearby get their nearest slab from the whole list (by bounding
     # sphere); with no faces at all the slab part of the field is empty.
     if len(faces) and field_slabs:
