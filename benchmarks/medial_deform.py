@@ -16,7 +16,8 @@ Prints Markdown tables:
    volume hides redistribution (DQS keeps it by bulging), so the capsule rows also give the **radius
    error**: over the vertices of the capsule's cylinder, the largest `|d/0.5 − 1|` of their
    distance `d` to the bent (or twisted) axis.
-2. Speed: binding a capsule of about 30k vertices; one frame (ARAP on about 300 spheres +
+2. Speed (`--speed`: this table only): binding a capsule of about 30k vertices to medial
+   meshes of 200 and 300 spheres; one frame (ARAP on about 300 spheres +
    skin of about 100k vertices, float32, one compiled program) and its parts, medians of 20
    after compilation.
 """
@@ -155,10 +156,12 @@ def volumes(quick: bool):
 
 def speed():
     mesh = capsule(40, 0.1)
-    medial = fj.medial_mesh(mesh, 300, progress=False)
-    start = time.perf_counter()
-    fj.MedialRig(mesh.vertices, medial, faces=mesh.faces)
-    binding = time.perf_counter() - start
+    bindings = []
+    for spheres in (200, 300):
+        medial = fj.medial_mesh(mesh, spheres, progress=False)
+        start = time.perf_counter()
+        fj.MedialRig(mesh.vertices, medial, faces=mesh.faces)
+        bindings.append((medial, time.perf_counter() - start))
     big = capsule(36, 0.06)
     rig = fj.MedialRig(big.vertices, medial, faces=big.faces)
     centers = np.asarray(medial.centers)
@@ -177,8 +180,9 @@ def speed():
                                                                      implicit=False)), posed),
     }
     print("\n| task | size | median |\n| --- | --- | ---: |")
-    print(f"| binding (`MedialRig`) | {len(mesh.vertices)} vertices, {len(centers)} spheres "
-          f"| {binding:.2f} s |")
+    for m, seconds in bindings:
+        print(f"| binding (`MedialRig`) | {len(mesh.vertices)} vertices, {m.centers.shape[0]} "
+              f"spheres, {m.faces.shape[0]} slabs | {seconds:.2f} s |")
     for name, (call, argument) in calls.items():
         jax.block_until_ready(call(argument))
         times = []
@@ -193,8 +197,10 @@ def speed():
 if __name__ == "__main__":
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true")
+    parser.add_argument("--speed", action="store_true", help="only the speed table")
     args = parser.parse_args()
     jax.config.update("jax_enable_x64", True)  # float64 for the volumes; the frame is float32
-    volumes(args.quick)
+    if not args.speed:
+        volumes(args.quick)
     if not args.quick:
         speed()
