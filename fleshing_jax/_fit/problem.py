@@ -240,7 +240,25 @@ def make_regularizers(reference_length, length_weight, smoothness, extra, dtype)
     )
 
 
-class FitResult(eqx.Module):
+class AbstractFitOutcome(eqx.Module):
+    """What every fit's result says about its solve: the optimistix `result`, read through
+    `converged` and `message` (shared by `FitResult` and the medial `HandleFitResult`)."""
+
+    result: eqx.AbstractVar[optx.RESULTS]
+
+    @property
+    def converged(self) -> bool:
+        """Whether the solver reported success (never trust the fitted values when this is
+        False)."""
+        return bool(self.result == optx.RESULTS.successful)
+
+    @property
+    def message(self) -> str:
+        """The optimistix message for `result` ("" on success)."""
+        return optx.RESULTS[self.result]
+
+
+class FitResult(AbstractFitOutcome):
     """The outcome of a spine fit.
 
     **Fields:**
@@ -266,19 +284,9 @@ class FitResult(eqx.Module):
     stats: dict
 
     @property
-    def converged(self) -> bool:
-        """Whether the solver reported success (never trust `spine` when this is False)."""
-        return bool(self.result == optx.RESULTS.successful)
-
-    @property
     def num_invalid(self) -> int:
         """How many source points do not map validly onto the fitted spine."""
         return int(jnp.sum(~self.valid))
-
-    @property
-    def message(self) -> str:
-        """The optimistix message for `result` ("" on success)."""
-        return optx.RESULTS[self.result]
 
 
 class AbstractPoseProblem(eqx.Module):

@@ -54,6 +54,7 @@ from .._numerics import safe_divide, safe_sqrt
 from .cells import ArapCells, arap_cells
 from .medial_mesh import MedialMesh
 from .pose import MedialPose
+from .quaternions import matrix_from_quaternion, quaternion_from_matrix
 
 SOLVERS = ("global", "local")
 ITERATIONS = 20
@@ -164,38 +165,6 @@ def _fit_rotation_jvp(primals, tangents):
     return r, r @ hat
 
 
-def quaternion(r: Float[Array, "3 3"]) -> Float[Array, " 4"]:
-    """A unit quaternion `(w, x, y, z)` of the rotation `r` (either sign), differentiable.
-
-    Of the four ways to recover it, takes the one dividing by the largest component
-    (`4 q_k² ≥ 1`), so the clamped square root below is exact on the branch that is used and
-    every branch has finite derivatives."""
-    t = jnp.trace(r)
-    squares = jnp.stack([1 + t, 1 + 2 * r[0, 0] - t, 1 + 2 * r[1, 1] - t, 1 + 2 * r[2, 2] - t])
-    half = 0.5 * jnp.sqrt(jnp.maximum(squares, 1))  # |q_k| on the branch used
-    a, b, c = r[2, 1] - r[1, 2], r[0, 2] - r[2, 0], r[1, 0] - r[0, 1]
-    d, e, f = r[0, 1] + r[1, 0], r[0, 2] + r[2, 0], r[1, 2] + r[2, 1]
-    branches = jnp.stack([
-        jnp.stack([half[0], a / (4 * half[0]), b / (4 * half[0]), c / (4 * half[0])]),
-        jnp.stack([a / (4 * half[1]), half[1], d / (4 * half[1]), e / (4 * half[1])]),
-        jnp.stack([b / (4 * half[2]), d / (4 * half[2]), half[2], f / (4 * half[2])]),
-        jnp.stack([c / (4 * half[3]), e / (4 * half[3]), f / (4 * half[3]), half[3]]),
-    ])
-    return branches[jnp.argmax(squares)]
-
-
-def quaternion_rotation(q: Float[Array, " 4"]) -> Float[Array, "3 3"]:
-    """The rotation of a quaternion `q` (normalised here; `(1, 0, 0, 0)` for `q = 0`)."""
-    size = jnp.sqrt(jnp.sum(q * q))
-    ok = size > 0
-    w, x, y, z = jnp.where(ok, q / jnp.where(ok, size, 1), jnp.eye(4, dtype=q.dtype)[0])
-    return jnp.stack([
-        jnp.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)]),
-        jnp.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)]),
-        jnp.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]),
-    ])
-
-
 # --- the alternating minimisation ------------------------------------------------------------
 
 
@@ -271,13 +240,13 @@ def _initial_rotations(cells: ArapCells, prescribed, targets):
         at_handles = jax.vmap(fit_rotation)(m)
     else:
         at_handles = prescribed
-    q = jax.vmap(quaternion)(at_handles)
+    q = jax.vmap(quaternion_from_matrix)(at_handles)
     q = q * jnp.where(q @ q[0] >= 0, 1, -1)[:, None]  # one hemisphere: the shorter arcs
     field = jnp.zeros((n, 4), q.dtype).at[cells.handles].set(q)
     if cells.free.shape[0]:
         field = field.at[cells.free].set(cho_solve((cells.q_factor, True),
                                                    -cells.q_coupling @ q))
-    return jax.vmap(quaternion_rotation)(field).at[cells.handles].set(at_handles)
+    return jax.vmap(matrix_from_quaternion)(field).at[cells.handles].set(at_handles)
 
 
 @eqx.filter_jit

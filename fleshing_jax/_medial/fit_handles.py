@@ -18,7 +18,7 @@ import optimistix as optx
 from jaxtyping import Array, ArrayLike, Float
 
 from .._fit.correspondences import weighted_rms
-from .._fit.problem import check_cloud, default_solver
+from .._fit.problem import AbstractFitOutcome, check_cloud, default_solver
 from .arap import (
     ITERATIONS,
     SMOOTHNESS,
@@ -34,7 +34,7 @@ from .pose import MedialPose
 from .rig import METHODS, MedialRig
 
 
-class HandleFitResult(eqx.Module):
+class HandleFitResult(AbstractFitOutcome):
     """The outcome of `fit_handles`.
 
     **Fields:**
@@ -57,15 +57,6 @@ class HandleFitResult(eqx.Module):
     num_steps: Array
     stats: dict
 
-    @property
-    def converged(self) -> bool:
-        """Whether the solver reported success (never trust `targets` when this is False)."""
-        return bool(self.result == optx.RESULTS.successful)
-
-    @property
-    def message(self) -> str:
-        """The optimistix message for `result` ("" on success)."""
-        return optx.RESULTS[self.result]
 
 
 class _Problem(eqx.Module):

@@ -45,14 +45,8 @@ from .footprint import bind
 from .implicit import Correction, correct
 from .medial_mesh import MedialMesh
 from .pose import MedialPose
-from .skin import (
-    blend_quaternion,
-    dqs_vertex,
-    lbs_vertex,
-    matrix_from_quaternion,
-    medial_vertex,
-    sphere_motions,
-)
+from .quaternions import matrix_from_quaternion
+from .skin import blend_quaternion, dqs_vertex, lbs_vertex, medial_vertex, sphere_motions
 
 METHODS = ("medial", "lbs", "dqs")
 RING = 8  # neighbours per vertex in the relaxation's one-ring table

@@ -24,38 +24,7 @@ import jax.numpy as jnp
 from jaxtyping import Array, Float
 
 from .._numerics import dot, safe_divide, safe_sqrt
-
-
-def quaternion_from_matrix(r: Float[Array, "3 3"]) -> Float[Array, " 4"]:
-    """Unit quaternion `(w, x, y, z)` of a rotation matrix (Shepperd's method: the branch of
-    the largest diagonal term; the others get a harmless argument, so derivatives are
-    finite)."""
-    trace = r[0, 0] + r[1, 1] + r[2, 2]
-    diag = jnp.stack([trace, r[0, 0], r[1, 1], r[2, 2]])
-    branch = jnp.argmax(diag)
-    args = jnp.stack([1 + trace, 1 + r[0, 0] - r[1, 1] - r[2, 2],
-                      1 + r[1, 1] - r[0, 0] - r[2, 2], 1 + r[2, 2] - r[0, 0] - r[1, 1]])
-    chosen = jnp.arange(4) == branch
-    s = 2 * jnp.sqrt(jnp.where(chosen, args, 1.0))  # the chosen argument is >= 1
-    a, b, c = r[2, 1] - r[1, 2], r[0, 2] - r[2, 0], r[1, 0] - r[0, 1]
-    d, e, f = r[0, 1] + r[1, 0], r[0, 2] + r[2, 0], r[1, 2] + r[2, 1]
-    q = jnp.stack([
-        jnp.stack([s[0] / 4, a / s[0], b / s[0], c / s[0]]),
-        jnp.stack([a / s[1], s[1] / 4, d / s[1], e / s[1]]),
-        jnp.stack([b / s[2], d / s[2], s[2] / 4, f / s[2]]),
-        jnp.stack([c / s[3], e / s[3], f / s[3], s[3] / 4]),
-    ])
-    return jnp.sum(jnp.where(chosen[:, None], q, 0), axis=0)
-
-
-def matrix_from_quaternion(q: Float[Array, " 4"]) -> Float[Array, "3 3"]:
-    """Rotation matrix of a unit quaternion `(w, x, y, z)`."""
-    w, x, y, z = q[0], q[1], q[2], q[3]
-    return jnp.stack([
-        jnp.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)]),
-        jnp.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)]),
-        jnp.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]),
-    ])
+from .quaternions import matrix_from_quaternion, quaternion_from_matrix
 
 
 def _rotate(r: Array, v: Array) -> Array:
