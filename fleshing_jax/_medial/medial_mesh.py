@@ -7,11 +7,8 @@ import jax
 import numpy as np
 import trimesh
 
+from .._checks import is_concrete
 from .envelope import envelope_arrays, mesh_volume
-
-
-def _is_concrete(x) -> bool:
-    return not isinstance(x, jax.core.Tracer)
 
 
 def face_edges(faces) -> np.ndarray:
@@ -103,7 +100,7 @@ class MedialMesh(eqx.Module):
             raise ValueError(f"MedialMesh edges must have shape (e, 2), got {self.edges.shape}")
         if self.faces.ndim != 2 or self.faces.shape[1] != 3:
             raise ValueError(f"MedialMesh faces must have shape (f, 3), got {self.faces.shape}")
-        if all(map(_is_concrete, (self.centers, self.radii, self.edges, self.faces))):
+        if is_concrete(self.centers, self.radii, self.edges, self.faces):
             _check(*(np.asarray(x) for x in (self.centers, self.radii, self.edges, self.faces)))
 
     def numpy(self):
