@@ -77,3 +77,13 @@ PAIRS = _pairs()
 @pytest.fixture(params=sorted(PAIRS))
 def pair(request):
     return PAIRS[request.param]
+
+
+# Tests that each run for tens of seconds in a process of their own (notebook kernels, the
+# multi-device subprocess) start first, so that the two workers do not end the session with
+# one of them alone on a long test.
+_FIRST = ("test_notebooks.py", "test_sharding.py")
+
+
+def pytest_collection_modifyitems(items):
+    items.sort(key=lambda item: item.path.name not in _FIRST)
