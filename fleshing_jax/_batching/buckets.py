@@ -23,12 +23,13 @@ MINIMUM = 64
 PAD_LIMIT = 1 << 19
 
 
-def bucket(n: int) -> int:
-    """The padded size of a batch of `n` points: the smallest `64·2^k` or `96·2^k` that is
-    at least `n`; `n` itself beyond `PAD_LIMIT` (and for an empty batch)."""
+def bucket(n: int, minimum: int = MINIMUM) -> int:
+    """The padded size of a batch of `n` points: the smallest `m·2^k` or `1.5·m·2^k` that is
+    at least `n`, `m = minimum` (a power of two: 64 for points); `n` itself beyond `PAD_LIMIT`
+    (and for an empty batch)."""
     if n == 0 or n > PAD_LIMIT:
         return n
-    size = MINIMUM
+    size = minimum
     while size < n:
         # 64 → 96 → 128 → 192 → …: alternately ×3/2 and ×4/3.
         size = size * 3 // 2 if size & (size - 1) == 0 else size * 4 // 3
@@ -36,16 +37,20 @@ def bucket(n: int) -> int:
 
 
 def pad_batch(tree: PyTree, size: int) -> PyTree:
-    """The per-point arrays of concrete `tree` (leading axis `n`; scalars are shared and kept)
-    padded to `size` with copies of their last point: finite wherever the inputs are, so the
-    padding computes harmlessly. `tree` itself when `size` is its size.
+    """The per-point arrays of `tree` (leading axis `n`; scalars are shared and kept) padded
+    to `size` with copies of their last point: finite wherever the inputs are, so the padding
+    computes harmlessly. `tree` itself when `size` is its size.
 
-    Padded on the host and put on the device as it is: a device operation on the `n`-point
-    arrays (`jnp.pad`, and even `jnp.asarray`) would itself compile once per size."""
+    Concrete arrays are padded on the host and put on the device as they are: a device
+    operation on the `n`-point arrays (`jnp.pad`, and even `jnp.asarray`) would itself compile
+    once per size. Traced ones (a spine's parameters under `grad`) are padded in their trace:
+    the copies are never read, so no gradient flows through them."""
 
     def pad(a):
         if jnp.ndim(a) == 0 or a.shape[0] == size:
             return a
+        if isinstance(a, jax.core.Tracer):
+            return jnp.pad(a, [(0, size - a.shape[0])] + [(0, 0)] * (a.ndim - 1), mode="edge")
         host = np.asarray(a)
         padded = np.pad(host, [(0, size - len(host))] + [(0, 0)] * (host.ndim - 1), mode="edge")
         return jax.device_put(padded)

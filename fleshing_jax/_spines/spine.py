@@ -112,6 +112,12 @@ class AbstractSpine(eqx.Module):
         """An equivalent spine for many evaluations in one trace (tables computed once)."""
         return self
 
+    def _bucketed(self) -> AbstractSpine:
+        """An equivalent spine whose compiled programs serve every spine of its bucket: its
+        arrays padded to a few sizes, so that the eager entry points do not compile once per
+        control-point count (`_batching.buckets`). Spines of a fixed size return themselves."""
+        return self
+
     def _anchor_jets(self, s: Array) -> list:
         """`_jet` at `s`, at 0 and at `length` (spines override it to share work)."""
         zero = jnp.zeros_like(self.length)
