@@ -55,8 +55,8 @@ def pad_batch(tree: PyTree, size: int) -> PyTree:
         padded = np.pad(host, [(0, size - len(host))] + [(0, 0)] * (host.ndim - 1), mode="edge")
         return jax.device_put(padded)
 
-    if any(isinstance(a, jax.Array) and len(a.sharding.device_set) > 1
-           for a in jax.tree.leaves(tree)):
+    if any(isinstance(a, jax.Array) and not isinstance(a, jax.core.Tracer)
+           and len(a.sharding.device_set) > 1 for a in jax.tree.leaves(tree)):
         return tree  # sharded over devices: kept as laid out (padding would gather it)
     return jax.tree.map(pad, tree)
 

@@ -116,8 +116,9 @@ class BSpline(AbstractParametricSpine):
             if is_concrete(points):
                 p = np.asarray(points, np.float64)
                 evaluate = lambda t: _de_boor(p, u, self.degree, t)  # noqa: E731
+        padded = bucket(count, CONTROL_POINTS_BUCKET) - self.degree  # pieces of `_bucketed`
         self.subdivisions, self.samples = static_sizes(
-            evaluate, breaks, len(self.spans), subdivisions, "control_points"
+            evaluate, breaks, len(self.spans), subdivisions, "control_points", padded
         )
 
     @property

@@ -166,22 +166,27 @@ def _tables(spine):
     return tables(spine)
 
 
-def static_sizes(point_np, span_breaks, spans: int, subdivisions: int | None, name: str):
+def static_sizes(
+    point_np, span_breaks, spans: int, subdivisions: int | None, name: str, padded: int = 0
+):
     """`(subdivisions, samples)` for a parametric spine, and a check that it never stops.
 
     `point_np` evaluates the curve on a NumPy array of parameters, (G,) → (G, 3), or is `None`
     when the curve is traced (then nothing is checked); `span_breaks`: the (S+1,) span ends
-    (`None` if traced); `spans`: S. Frame nodes are
+    (`None` if traced); `spans`: S; `padded`: the pieces of the spine padded to its bucket
+    (`_bucketed`), when it pads, so that spines padded alike search alike. Frame nodes are
     placed at `RMF_NODES_PER_RADIAN` per radian of the most-turning span (at least 8 per span,
     at most 512), and closest-point samples at 32 per radian of total turning (at least 128, and
-    16 per span). Traced curves (built inside `jit` from traced parameters) get 16 subdivisions
-    and `max(256, 64 · spans)` samples. Both counts are rounded up to the sizes of
-    `_batching.buckets` (`8·2^k` or `12·2^k` subdivisions, `128·2^k` or `192·2^k` samples), so
-    that spines of similar turning share their compiled programs. Raises `ValueError` naming
-    `name` where a concrete curve stops (zero speed: a cusp).
+    16 per span, padded ones included). Traced curves (built inside `jit` from traced
+    parameters) get 16 subdivisions and `max(256, 64 · spans)` samples. Both counts are
+    rounded up to the sizes of `_batching.buckets` (`8·2^k` or `12·2^k` subdivisions,
+    `128·2^k` or `192·2^k` samples), so that spines of similar turning share their compiled
+    programs. Raises `ValueError` naming `name` where a concrete curve stops (zero speed: a
+    cusp).
     """
+    pieces = max(spans, padded)
     if point_np is None:
-        return (16 if subdivisions is None else subdivisions), bucket(max(256, 64 * spans), 128)
+        return (16 if subdivisions is None else subdivisions), bucket(max(256, 64 * pieces), 128)
     breaks = np.asarray(span_breaks, dtype=np.float64)
     fractions = np.arange(64) / 64
     grid = (breaks[:-1, None] + np.diff(breaks)[:, None] * fractions).reshape(-1)
@@ -208,7 +213,7 @@ def static_sizes(point_np, span_breaks, spans: int, subdivisions: int | None, na
     if subdivisions is None:
         subdivisions = int(np.clip(np.ceil(RMF_NODES_PER_RADIAN * turning.max()), 8, 512))
         subdivisions = bucket(subdivisions, 8)  # (more is only more accurate)
-    samples = int(np.clip(32 * turning.sum(), max(128, 16 * spans), 8192))
+    samples = int(np.clip(32 * turning.sum(), max(128, 16 * pieces), 8192))
     return subdivisions, bucket(samples, 128)
 
 

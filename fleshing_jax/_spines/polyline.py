@@ -33,6 +33,7 @@ from .double_reflection import propagate, reflect_twice
 from .spine import AbstractTabulatedSpine, Evaluators, PreparedSpine, initial_normal
 
 MAX_EDGES = 1_000_000  # a bound on memory (spine files are untrusted input)
+EDGES_BUCKET = 8  # polylines pad to 8, 12, 16, 24, … points and edges (`_bucketed`)
 
 
 class Polyline(AbstractTabulatedSpine):
@@ -89,8 +90,9 @@ class Polyline(AbstractTabulatedSpine):
         if concrete:
             cosines = np.clip(np.sum(units[1:] * units[:-1], axis=-1), -1, 1)
             turning = float(np.sum(np.arccos(cosines)))
-        samples = int(np.clip(max(128, 4 * self.edges, 32 * turning), 128, 16384))
-        self.samples = bucket(samples, 128)  # (spines of similar size share their programs)
+        # (4 per edge of `_bucketed`: polylines padded alike search alike.)
+        edges = bucket(self.edges, EDGES_BUCKET)
+        self.samples = bucket(int(np.clip(max(128, 4 * edges, 32 * turning), 128, 16384)), 128)
 
     def _prepare(self) -> PreparedSpine:
         tables = _tables(self.points, self.points.shape[0], self.edges, self.edges)
@@ -126,10 +128,10 @@ class PaddedPolyline(AbstractTabulatedSpine):
     samples: int = eqx.field(static=True)
 
     def __init__(self, polyline: Polyline):
-        self.points = pad_batch(polyline.points, bucket(polyline.points.shape[0], 8))
+        self.points = pad_batch(polyline.points, bucket(polyline.points.shape[0], EDGES_BUCKET))
         self.count = jax.device_put(np.int32(polyline.points.shape[0]))
         self.edges = jax.device_put(np.int32(polyline.edges))
-        self.total, self.samples = bucket(polyline.edges, 8), polyline.samples
+        self.total, self.samples = bucket(polyline.edges, EDGES_BUCKET), polyline.samples
 
     def _prepare(self) -> PreparedSpine:
         tables = _tables(self.points, self.count, self.edges, self.total)
@@ -144,7 +146,8 @@ def _resample(points: Array, count, edges, total: int) -> Array:
     copies of the last one up to `total` edges: (total + 1, 3). `count` and `edges` are ints
     or int scalars (padded polylines); the rows of `points` after `count` are copies."""
     p = points
-    lengths = jnp.linalg.norm(jnp.diff(p, axis=0), axis=-1)
+    steps = jnp.diff(p, axis=0)
+    lengths = safe_sqrt(dot(steps, steps))  # (padding: zero, with a zero derivative)
     cumulative = jnp.concatenate([jnp.zeros((1,), p.dtype), jnp.cumsum(lengths)])
     index = np.arange(1, total)
     inner = index < edges  # the other vertices are padding: any target, then replaced
@@ -166,7 +169,7 @@ def _tables(points, count, edges, total: int):
     tangent: nothing is located on them, and the frames stand still along them."""
     v = _resample(points, count, edges, total)
     steps = jnp.diff(v, axis=0)
-    lengths = jnp.linalg.norm(steps, axis=-1)
+    lengths = safe_sqrt(dot(steps, steps))
     real = np.arange(total) < edges
     units = steps / jnp.where(real, lengths, 1)[:, None]  # (padding: zero, never used)
     cumulative = jnp.concatenate([jnp.zeros((1,), v.dtype), jnp.cumsum(lengths)])
