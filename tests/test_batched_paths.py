@@ -97,8 +97,10 @@ def test_local_reach_equals_its_definition(dtype):
         spine = jax.tree.map(lambda a: a.astype(dtype) if eqx.is_inexact_array(a) else a, spine)
         bounds = np.asarray(LocalReach(spine, 96).bounds, np.float64)
         expected = _local_reach_by_definition(spine)
-        rtol = 1e-10 if dtype == np.float64 else 1e-4
-        np.testing.assert_allclose(bounds, expected, rtol=rtol, err_msg=str(spine))
+        # (float32: `√(|δ|² − along²)` cancels, a bound is good to about 1e-4 relative, and a
+        # bound clamped at 0 can come out at a few ulps.)
+        rtol, atol = (1e-10, 0) if dtype == np.float64 else (2e-4, 1e-6)
+        np.testing.assert_allclose(bounds, expected, rtol=rtol, atol=atol, err_msg=str(spine))
         # The global bound is the smallest local one.
         assert float(reach_lower_bound(spine, 96)) == float(bounds.min())
     # Local: along the U-turn's straight branches the bounds exceed the bend's radius of
@@ -270,7 +272,9 @@ def test_eager_two_phase_paths_equal_the_one_program_paths(dtype):
     points = jnp.asarray(rng.uniform(-0.3, 0.3, (n, 3)) + [1.0, 0.2, 0], dtype)
     far = jnp.asarray(rng.uniform(-3, 3, (40, 3)), dtype)  # beyond the reach bounds: searched
     points = points.at[:40].set(far)
-    registrar = pipeline._registrar(source, source.default_samples())
+    # (The eager calls pad the spines to their bucket, `AbstractSpine._bucketed`: so do the
+    # one-program references, or float32 round-off would differ on invalid points.)
+    registrar = pipeline._registrar(source._bucketed(), source.default_samples())
     assert eager._register_certified(registrar, points)[1].sum() > 0  # both phases run
     one_program = fj.Registration(points, *pipeline._register(registrar, points))
     registration = fj.register(points, source)
@@ -278,7 +282,7 @@ def test_eager_two_phase_paths_equal_the_one_program_paths(dtype):
     atol = 1e-5 if dtype == "float32" else 1e-12
     for a, b in zip(jax.tree.leaves(registration), jax.tree.leaves(one_program)):
         np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=0, atol=atol)
-    poser = pipeline._poser(turn, "radial", jnp.asarray(0.0, dtype), True)
+    poser = pipeline._poser(turn._bucketed(), "radial", jnp.asarray(0.0, dtype), True)
     assert eager._pose_certified(poser, registration)[2].sum() > 0
     images, valid = fj.pose(registration, turn)
     images_one, valid_one = pipeline._pose(poser, registration)

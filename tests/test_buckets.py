@@ -6,7 +6,9 @@ until XLA ran out of memory maps; the tests count the traces JAX reports while m
 
 import collections
 
+import equinox as eqx
 import jax
+import jax.numpy as jnp
 import numpy as np
 import pytest
 
@@ -99,3 +101,111 @@ def test_float32_and_traced_calls_keep_their_shapes():
     assert images.shape == (70, 3) and images.dtype == np.float32 and valid.shape == (70,)
     jitted, _ = jax.jit(lambda p: fj.flesh(p, source, target))(points)  # traced: not padded
     np.testing.assert_allclose(jitted, images, atol=1e-5)
+
+
+# Spines: their control-point counts and turning-dependent sizes are static, so every new
+# spine used to compile new programs; `AbstractSpine._bucketed` pads them to a few sizes.
+
+
+def _bspline(count, bend=0.3, **options):
+    t = np.linspace(0.0, 1.0, count)
+    points = np.column_stack([2 * t, bend * np.sin(np.pi * t), 0.1 * bend * t])
+    return fj.BSpline(points, **options)
+
+
+def _polyline(count, **options):
+    t = np.linspace(0.0, 1.0, count)
+    return fj.Polyline(np.column_stack([2 * t, 0.3 * np.sin(np.pi * t), 0.03 * t]), **options)
+
+
+def _signature(spine):
+    """What `eqx.filter_jit` compiles a spine argument for: its structure (static fields
+    included), its leaves' shapes and dtypes, and its search samples (an argument of
+    `register`'s program)."""
+    leaves, treedef = jax.tree.flatten(spine)
+    return treedef, tuple((a.shape, a.dtype) for a in leaves), spine.default_samples()
+
+
+SPINES = {
+    "bspline": lambda: _bspline(7),  # 8 control points padded, 3 pieces (1 padding)
+    "bspline-cubic-knots": lambda: _bspline(
+        9, degree=3, knots=[0, 0, 0, 0, 0.1, 0.3, 0.3, 0.6, 0.8, 1, 1, 1, 1]
+    ),  # (a double knot: an empty span, left out of the pieces)
+    "polyline": lambda: _polyline(10),
+    "polyline-step": lambda: _polyline(10, step=0.05),  # 42 edges padded to 48
+}
+
+
+@pytest.mark.parametrize("name", SPINES)
+def test_padded_spines_evaluate_and_differentiate_as_the_spines(name):
+    spine = SPINES[name]()
+    assert type(spine._bucketed()) is not type(spine)  # (the bucket's own type: shared)
+    field = "control_points" if hasattr(spine, "control_points") else "points"
+    s = np.linspace(-0.3, float(spine.length) + 0.3, 9)  # beyond both ends too
+
+    def loss(parameters, pad):  # (torsion: a polyline's is round-off amplified, not compared)
+        rebuilt = eqx.tree_at(lambda c: getattr(c, field), spine, parameters)
+        rebuilt = rebuilt._bucketed() if pad else rebuilt
+        values = rebuilt.length, jax.vmap(rebuilt.jet_and_normals)(s)
+        (c, t, k), (i, _) = values[1]
+        return rebuilt.length + jnp.sum(c[1:-1] * t[1:-1]) + jnp.sum(k[1:-1] * i[1:-1]), values
+
+    parameters = getattr(spine, field)
+    gradient = jax.jit(jax.grad(loss, has_aux=True), static_argnums=1)
+    (exact, values), (padded, padded_values) = (gradient(parameters, p) for p in (False, True))
+    for a, b in zip(jax.tree.leaves(values), jax.tree.leaves(padded_values)):
+        np.testing.assert_allclose(b, a, rtol=0, atol=1e-13)
+    # Gradients reach the spine's own parameters, as without padding.
+    assert np.all(np.isfinite(padded)) and np.any(padded != 0)
+    np.testing.assert_allclose(padded, exact, rtol=0, atol=1e-11)
+
+
+def test_padded_spines_keep_float32():
+    for spine in (_bspline(7), _polyline(10)):
+        padded = jax.tree.map(
+            lambda a: a.astype(np.float32) if jnp.issubdtype(a.dtype, jnp.floating) else a,
+            spine._bucketed(),
+        )
+        c, t, k = padded.jet(np.float32(0.5))
+        assert c.dtype == t.dtype == k.dtype == padded.length.dtype == np.float32
+
+
+def test_twenty_spines_share_a_few_programs(traces):
+    # B-splines of 6 … 25 control points bent more and more; polylines of 10 … 200 points.
+    families = {
+        "bspline": [_bspline(6 + i, bend=0.2 + 0.02 * i) for i in range(20)],
+        "polyline": [_polyline(10 * (i + 1)) for i in range(20)],
+    }
+    padded = {name: [s._bucketed() for s in spines] for name, spines in families.items()}
+    assert sum(traces.values()) == 0, dict(traces)  # (built without compiling anything)
+    families["arc"] = [fj.Arc(0.2 + 0.1 * i, 2.0) for i in range(20)]  # turning 10 … 1 rad
+    padded["arc"] = [s._bucketed() for s in families["arc"]]
+    for name, spines in families.items():
+        signatures = {_signature(s) for s in padded[name]}
+        if name != "arc":  # (an arc's size is fixed: only its samples vary)
+            assert len({_signature(s) for s in spines}) == 20
+        # At most two buckets per doubling of the count or the turning (20 before).
+        assert len(signatures) <= {"bspline": 9, "polyline": 9, "arc": 4}[name], name
+
+
+def test_spines_of_one_bucket_reuse_the_programs(traces, monkeypatch):
+    points = _points(100)
+    registration = fj.register(points, fj.Line(2.0))
+    # 9 … 12 control points: one bucket (12). The turning-dependent sizes are those of the
+    # bucket too (given for the counts, by default for the turnings: asserted).
+    spines = [_bspline(n, subdivisions=16) for n in (9, 10, 11, 12)]
+    spines += [_bspline(11), _bspline(12, bend=0.35)]
+    assert {(s.subdivisions, s.samples) for s in spines} == {(16, 128)}
+    # Polylines of 10 … 12 points (9 … 11 edges): one bucket (12 points, 12 edges).
+    polylines = [_polyline(n) for n in (10, 11, 12)]
+    posed = [fj.pose(registration, s) for s in (spines[0], polylines[0])]  # compiles
+    traces.clear()
+    posed += [fj.pose(registration, s) for s in spines[1:] + polylines[1:]]
+    assert sum(traces.values()) == 0, f"spines of one bucket traced again: {dict(traces)}"
+    # Results: those of the spine itself (programs of its own size, compiled without padding).
+    monkeypatch.setattr(fj.BSpline, "_bucketed", lambda self: self)
+    images, valid = fj.pose(registration, spines[0])
+    assert traces["_pose_certified"] == 1  # (compiled for the unpadded spline)
+    np.testing.assert_array_equal(posed[0][1], valid)
+    assert np.mean(valid) > 0.9
+    np.testing.assert_allclose(posed[0][0], images, rtol=0, atol=1e-13)

@@ -15,7 +15,9 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import ArrayLike
 
+from .._batching.buckets import bucket, pad_batch, unpad_batch
 from .._batching.chunks import batch_axes
+from .._checks import is_concrete
 from .._numerics import cast_floats
 from .._spines.analytic import Arc, Line
 from .._spines.frames import rotation_minimizing_frame
@@ -57,8 +59,11 @@ def diagnose(
         registration, target, method=method, twist=twist, check_projection=check_projection
     )
     dtype = registration.points.dtype
-    registered, within = _checks(
-        registration, cast_floats(target, dtype), method, jnp.asarray(twist, dtype)
+    n = registration.points.shape[0]  # (padded as in `pose`: one program per bucket of sizes)
+    padded = pad_batch(registration, bucket(n)) if is_concrete(registration) else registration
+    registered, within = unpad_batch(
+        _checks(padded, cast_floats(target, dtype)._bucketed(), method, jnp.asarray(twist, dtype)),
+        n,
     )
     registered, within, valid = (np.asarray(a) for a in (registered, within, valid))
     outside_source = int(np.sum(~registered))

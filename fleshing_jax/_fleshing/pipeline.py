@@ -283,7 +283,8 @@ def register(points: ArrayLike, source: AbstractSpine, *, samples: int | None = 
     points = _check_points(points, "points")
     _check_spine(source, "source")
     samples = source.default_samples() if samples is None else int(samples)
-    registrar = _registrar(cast_floats(source, points.dtype), samples)
+    # (Spines padded to a bucket of sizes, as the batch: `AbstractSpine._bucketed`.)
+    registrar = _registrar(cast_floats(source, points.dtype)._bucketed(), samples)
     # The points are put in outside the compiled call: returned from it, they would be copied.
     if is_concrete(points):  # called eagerly: the global search compiled only if needed
         n = points.shape[0]  # and the batch padded to a bucket size (`_batching.buckets`)
@@ -327,7 +328,7 @@ def pose(
     _check_spine(target, "target")
     dtype = registration.points.dtype
     target, twist = cast_floats((target, as_twist(twist, dtype)), dtype)
-    poser = _poser(target, check_method(method), twist, bool(check_projection))
+    poser = _poser(target._bucketed(), check_method(method), twist, bool(check_projection))
     if is_concrete(registration):  # called eagerly: the global check compiled only if needed
         n = registration.points.shape[0]  # and the batch padded to a bucket size
         return unpad_batch(pose_eagerly(poser, pad_batch(registration, bucket(n))), n)
@@ -393,8 +394,8 @@ def flesh(
     samples = source.default_samples()
     n = points.shape[0]
     padded = pad_batch(points, bucket(n)) if is_concrete(points) else points
-    images, valid = _flesh(padded, cast_source, cast_target, method, twist, check_projection,
-                           samples)
+    images, valid = _flesh(padded, cast_source._bucketed(), cast_target._bucketed(), method,
+                           twist, check_projection, samples)
     return unpad_batch((images, valid), n)
 
 

@@ -26,6 +26,13 @@ def jacobian_determinant(fleshing: Fleshing, points: ArrayLike) -> Float[Array, 
     if not isinstance(fleshing, Fleshing):
         raise TypeError(f"`fleshing` must be a `Fleshing`, got {type(fleshing)}.")
     points = _check_points(points, "points")
+    fleshing = Fleshing(  # spines padded to a bucket of sizes (`AbstractSpine._bucketed`)
+        fleshing.source._bucketed(),
+        fleshing.target._bucketed(),
+        method=fleshing.method,
+        twist=fleshing.twist,
+        check_projection=fleshing.check_projection,
+    )
     if not is_concrete(points):
         return _determinants(fleshing, points)
     n = points.shape[0]  # called eagerly: one program per bucket of sizes (`_batching.buckets`)

@@ -11,6 +11,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike
 
+from .._batching.buckets import bucket
 from .._checks import as_float_array, check_positive, is_concrete, unit
 from .._numerics import dot
 from .spine import AbstractSpine, initial_normal
@@ -193,11 +194,13 @@ class Helix(AbstractSpine):
 
 
 def _samples_for_turns(turning_angle) -> int:
-    """32 samples per radian of turning (at least 128); 256 when the angle is traced."""
+    """32 samples per radian of turning (at least 128), rounded up to a bucket size
+    (`128·2^k` or `192·2^k`: spines of similar turning share their compiled programs); 256
+    when the angle is traced."""
     try:
         angle = float(jax.device_get(turning_angle))
     except (jax.errors.ConcretizationTypeError, TypeError):
         return 256
     if not np.isfinite(angle):
         return 256
-    return int(max(128, min(32 * angle, 8192)))
+    return bucket(int(max(128, min(32 * angle, 8192))), 128)

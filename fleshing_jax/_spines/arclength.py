@@ -62,13 +62,18 @@ def _gauss(parts: int, dtype):
     return jnp.asarray(nodes, dtype), jnp.asarray(w * width / 2, dtype)
 
 
-def cumulative_lengths(coefficients: Array, parts: int) -> Array:
-    """Arc length from the start to every sub-interval break, (S·parts + 1,), from 0."""
+def cumulative_lengths(coefficients: Array, parts: int, count: Array | None = None) -> Array:
+    """Arc length from the start to every sub-interval break, (S·parts + 1,), from 0.
+
+    `count`: how many pieces are the curve's (int scalar, may be traced), the others padding
+    of zero length (`None`: all)."""
     nodes, weights = _gauss(parts, coefficients.dtype)
     derivative = jnp.einsum(
         "kqd,sdc->skqc", monomials(nodes, coefficients.shape[-2] - 1, 1), coefficients
     )
     lengths = jnp.linalg.norm(derivative, axis=-1) @ weights
+    if count is not None:
+        lengths = jnp.where(jnp.arange(lengths.shape[0])[:, None] < count, lengths, 0)
     return jnp.concatenate([jnp.zeros((1,), coefficients.dtype), jnp.cumsum(lengths.reshape(-1))])
 
 
@@ -79,25 +84,28 @@ def _partial(coefficients: Array, a: Array, u: Array) -> Array:
     return (u - a) * dot(jnp.asarray(w / 2, u.dtype), speed)
 
 
-def locate(cumulative: Array, s: Array) -> Array:
-    """Index `j` of the sub-interval with `σ_j ≤ s ≤ σ_{j+1}` (clamped to the valid range)."""
+def locate(cumulative: Array, s: Array, end: Array | int | None = None) -> Array:
+    """Index `j` of the sub-interval with `σ_j ≤ s ≤ σ_{j+1}` (clamped to the valid range,
+    below the last break `end`: the sub-intervals after it are padding)."""
     j = jnp.searchsorted(cumulative, s, side="right", method="compare_all") - 1
-    return jnp.clip(j, 0, cumulative.shape[0] - 2)
+    end = cumulative.shape[0] - 1 if end is None else end
+    return jnp.clip(j, 0, end - 1)
 
 
-def inverse(coefficients: Array, cumulative: Array, parts: int, s: Array):
+def inverse(coefficients: Array, cumulative: Array, parts: int, s: Array, end=None):
     """The piece `i` and local parameter `u ∈ [−1, 1]` with `s(u) = s`, for `s ∈ [0, σ_M]`.
 
     **Arguments:** `coefficients` (S, d+1, 3) and `cumulative` (S·parts + 1,) from
     `cumulative_lengths` (both live: gradients flow through the final step); `parts`: static
-    sub-intervals per piece; `s`: scalar.
+    sub-intervals per piece; `s`: scalar; `end`: optional index of the last break of the
+    curve (int scalar; the pieces after it are padding).
 
     **Returns:** `(i, u, j)`: piece index, local parameter (differentiable), sub-interval index.
     """
     fixed_coefficients, fixed_cumulative, s_fixed = jax.lax.stop_gradient(
         (coefficients, cumulative, s)
     )
-    j = locate(fixed_cumulative, s_fixed)
+    j = locate(fixed_cumulative, s_fixed, end)
     i = j // parts
     a = -1 + 2 * (j % parts).astype(s.dtype) / parts
     b = a + 2.0 / parts

@@ -3,10 +3,12 @@
 from __future__ import annotations
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike
 
+from .._batching.buckets import bucket, pad_batch
 from .._checks import as_float_array, check_points, is_concrete
 from .parametric import MAX_DEGREE, AbstractParametricSpine, check_subdivisions, static_sizes
 
@@ -114,8 +116,9 @@ class BSpline(AbstractParametricSpine):
             if is_concrete(points):
                 p = np.asarray(points, np.float64)
                 evaluate = lambda t: _de_boor(p, u, self.degree, t)  # noqa: E731
+        padded = bucket(count, CONTROL_POINTS_BUCKET) - self.degree  # pieces of `_bucketed`
         self.subdivisions, self.samples = static_sizes(
-            evaluate, breaks, len(self.spans), subdivisions, "control_points"
+            evaluate, breaks, len(self.spans), subdivisions, "control_points", padded
         )
 
     @property
@@ -123,10 +126,68 @@ class BSpline(AbstractParametricSpine):
         return self.degree
 
     def _piece_values(self, x):
-        spans = np.asarray(self.spans)[:, None]
-        a, b = self.knots[spans], self.knots[spans + 1]
-        t = a + (b - a) * jnp.asarray((x + 1) / 2, a.dtype)
-        return _de_boor(self.control_points, self.knots, self.degree, t, spans)
+        return _span_values(self, np.asarray(self.spans), x)
+
+    def _bucketed(self) -> PaddedBSpline:
+        """This spline with its arrays padded to a bucket of control-point counts
+        (`CONTROL_POINTS_BUCKET·2^k` or `1.5·…`, `_batching.buckets`): the eager entry points
+        compile once per bucket, not once per count.
+
+        Control points and knots are padded with copies of their last row, and the list of
+        knot spans (now an array) with copies of the last span: the padded pieces repeat the
+        last one, and the `Tables` mark them as padding (zero length, never located), so the
+        padded rows are never read and results and gradients are those of `self`."""
+        size = bucket(self.control_points.shape[0], CONTROL_POINTS_BUCKET)
+        spans = np.asarray(self.spans + (self.spans[-1],) * (size - self.degree - len(self.spans)))
+        return PaddedBSpline(self, size, spans)
+
+
+CONTROL_POINTS_BUCKET = 8  # B-splines pad to 8, 12, 16, 24, 32, … control points
+
+
+class PaddedBSpline(AbstractParametricSpine):
+    """A `BSpline` whose arrays are padded to a bucket size (`BSpline._bucketed`); internal.
+
+    **Fields:** `control_points` (N, 3) and `knots` (N + degree + 1,), their last rows copies;
+    `spans`: (N − degree,) int, the knot span of each piece, the last ones copies; `pieces`:
+    int scalar, how many pieces are the curve's; the static `degree`, `subdivisions` and
+    `samples` of the spline.
+    """
+
+    control_points: Array
+    knots: Array
+    spans: Array
+    pieces: Array
+    degree: int = eqx.field(static=True)
+    subdivisions: int = eqx.field(static=True)
+    samples: int = eqx.field(static=True)
+
+    def __init__(self, spline: BSpline, size: int, spans: np.ndarray):
+        self.control_points = pad_batch(spline.control_points, size)
+        self.knots = pad_batch(spline.knots, size + spline.degree + 1)
+        self.spans = jax.device_put(spans.astype(np.int32))
+        self.pieces = jax.device_put(np.int32(len(spline.spans)))
+        self.degree, self.subdivisions = spline.degree, spline.subdivisions
+        self.samples = spline.samples
+
+    @property
+    def piece_degree(self) -> int:
+        return self.degree
+
+    def _piece_values(self, x):
+        return _span_values(self, self.spans, x)
+
+    def _piece_count(self) -> Array:
+        return self.pieces
+
+
+def _span_values(spline: BSpline | PaddedBSpline, spans, x) -> Array:
+    """The curve at local parameters `x` (m,) of the pieces on knot spans `spans` (S,):
+    (S, m, 3)."""
+    spans = spans[:, None]
+    a, b = spline.knots[spans], spline.knots[spans + 1]
+    t = a + (b - a) * jnp.asarray((x + 1) / 2, a.dtype)
+    return _de_boor(spline.control_points, spline.knots, spline.degree, t, spans)
 
 
 def _de_boor(points, knots, degree: int, t, span=None):
@@ -141,7 +202,7 @@ def _de_boor(points, knots, degree: int, t, span=None):
     count = points.shape[0]
     if span is None:
         span = np.clip(np.searchsorted(knots, t, side="right") - 1, degree, count - 1)
-    span = np.broadcast_to(span, np.shape(t))[..., None]
+    span = (np if isinstance(span, np.ndarray) else jnp).broadcast_to(span, np.shape(t))[..., None]
     window = knots[span - degree + 1 + np.arange(2 * degree)]
     local = points[span - degree + np.arange(degree + 1)]
     left = [None] + [t - window[..., degree - j] for j in range(1, degree + 1)]

@@ -27,6 +27,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array
 
+from .._batching.buckets import bucket
 from .._numerics import dot, safe_divide
 from . import arclength
 from .double_reflection import double_reflection, propagate
@@ -57,6 +58,11 @@ class AbstractParametricSpine(AbstractTabulatedSpine):
         values = self._piece_values(x)
         return jnp.einsum("kq,sqc->skc", jnp.asarray(fit, values.dtype), values)
 
+    def _piece_count(self) -> Array | None:
+        """How many of the pieces are the curve's, the others padding after them (a dynamic
+        int: see `_bucketed`); `None` (the default) when every piece is."""
+        return None
+
     def _prepare(self) -> PreparedSpine:
         return PreparedSpine(_tables(self), EVALUATORS, self.samples)
 
@@ -78,12 +84,16 @@ class Tables(eqx.Module):
 
     **Fields:** `coefficients` (S, d+1, 3) of the pieces; `cumulative` (M+1,) arc length at the
     sub-interval breaks; `nodes`: positions, tangents, curvature vectors and double-reflection
-    normals at the breaks, each (M+1, 3); `parts`: static sub-intervals per piece.
+    normals at the breaks, each (M+1, 3); `end`: int scalar, the index of the curve's last
+    break (`M`, or less when the last pieces are padding: their sub-intervals have zero length
+    and their nodes repeat the last break, so that nothing is ever located in them); `parts`:
+    static sub-intervals per piece.
     """
 
     coefficients: Array
     cumulative: Array
     nodes: tuple[Array, Array, Array, Array]
+    end: Array
     parts: int = eqx.field(static=True)
 
 
@@ -91,18 +101,26 @@ def tables(spine: AbstractParametricSpine) -> Tables:
     """The `Tables` of `spine` (differentiable in its parameters)."""
     coefficients = spine._coefficients()
     parts = spine.subdivisions
-    cumulative = arclength.cumulative_lengths(coefficients, parts)
+    count = spine._piece_count()
+    pieces = coefficients.shape[0] if count is None else count
+    cumulative = arclength.cumulative_lengths(coefficients, parts, count)
     # Frame nodes: the sub-interval breaks, at static local parameters of every piece.
     x = jnp.asarray(np.linspace(-1.0, 1.0, parts + 1)[:-1], coefficients.dtype)
     (c, t, k), _ = jax.vmap(lambda a: _jet_of(a, x))(coefficients)
-    last, _ = _jet_of(coefficients[-1], jnp.ones((), coefficients.dtype))
-    c, t, k = (jnp.concatenate([v.reshape(-1, 3), e[None]]) for v, e in zip((c, t, k), last))
+    last, _ = _jet_of(coefficients[pieces - 1], jnp.ones((), coefficients.dtype))
+    end = jnp.asarray(pieces * parts, jnp.int32)
+    beyond = (jnp.arange(c.shape[0] * parts + 1) >= end)[:, None]
+    # The last break, and padding's nodes, are the curve's end: zero steps for the frames.
+    c, t, k = (
+        jnp.where(beyond, e, jnp.concatenate([v.reshape(-1, 3), e[None]]))
+        for v, e in zip((c, t, k), last)
+    )
     normals = propagate(c, t, k, initial_normal(t[0]), "double_reflection")
-    return Tables(coefficients, cumulative, (c, t, k, normals), parts)
+    return Tables(coefficients, cumulative, (c, t, k, normals), end, parts)
 
 
 def _locate(tab: Tables, s: Array):
-    i, u, j = arclength.inverse(tab.coefficients, tab.cumulative, tab.parts, s)
+    i, u, j = arclength.inverse(tab.coefficients, tab.cumulative, tab.parts, s, tab.end)
     return i, u, j
 
 
@@ -115,7 +133,7 @@ def jets_at(tab: Tables, s):
     """Jets at `s` and at both ends."""
     i, u, _ = _locate(tab, s)
     a = tab.coefficients
-    ends = [(a[0], -jnp.ones_like(s)), (a[-1], jnp.ones_like(s))]
+    ends = [(a[0], -jnp.ones_like(s)), (a[tab.end // tab.parts - 1], jnp.ones_like(s))]
     return [_jet_of(p, v)[0] for p, v in [(a[i], u)] + ends]
 
 
@@ -125,7 +143,7 @@ def evaluate_at(tab: Tables, s):
     jet = _jet_of(tab.coefficients[i], u)[0]
     c, t, k, normals = tab.nodes
     normal = double_reflection(c[j], t[j], normals[j], jet[0], jet[1], k[j])
-    ends = [((c[e], t[e], k[e]), (normals[e], jnp.cross(t[e], normals[e]))) for e in (0, -1)]
+    ends = [((c[e], t[e], k[e]), (normals[e], jnp.cross(t[e], normals[e]))) for e in (0, tab.end)]
     return [(jet, (normal, jnp.cross(jet[1], normal)))] + ends
 
 
@@ -148,20 +166,27 @@ def _tables(spine):
     return tables(spine)
 
 
-def static_sizes(point_np, span_breaks, spans: int, subdivisions: int | None, name: str):
+def static_sizes(
+    point_np, span_breaks, spans: int, subdivisions: int | None, name: str, padded: int = 0
+):
     """`(subdivisions, samples)` for a parametric spine, and a check that it never stops.
 
     `point_np` evaluates the curve on a NumPy array of parameters, (G,) → (G, 3), or is `None`
     when the curve is traced (then nothing is checked); `span_breaks`: the (S+1,) span ends
-    (`None` if traced); `spans`: S. Frame nodes are
+    (`None` if traced); `spans`: S; `padded`: the pieces of the spine padded to its bucket
+    (`_bucketed`), when it pads, so that spines padded alike search alike. Frame nodes are
     placed at `RMF_NODES_PER_RADIAN` per radian of the most-turning span (at least 8 per span,
     at most 512), and closest-point samples at 32 per radian of total turning (at least 128, and
-    16 per span). Traced curves (built inside `jit` from traced parameters) get 16 subdivisions
-    and `max(256, 64 · spans)` samples. Raises `ValueError` naming `name` where a concrete curve
-    stops (zero speed: a cusp).
+    16 per span, padded ones included). Traced curves (built inside `jit` from traced
+    parameters) get 16 subdivisions and `max(256, 64 · spans)` samples. Both counts are
+    rounded up to the sizes of `_batching.buckets` (`8·2^k` or `12·2^k` subdivisions,
+    `128·2^k` or `192·2^k` samples), so that spines of similar turning share their compiled
+    programs. Raises `ValueError` naming `name` where a concrete curve stops (zero speed: a
+    cusp).
     """
+    pieces = max(spans, padded)
     if point_np is None:
-        return (16 if subdivisions is None else subdivisions), max(256, 64 * spans)
+        return (16 if subdivisions is None else subdivisions), bucket(max(256, 64 * pieces), 128)
     breaks = np.asarray(span_breaks, dtype=np.float64)
     fractions = np.arange(64) / 64
     grid = (breaks[:-1, None] + np.diff(breaks)[:, None] * fractions).reshape(-1)
@@ -187,8 +212,9 @@ def static_sizes(point_np, span_breaks, spans: int, subdivisions: int | None, na
     turning = np.concatenate([[0.0], np.arccos(cosines)]).reshape(spans, 64).sum(axis=-1)
     if subdivisions is None:
         subdivisions = int(np.clip(np.ceil(RMF_NODES_PER_RADIAN * turning.max()), 8, 512))
-    samples = int(np.clip(32 * turning.sum(), max(128, 16 * spans), 8192))
-    return subdivisions, samples
+        subdivisions = bucket(subdivisions, 8)  # (more is only more accurate)
+    samples = int(np.clip(32 * turning.sum(), max(128, 16 * pieces), 8192))
+    return subdivisions, bucket(samples, 128)
 
 
 MAX_SUBDIVISIONS = 4096  # 8× the most the turning ever asks for: beyond, only memory grows

@@ -21,16 +21,19 @@ polylines; the smooth spines (`BSpline`, `InterpolatingPolynomial`) are exact.
 from __future__ import annotations
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike
 
+from .._batching.buckets import bucket, pad_batch
 from .._checks import check_points, is_concrete
 from .._numerics import dot, norm, safe_divide, safe_sqrt
 from .double_reflection import propagate, reflect_twice
 from .spine import AbstractTabulatedSpine, Evaluators, PreparedSpine, initial_normal
 
 MAX_EDGES = 1_000_000  # a bound on memory (spine files are untrusted input)
+EDGES_BUCKET = 8  # polylines pad to 8, 12, 16, 24, … points and edges (`_bucketed`)
 
 
 class Polyline(AbstractTabulatedSpine):
@@ -87,52 +90,110 @@ class Polyline(AbstractTabulatedSpine):
         if concrete:
             cosines = np.clip(np.sum(units[1:] * units[:-1], axis=-1), -1, 1)
             turning = float(np.sum(np.arccos(cosines)))
-        self.samples = int(np.clip(max(128, 4 * self.edges, 32 * turning), 128, 16384))
-
-    def _vertices(self) -> Array:
-        """The resampled vertices, (edges + 1, 3)."""
-        p = self.points
-        lengths = jnp.linalg.norm(jnp.diff(p, axis=0), axis=-1)
-        cumulative = jnp.concatenate([jnp.zeros((1,), p.dtype), jnp.cumsum(lengths)])
-        fractions = np.linspace(0.0, 1.0, self.edges + 1)[1:-1]
-        targets = jnp.asarray(fractions, p.dtype) * cumulative[-1]
-        k = jnp.clip(jnp.searchsorted(cumulative, targets, side="right") - 1, 0, p.shape[0] - 2)
-        a = (targets - cumulative[k]) / lengths[k]
-        inner = p[k] + a[:, None] * (p[k + 1] - p[k])
-        return jnp.concatenate([p[:1], inner, p[-1:]])
-
-    def _table(self):
-        """Vertices, cumulative arc lengths, edge directions and vertex tangents."""
-        v = self._vertices()
-        edges = jnp.diff(v, axis=0)
-        lengths = jnp.linalg.norm(edges, axis=-1)
-        units = edges / lengths[:, None]
-        cumulative = jnp.concatenate([jnp.zeros((1,), v.dtype), jnp.cumsum(lengths)])
-        inner = units[1:] + units[:-1]
-        inner = inner / jnp.linalg.norm(inner, axis=-1, keepdims=True)
-        if self.edges == 1:
-            tangents = jnp.concatenate([units, units])
-        else:  # ends: the next vertex tangent reflected about the end edge (exact on circles)
-            first = 2 * dot(units[0], inner[0]) * units[0] - inner[0]
-            last = 2 * dot(units[-1], inner[-1]) * units[-1] - inner[-1]
-            tangents = jnp.concatenate([first[None], inner, last[None]])
-        return v, cumulative, lengths, units, tangents
+        # (4 per edge of `_bucketed`: polylines padded alike search alike.)
+        edges = bucket(self.edges, EDGES_BUCKET)
+        self.samples = bucket(int(np.clip(max(128, 4 * edges, 32 * turning), 128, 16384)), 128)
 
     def _prepare(self) -> PreparedSpine:
-        return PreparedSpine(_tables(self), EVALUATORS, self.samples, tabulable=False)
+        tables = _tables(self.points, self.points.shape[0], self.edges, self.edges)
+        return PreparedSpine(tables, EVALUATORS, self.samples, tabulable=False)
 
     def default_samples(self) -> int:
         return self.samples
 
     def vertices(self) -> Array:
         """The resampled vertices `C[k]`, (edges + 1, 3)."""
-        return self._vertices()
+        return _resample(self.points, self.points.shape[0], self.edges, self.edges)
+
+    def _bucketed(self) -> PaddedPolyline:
+        """This polyline with its input points and its resampled vertices padded to buckets of
+        counts (`8·2^k` or `12·2^k`, `_batching.buckets`): the eager entry points compile once
+        per bucket. The padding repeats the last vertex (zero-length edges, never located) and
+        leaves results and gradients those of `self`."""
+        return PaddedPolyline(self)
+
+
+class PaddedPolyline(AbstractTabulatedSpine):
+    """A `Polyline` whose arrays are padded to bucket sizes (`Polyline._bucketed`); internal.
+
+    **Fields:** `points` (N, 3), the last rows copies; `count`, `edges`: int scalars, the
+    polyline's input points and resampled edges; static `total` (≥ `edges`: edges in the
+    tables, the last ones of zero length) and `samples`.
+    """
+
+    points: Array
+    count: Array
+    edges: Array
+    total: int = eqx.field(static=True)
+    samples: int = eqx.field(static=True)
+
+    def __init__(self, polyline: Polyline):
+        self.points = pad_batch(polyline.points, bucket(polyline.points.shape[0], EDGES_BUCKET))
+        self.count = jax.device_put(np.int32(polyline.points.shape[0]))
+        self.edges = jax.device_put(np.int32(polyline.edges))
+        self.total, self.samples = bucket(polyline.edges, EDGES_BUCKET), polyline.samples
+
+    def _prepare(self) -> PreparedSpine:
+        tables = _tables(self.points, self.count, self.edges, self.total)
+        return PreparedSpine(tables, EVALUATORS, self.samples, tabulable=False)
+
+    def default_samples(self) -> int:
+        return self.samples
+
+
+def _resample(points: Array, count, edges, total: int) -> Array:
+    """Vertices at `edges` equal steps of arc length along the first `count` of `points`, and
+    copies of the last one up to `total` edges: (total + 1, 3). `count` and `edges` are ints
+    or int scalars (padded polylines); the rows of `points` after `count` are copies."""
+    p = points
+    steps = jnp.diff(p, axis=0)
+    lengths = safe_sqrt(dot(steps, steps))  # (padding: zero, with a zero derivative)
+    cumulative = jnp.concatenate([jnp.zeros((1,), p.dtype), jnp.cumsum(lengths)])
+    index = np.arange(1, total)
+    inner = index < edges  # the other vertices are padding: any target, then replaced
+    fractions = jnp.where(inner, jnp.asarray(index, p.dtype) / jnp.asarray(edges, p.dtype), 0.5)
+    targets = fractions * cumulative[-1]
+    k = jnp.clip(jnp.searchsorted(cumulative, targets, side="right") - 1, 0, count - 2)
+    a = (targets - cumulative[k]) / lengths[k]
+    last = p[count - 1]
+    middle = jnp.where(inner[:, None], p[k] + a[:, None] * (p[k + 1] - p[k]), last)
+    return jnp.concatenate([p[:1], middle, last[None]])
+
+
+@eqx.filter_jit
+def _tables(points, count, edges, total: int):
+    """The polyline table: vertices, cumulative arc lengths, edge lengths and directions,
+    vertex tangents, the double-reflection normals at the vertices, and `edges`.
+
+    Padded tables (`edges < total`) end in zero-length edges at the last vertex, with its
+    tangent: nothing is located on them, and the frames stand still along them."""
+    v = _resample(points, count, edges, total)
+    steps = jnp.diff(v, axis=0)
+    lengths = safe_sqrt(dot(steps, steps))
+    real = np.arange(total) < edges
+    units = steps / jnp.where(real, lengths, 1)[:, None]  # (padding: zero, never used)
+    cumulative = jnp.concatenate([jnp.zeros((1,), v.dtype), jnp.cumsum(lengths)])
+    if total == 1:
+        tangents = jnp.concatenate([units, units])
+    else:  # ends: the next vertex tangent reflected about the end edge (exact on circles)
+        bisector = jnp.where(real[1:, None], units[1:] + units[:-1], 1)
+        inner = bisector / jnp.linalg.norm(bisector, axis=-1, keepdims=True)
+        first = 2 * dot(units[0], inner[0]) * units[0] - inner[0]
+        e0, e1 = units[edges - 1], inner[jnp.maximum(edges - 2, 0)]
+        last = 2 * dot(e0, e1) * e0 - e1
+        # One edge (a padded polyline of one edge): both ends take its direction.
+        first, last = (jnp.where(edges == 1, units[0], t) for t in (first, last))
+        tangents = jnp.concatenate([first[None], inner, last[None]])
+        tangents = jnp.where((np.arange(total + 1) >= edges)[:, None], last, tangents)
+    zeros = jnp.zeros_like(v)
+    normals = propagate(v, tangents, zeros, initial_normal(tangents[0]), "double_reflection")
+    return v, cumulative, lengths, units, tangents, normals, edges
 
 
 def _on_edge(table, s):
     """Edge index, position, `T(s)` and `k(s) = dT/ds` at `s ∈ [0, length]`."""
-    v, cumulative, lengths, units, tangents, *_ = table
-    k = jnp.clip(jnp.searchsorted(cumulative, s, side="right") - 1, 0, lengths.shape[0] - 1)
+    v, cumulative, lengths, units, tangents, _, edges = table
+    k = jnp.clip(jnp.searchsorted(cumulative, s, side="right") - 1, 0, edges - 1)
     a = (s - cumulative[k]) / lengths[k]
     position = v[k] + a * lengths[k] * units[k]
     blend = (1 - a) * tangents[k] + a * tangents[k + 1]
@@ -143,18 +204,9 @@ def _on_edge(table, s):
     return k, (position, tangent, curvature)
 
 
-@eqx.filter_jit
-def _tables(spine):
-    """The polyline table and the double-reflection normals at its vertices."""
-    v, cumulative, lengths, units, tangents = spine._table()
-    zeros = jnp.zeros_like(v)
-    normals = propagate(v, tangents, zeros, initial_normal(tangents[0]), "double_reflection")
-    return v, cumulative, lengths, units, tangents, normals
-
-
 def _evaluate(tab, s):
     """Jet and normals at `s`, and at both ends (the anchors of the continuations)."""
-    v, cumulative, lengths, units, tangents, normals = tab
+    v, cumulative, lengths, units, tangents, normals, _ = tab
     out = []
     for e in (s, jnp.zeros_like(s), cumulative[-1]):
         k, jet = _on_edge(tab, e)
@@ -165,10 +217,12 @@ def _evaluate(tab, s):
 
 def _torsion(tab, s):
     """Discrete torsion: the turn of the vertex binormals about the edge, per unit length."""
-    v, cumulative, lengths, units, *_ = tab
-    k = jnp.clip(jnp.searchsorted(cumulative, s, side="right") - 1, 0, lengths.shape[0] - 1)
+    v, cumulative, lengths, units, *_, edges = tab
+    if units.shape[0] == 1:  # one edge: no interior vertex, no turn
+        return jnp.zeros_like(cumulative[0] * s)
+    k = jnp.clip(jnp.searchsorted(cumulative, s, side="right") - 1, 0, edges - 1)
     binormals = jnp.cross(units[:-1], units[1:])  # at interior vertices 1 … edges − 1
-    inside = (k >= 1) & (k <= lengths.shape[0] - 2)
+    inside = (k >= 1) & (k <= edges - 2)
     b0 = binormals[jnp.clip(k - 1, 0, binormals.shape[0] - 1)]
     b1 = binormals[jnp.clip(k, 0, binormals.shape[0] - 1)]
     sin = dot(jnp.cross(b0, b1), units[k])

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import abc
 from collections.abc import Callable
-from typing import NamedTuple
+from typing import TYPE_CHECKING, NamedTuple
 
 import equinox as eqx
 import jax
@@ -82,7 +82,11 @@ class AbstractSpine(eqx.Module):
     the spine continues along its osculating circle there.
     """
 
-    length: eqx.AbstractVar[Array]
+    if TYPE_CHECKING:  # (a field or a property of each subclass)
+        # Not an `eqx.AbstractVar` at run time: under `from __future__ import annotations`
+        # equinox takes it for a field, and checks it after `__init__` by reading it, so that
+        # a tabulated spine computed its tables (and compiled them for its size) when built.
+        length: Array
 
     @abc.abstractmethod
     def _jet(self, s: Array) -> tuple[Array, Array, Array]:
@@ -110,6 +114,12 @@ class AbstractSpine(eqx.Module):
 
     def _prepare(self) -> AbstractSpine:
         """An equivalent spine for many evaluations in one trace (tables computed once)."""
+        return self
+
+    def _bucketed(self) -> AbstractSpine:
+        """An equivalent spine whose compiled programs serve every spine of its bucket: its
+        arrays padded to a few sizes, so that the eager entry points do not compile once per
+        control-point count (`_batching.buckets`). Spines of a fixed size return themselves."""
         return self
 
     def _anchor_jets(self, s: Array) -> list:
