@@ -209,3 +209,25 @@ def test_spines_of_one_bucket_reuse_the_programs(traces, monkeypatch):
     np.testing.assert_array_equal(posed[0][1], valid)
     assert np.mean(valid) > 0.9
     np.testing.assert_allclose(posed[0][0], images, rtol=0, atol=1e-13)
+
+
+def test_fits_of_one_bucket_share_their_solve(traces):
+    # `fit_spine` pads the clouds with weightless copies: clouds of 70 … 96 points (one
+    # bucket) compile one solve; each fit recovers the bend, with (n,) flags.
+    source, truth, guess = fj.Line(2.0), fj.Arc(1.5, 2.0), fj.Arc(4.0, 2.0)
+    points = _points(96)
+    target, _ = fj.flesh(points, source, truth)
+    fits = {}
+    for n in (70, 83, 96):
+        fits[n] = fj.fit_spine(source, guess, points[:n], target[:n])
+        if n == 70:
+            traces.clear()
+    assert traces["solve"] == 0, f"fits of one bucket traced the solve again: {dict(traces)}"
+    for n, fit in fits.items():
+        assert fit.converged and fit.valid.shape == (n,) and fit.num_invalid == 0
+        assert float(fit.rms) < 1e-8
+        np.testing.assert_allclose(fit.spine.radius, 1.5, atol=1e-8)
+    # Weightless padding: the same fit as weighting the copies out by hand at the bucket size.
+    weights = np.r_[np.ones(70), np.zeros(26)]
+    padded = fj.fit_spine(source, guess, points, target, weights=weights)
+    np.testing.assert_allclose(padded.spine.radius, fits[70].spine.radius, rtol=0, atol=1e-12)

@@ -12,11 +12,13 @@ from __future__ import annotations
 from collections.abc import Callable, Sequence
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 import numpy as np
 import optimistix as optx
 from jaxtyping import Array, ArrayLike
 
+from .._batching.buckets import bucket, pad_batch, unpad_batch
 from .._fleshing.projection import Registration
 from .problem import (
     AbstractPoseProblem,
@@ -154,6 +156,13 @@ def fit_spine(
     dtype = source.dtype
     target = check_cloud(target, "target").astype(dtype)
     weights = _check_weights(weights, source.shape[0], dtype)
+    # Padded to a bucket of sizes (`_batching.buckets`): copies of the last point with weight
+    # 0 add no residual and no gradient, and fits of clouds of similar sizes share one
+    # compiled solve instead of compiling one per point count.
+    n = source.shape[0]
+    size = bucket(n)
+    source, target = pad_batch((source, target), size)
+    weights = jax.device_put(np.pad(np.asarray(weights), (0, size - n)))
     setup = prepare(
         source_spine,
         init,
@@ -175,7 +184,8 @@ def fit_spine(
     )
     if solver is None:
         solver = default_solver("least_squares", dtype, rtol, atol)
-    return fit(problem, solver, setup.y0, max_steps, throw)
+    result = fit(problem, solver, setup.y0, max_steps, throw)
+    return eqx.tree_at(lambda r: r.valid, result, unpad_batch(result.valid, n))
 
 
 def _check_weights(weights, n: int, dtype) -> Array:
