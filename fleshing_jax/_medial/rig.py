@@ -246,8 +246,9 @@ class MedialRig(eqx.Module):
         self.rotation_spheres, self.rotation_weights = i_(idx), f_(weights)
         self.valid = jnp.asarray(b.valid)
         self.cones, self.medial_faces = i_(b.cones), i_(mfaces)
-        self.correction = Correction(i_(b.field_cones), i_(b.field_slabs), f_(b.iso),
-                                     f_(b.width), i_(table), f_(table_weights), f_(laplacian))
+        self.correction = Correction(i_(b.field_cones), i_(b.edge_cones), i_(b.field_slabs),
+                                     i_(b.edge_slots), f_(b.iso), f_(b.width), i_(table),
+                                     f_(table_weights), f_(laplacian))
         self.faces = i_(f)
         self.n_spheres = len(centers)
         self.newton_steps, self.relax_iterations = int(newton_steps), int(relax_iterations)
