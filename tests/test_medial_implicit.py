@@ -11,6 +11,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from jax.test_util import check_grads
 
 from fleshing_jax._medial import implicit
 from fleshing_jax._medial.implicit import (
@@ -149,3 +150,17 @@ def test_rest_and_rigid_poses_of_a_sheet(sheet):
                        jnp.asarray(np.broadcast_to(rotation, (len(CENTERS), 3, 3))))
     x, _ = rig.pose(posed)
     assert float(jnp.abs(x - (points @ rotation.T + shift)).max()) <= 1e-4
+
+
+def test_gradients_through_slabs_match_finite_differences(sheet):
+    points, medial, rig = sheet
+    weights = jnp.asarray(np.random.default_rng(3).normal(size=points.shape))
+    rotations = jnp.broadcast_to(jnp.eye(3), (len(CENTERS), 3, 3))
+
+    def loss(centers):
+        return jnp.sum(weights * rig.pose(MedialPose(medial, centers, rotations))[0])
+
+    centers = jnp.asarray(CENTERS + np.random.default_rng(4).normal(scale=0.05,
+                                                                      size=CENTERS.shape))
+    assert np.isfinite(np.asarray(jax.grad(loss)(centers))).all()
+    check_grads(loss, (centers,), order=1, modes=["rev"])

@@ -82,18 +82,23 @@ def cone_field(p: Float[Array, " 3"], cone: Cones) -> tuple[Array, Array]:
 
 
 class Slabs(eqx.Module):
-    """Per-slab quantities of a posed envelope, each `(F, ...)`: first centre, two edge
-    vectors, inverse Gram matrix `(g22, −g12, g11)/det`, centres' plane normal `m`, in-plane
-    part `a` and `γ` of the tangent planes' normals `a ± γ m`, first radius, and whether the
-    slab has tangent planes."""
+    """Per-slab quantities of a posed envelope, each `(F, ...)`: first centre `c0`, centres'
+    plane normal `m`, in-plane part `a` and `γ` (and `1/γ`) of the tangent planes' normals
+    `a ± γ m`, the rows `p1`, `p2` that map `d = x − c0` in the centres' plane to its
+    barycentric coordinates over the edges `c1 − c0`, `c2 − c0` (the inverse Gram matrix
+    applied to them), `k1 = a·p1`, `k2 = a·p2`, first radius, and whether the slab has
+    tangent planes. Everything that depends on the slab alone is computed here once per pose
+    rather than once per (vertex, candidate)."""
 
     c0: Array
-    e1: Array
-    e2: Array
-    gram_inv: Array
     m: Array
     a: Array
     gamma: Array
+    inv_gamma: Array
+    p1: Array
+    p2: Array
+    k1: Array
+    k2: Array
     r0: Array
     ok: Array
 
@@ -113,8 +118,11 @@ def slab_table(centers: Array, radii: Array, faces: Int[Array, "F 3"]) -> Slabs:
     a = alpha[:, None] * e1 + beta[:, None] * e2
     gamma2 = 1 - dot(a, a)
     ok = ok & (gamma2 > 1e-6)
-    gram_inv = safe_divide(jnp.stack([g22, -g12, g11], 1), jnp.where(ok, det, 0)[:, None])
-    return Slabs(c0, e1, e2, gram_inv, m, a, safe_sqrt(gamma2), r0, ok)
+    det = jnp.where(ok, det, 0)[:, None]
+    p1 = safe_divide(g22[:, None] * e1 - g12[:, None] * e2, det)
+    p2 = safe_divide(g11[:, None] * e2 - g12[:, None] * e1, det)
+    gamma = safe_sqrt(gamma2)
+    return Slabs(c0, m, a, gamma, safe_divide(1, gamma), p1, p2, dot(a, p1), dot(a, p2), r0, ok)
 
 
 def slab_field(p: Float[Array, " 3"], slab: Slabs, edge_values: Float[Array, " 3"],
@@ -124,15 +132,19 @@ def slab_field(p: Float[Array, " 3"], slab: Slabs, edge_values: Float[Array, " 3
     evaluates them, once per vertex even where several candidates share them): the tangent
     plane's where the foot of `p` is in the triangle of centres, else the nearest edge
     cone's (continuous across the boundary, and differentiable outside: the slab is
-    convex)."""
+    convex).
+
+    With `d = p − c0`, `h = d·m` and the tangent plane of `p`'s side, normal
+    `n = a + sign(h) γ m`: the foot along `n` is `d − (|h|/γ) n`, whose barycentric
+    coordinates are `d·p − (|h|/γ) a·p` (`m·p = 0`: `p1`, `p2` lie in the centres' plane),
+    and the plane's distance is `n·d − r0 = a·d + γ|h| − r0`."""
     d = p - slab.c0
     h = dot(d, slab.m)
-    n = slab.a + jnp.where(h >= 0, 1, -1) * slab.gamma * slab.m
-    w = d - safe_divide(jnp.abs(h), slab.gamma) * n
-    w1, w2 = dot(w, slab.e1), dot(w, slab.e2)
-    g = slab.gram_inv
-    b1, b2 = g[0] * w1 + g[1] * w2, g[1] * w1 + g[2] * w2
+    q = jnp.abs(h) * slab.inv_gamma
+    b1 = dot(d, slab.p1) - q * slab.k1
+    b2 = dot(d, slab.p2) - q * slab.k2
     inside = slab.ok & (b1 >= 0) & (b2 >= 0) & (b1 + b2 <= 1)
+    n = slab.a + jnp.where(h >= 0, slab.gamma, -slab.gamma) * slab.m
     # The nearest edge (the first on ties) by selects: a reduction over an axis of length 3
     # is slower on XLA's CPU backend.
     edge_value, edge_grad = edge_values[0], edge_grads[0]
@@ -140,7 +152,7 @@ def slab_field(p: Float[Array, " 3"], slab: Slabs, edge_values: Float[Array, " 3
         nearer = edge_values[k] < edge_value
         edge_value = jnp.where(nearer, edge_values[k], edge_value)
         edge_grad = jnp.where(nearer, edge_grads[k], edge_grad)
-    return (jnp.where(inside, dot(n, d) - slab.r0, edge_value),
+    return (jnp.where(inside, dot(d, slab.a) + slab.gamma * jnp.abs(h) - slab.r0, edge_value),
             jnp.where(inside, n, edge_grad))
 
 
