@@ -39,7 +39,7 @@ def sheet():
     medial = MedialMesh(CENTERS, RADII, EDGES, FACES)
     rng = np.random.default_rng(0)
     points = rng.uniform([-0.5, -0.5, -0.6], [3.4, 1.6, 0.8], size=(300, 3))
-    return points, medial, MedialRig(points, medial)
+    return points, medial, MedialRig(points, medial, field_slabs=2)
 
 
 @jax.jit

@@ -162,7 +162,7 @@ def _nearest_k(pts, prim, dist, n_points, k, fallback):
     return out
 
 
-def bind(points, centers, radii, edges, faces, *, field_cones=4, field_slabs=2,
+def bind(points, centers, radii, edges, faces, *, field_cones=4, field_slabs=1,
          max_distance=None, blend=0.1) -> Binding:
     """Binds `points` (N, 3) to the medial mesh `(centers, radii, edges, faces)` (NumPy
     float64 / int64). See the module docstring; **returns** a `Binding`."""
