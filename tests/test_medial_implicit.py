@@ -4,7 +4,8 @@ evaluating every candidate's own primitives in place; the blocked evaluation and
 NumPy rest iso-values agree with it; rest and rigid poses are kept.
 
 A small sheet of three slabs with a cone hanging off it, 300 points around it (a point
-cloud: no faces, so no relaxation), so that the file runs in a few seconds.
+cloud: no faces, so no relaxation) bound with two slab candidates each (more shared edges
+than the default one), so that the file runs in a few seconds.
 """
 
 import jax
