@@ -35,9 +35,11 @@ class Binding(NamedTuple):
     weights 0); `offset`: (N, 3) `p − c(β)`; `distance`: (N,) signed distance to the nearest
     primitive's envelope; `valid`: (N,); `cones`: (C, 2) the segment table (edges, then lone
     spheres as `(i, i)`); `field_cones` (N, kc) and `field_slabs` (N, ks): each vertex's
-    field candidates (indices into `cones` and the medial faces); `iso`: (N,) the field of
-    the rest envelope at the rest vertex over those candidates; `width`: (N,) the smooth
-    union's width there (`blend` times the footprint radius)."""
+    field candidates (indices into `cones` and the medial faces); `edge_cones` (N, e) and
+    `edge_slots` (N, ks, 3): the cones its slabs need as edges beyond its cone candidates,
+    and where each slab's edges are in `field_cones ++ edge_cones` (`distinct_edges`);
+    `iso`: (N,) the field of the rest envelope at the rest vertex over those candidates;
+    `width`: (N,) the smooth union's width there (`blend` times the footprint radius)."""
 
     spheres: np.ndarray
     beta: np.ndarray
@@ -47,6 +49,8 @@ class Binding(NamedTuple):
     cones: np.ndarray
     field_cones: np.ndarray
     field_slabs: np.ndarray
+    edge_cones: np.ndarray
+    edge_slots: np.ndarray
     iso: np.ndarray
     width: np.ndarray
 
@@ -158,7 +162,7 @@ def _nearest_k(pts, prim, dist, n_points, k, fallback):
     return out
 
 
-def bind(points, centers, radii, edges, faces, *, field_cones=4, field_slabs=2,
+def bind(points, centers, radii, edges, faces, *, field_cones=4, field_slabs=1,
          max_distance=None, blend=0.1) -> Binding:
     """Binds `points` (N, 3) to the medial mesh `(centers, radii, edges, faces)` (NumPy
     float64 / int64). See the module docstring; **returns** a `Binding`."""
@@ -287,8 +291,45 @@ def bind(points, centers, radii, edges, faces, *, field_cones=4, field_slabs=2,
     fs = fs if len(faces) else fs[:, :0]
     width = blend * np.maximum((beta * radii[spheres]).sum(1), 1e-3 * float(radii.max()) + 1e-12)
     iso = rest_field(p_all, seg, slabs, slab_edges, fc, fs, width)
+    edge_cones, edge_slots = distinct_edges(fc, fs, faces, cones)
     return Binding(spheres, beta, offset, np.where(valid, distance, 0.0), valid, cones,
-                   fc, fs, np.where(valid, iso, 0.0), width)
+                   fc, fs, edge_cones, edge_slots, np.where(valid, iso, 0.0), width)
+
+
+def distinct_edges(field_cones, field_slabs, faces, cones):
+    """The cones each point's slab candidates need as edges and are not among its cone
+    candidates, so that the field evaluates each distinct cone once per point.
+
+    **Arguments:** `field_cones (M, kc)`, `field_slabs (M, ks)` the candidates; `faces (F,
+    3)` the medial faces, whose edges `(i, j), (j, k), (i, k)` are all in `cones (C, 2)`
+    (either orientation; `MedialMesh` checks it).
+
+    **Returns:** `(edge_cones (M, e), edge_slots (M, ks, 3))`: the further cones (in order of
+    first need, rows padded with their first cone candidate, `e` the most any point needs)
+    and, for each slab edge, its column in `field_cones ++ edge_cones`."""
+    m, kc = field_cones.shape
+    ks = field_slabs.shape[1]
+    if ks == 0:
+        return np.zeros((m, 0), np.int64), np.zeros((m, 0, 3), np.int64)
+    n = np.int64(max(faces.max(), cones.max()) + 1)
+    keys = np.sort(cones, axis=1) @ np.array([n, 1])
+    order = np.argsort(keys)
+    pairs = np.sort(faces[:, [[0, 1], [1, 2], [0, 2]]], axis=2) @ np.array([n, 1])
+    face_cones = order[np.searchsorted(keys, pairs, sorter=order)]  # (F, 3)
+    need = np.concatenate([field_cones, face_cones[field_slabs].reshape(m, 3 * ks)], 1)
+    # Each entry's first occurrence in its row; the entries past the cone candidates that
+    # are their own first occurrence are the further cones, numbered in order.
+    first = np.argmax(need[:, :, None] == need[:, None, :], axis=2)
+    new = first == np.arange(need.shape[1])
+    new[:, :kc] = False
+    rank = np.cumsum(new, axis=1) - 1
+    e = int(new.sum(1).max())
+    edge_cones = np.repeat(field_cones[:, :1], e, axis=1)
+    rows, cols = np.nonzero(new)
+    edge_cones[rows, rank[rows, cols]] = need[rows, cols]
+    at = np.take_along_axis(rank, first, axis=1)
+    slots = np.where(first < kc, first, kc + at)
+    return edge_cones, slots[:, kc:].reshape(m, ks, 3)
 
 
 def rest_field(points, seg, slabs, slab_edges, field_cones, field_slabs, width):

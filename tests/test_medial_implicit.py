@@ -1,0 +1,167 @@
+"""The implicit correction's field on a medial mesh with slabs: each distinct cone evaluated
+once per vertex (the slabs read their edges' fields by slot) gives the same field as
+evaluating every candidate's own primitives in place; the blocked evaluation and the
+NumPy rest iso-values agree with it; rest and rigid poses are kept.
+
+A small sheet of three slabs with a cone hanging off it, 300 points around it (a point
+cloud: no faces, so no relaxation) bound with two slab candidates each (more shared edges
+than the default one), so that the file runs in a few seconds.
+"""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from jax.test_util import check_grads
+
+from fleshing_jax._medial import implicit
+from fleshing_jax._medial.implicit import (
+    cone_field,
+    cone_table,
+    correct,
+    field,
+    slab_field,
+    slab_table,
+    smooth_union,
+)
+from fleshing_jax._medial.medial_mesh import MedialMesh
+from fleshing_jax._medial.pose import MedialPose
+from fleshing_jax._medial.rig import MedialRig
+
+CENTERS = np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0.2], [2, 0.5, 0], [3, 0.5, 0.3]])
+RADII = np.array([0.3, 0.4, 0.35, 0.45, 0.3, 0.25])
+FACES = np.array([[0, 1, 2], [1, 3, 2], [1, 4, 3]])
+# Every face edge, in both orientations among them, and a cone off the sheet.
+EDGES = np.array([[0, 1], [2, 1], [0, 2], [1, 3], [3, 2], [4, 1], [3, 4], [4, 5]])
+
+
+@pytest.fixture(scope="module")
+def sheet():
+    medial = MedialMesh(CENTERS, RADII, EDGES, FACES)
+    rng = np.random.default_rng(0)
+    points = rng.uniform([-0.5, -0.5, -0.6], [3.4, 1.6, 0.8], size=(300, 3))
+    return points, medial, MedialRig(points, medial, field_slabs=2)
+
+
+@jax.jit
+def reference_field(points, centers, radii, cones, data):
+    """The field of `implicit.field` evaluated in place: every cone candidate, and every slab
+    candidate with its own three edge cones (in the face's orientation), folded in order."""
+    cone_tab = cone_table(centers, radii, cones)
+    slab_tab = slab_table(centers, radii, jnp.asarray(FACES))
+    edge_tab = cone_table(centers, radii, jnp.asarray(FACES)[:, jnp.array(
+        [[0, 1], [1, 2], [0, 2]])].reshape(-1, 2))
+
+    def one(p, width, ic, js):
+        def at(table, i):
+            return cone_field(p, jax.tree.map(lambda a: a[i], table))
+
+        out = [at(cone_tab, i) for i in ic]
+        for j in js:
+            edges = [at(edge_tab, 3 * j + a) for a in range(3)]
+            out.append(slab_field(p, jax.tree.map(lambda a: a[j], slab_tab),
+                                  jnp.stack([v for v, _ in edges]),
+                                  jnp.stack([g for _, g in edges])))
+        value, grad = out[0]
+        for v, g in out[1:]:
+            value, grad = smooth_union(value, grad, v, g, width)
+        return value, grad
+
+    return jax.vmap(one)(points, data.width, data.field_cones, data.field_slabs)
+
+
+@jax.jit
+def shared_field(points, centers, radii, cones, data):
+    """`implicit.field` as `correct` calls it: distinct cones once, slab edges by slot."""
+    cone_tab = cone_table(centers, radii, cones)
+    slab_tab = slab_table(centers, radii, jnp.asarray(FACES))
+
+    def one(p, width, ic, ie, js, slots):
+        def rows(table, i):
+            return jax.tree.map(lambda a: a[i], table)
+
+        return field(p, width, rows(cone_tab, ic), rows(cone_tab, ie), rows(slab_tab, js),
+                     slots)
+
+    d = data
+    return jax.vmap(one)(points, d.width, d.field_cones, d.edge_cones, d.field_slabs,
+                         d.edge_slots)
+
+
+def test_slab_edges_are_shared_with_the_cone_candidates(sheet):
+    _, _, rig = sheet
+    d = rig.correction
+    e, ks = d.edge_cones.shape[1], d.field_slabs.shape[1]
+    assert ks == 2 and e < 3 * ks  # fewer cone evaluations than kc + 3 ks per vertex
+    # Every slot names a cone on the same two spheres as the slab's edge.
+    needed = np.concatenate([np.asarray(d.field_cones), np.asarray(d.edge_cones)], 1)
+    cones = np.sort(np.asarray(rig.cones), axis=1)
+    at = np.take_along_axis(needed, np.asarray(d.edge_slots).reshape(len(needed), -1), 1)
+    edges = np.sort(FACES[:, [[0, 1], [1, 2], [0, 2]]], axis=2)[np.asarray(d.field_slabs)]
+    np.testing.assert_array_equal(cones[at], edges.reshape(len(needed), -1, 2))
+
+
+def test_shared_edges_give_the_field_evaluated_in_place(sheet):
+    points, medial, rig = sheet
+    rng = np.random.default_rng(1)
+    args = (jnp.asarray(points + rng.normal(scale=0.05, size=points.shape)),
+            jnp.asarray(CENTERS + rng.normal(scale=0.1, size=CENTERS.shape)),
+            rig.radii, rig.cones, rig.correction)
+    value, grad = shared_field(*args)
+    ref_value, ref_grad = reference_field(*args)
+    np.testing.assert_allclose(value, ref_value, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(grad, ref_grad, rtol=0, atol=1e-12)
+    # At rest, the NumPy iso-values of the binding are this field.
+    rest, _ = shared_field(jnp.asarray(points), rig.rest_centers, rig.radii, rig.cones,
+                           rig.correction)
+    np.testing.assert_allclose(rig.correction.iso, rest, rtol=0, atol=1e-12)
+
+
+def test_blocks_do_not_mix_vertices(sheet, monkeypatch):
+    # 300 vertices in blocks of 128 (two blocks and a remainder) or in one block.
+    points, _, rig = sheet
+    rng = np.random.default_rng(2)
+    centers = jnp.asarray(CENTERS + rng.normal(scale=0.1, size=CENTERS.shape))
+    skinned = jnp.asarray(points + rng.normal(scale=0.05, size=points.shape))
+
+    def run():  # traced anew at each call (a new function), so with the current BLOCK
+        return jax.jit(lambda: correct(
+            skinned, jnp.broadcast_to(jnp.eye(3), (len(points), 3, 3)), centers, rig.radii,
+            rig.cones, rig.medial_faces, rig.correction, newton_steps=2, relax_iterations=0,
+            relax_step=0.5, contact_angle=55.0))()
+
+    monkeypatch.setattr(implicit, "BLOCK", 128)
+    blocked, contact = run()
+    monkeypatch.setattr(implicit, "BLOCK", 1024)
+    whole, whole_contact = run()
+    np.testing.assert_allclose(blocked, whole, rtol=0, atol=1e-12)
+    np.testing.assert_array_equal(contact, whole_contact)
+    assert float(jnp.abs(whole - skinned).max()) > 1e-3  # the correction did move them
+
+
+def test_rest_and_rigid_poses_of_a_sheet(sheet):
+    points, medial, rig = sheet
+    x, valid = rig.pose(MedialPose.rest(medial))
+    assert bool(valid.all())
+    assert float(jnp.abs(x - points).max()) <= 1e-6 * float(np.ptp(points, axis=0).max())
+    c, s = np.cos(0.7), np.sin(0.7)
+    rotation = np.array([[c, 0, s], [0, 1, 0], [-s, 0, c]])
+    shift = np.array([0.3, -1.0, 0.5])
+    posed = MedialPose(medial, jnp.asarray(CENTERS @ rotation.T + shift),
+                       jnp.asarray(np.broadcast_to(rotation, (len(CENTERS), 3, 3))))
+    x, _ = rig.pose(posed)
+    assert float(jnp.abs(x - (points @ rotation.T + shift)).max()) <= 1e-4
+
+
+def test_gradients_through_slabs_match_finite_differences(sheet):
+    points, medial, rig = sheet
+    weights = jnp.asarray(np.random.default_rng(3).normal(size=points.shape))
+    rotations = jnp.broadcast_to(jnp.eye(3), (len(CENTERS), 3, 3))
+
+    def loss(centers):
+        return jnp.sum(weights * rig.pose(MedialPose(medial, centers, rotations))[0])
+
+    centers = jnp.asarray(CENTERS + np.random.default_rng(4).normal(scale=0.05,
+                                                                      size=CENTERS.shape))
+    assert np.isfinite(np.asarray(jax.grad(loss)(centers))).all()
+    check_grads(loss, (centers,), order=1, modes=["rev"])
