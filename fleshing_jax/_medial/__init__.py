@@ -8,7 +8,8 @@ Imports the shared helpers and the subsystems below it (`_spines`, `_fleshing`, 
 Modules, one concept each. The medial mesh (NumPy/SciPy preprocessing): `surface`
 (closed-mesh checks, samples, exact closest points and signs), `voronoi` (the initial medial
 axis: inner Voronoi complex of the samples), `simplify` (Q-MAT's sphere-quadric edge
-collapses), `construct` (`medial_mesh`), `medial_mesh` (`MedialMesh`), `primitives`
+collapses), `refine` (the spheres fitted to the surface after the collapses: our own
+addition), `construct` (`medial_mesh`), `medial_mesh` (`MedialMesh`), `primitives`
 (closed-form distances to spheres, cones, slabs and their union), `envelope` (surface nets of
 the union), `distance` (`medial_distance`), `files` (`.ma` files), `figure` (`plot_medial`),
 `rest_spine` (a Fleshing rest spine along the medial graph's longest path).

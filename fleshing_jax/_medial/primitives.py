@@ -45,6 +45,12 @@ class _Cones:
 
     def distance(self, p, i):
         """Signed distances of points `p` (M, 3) to cones `i` (M,)."""
+        return self.closest(p, i)[0]
+
+    def closest(self, p, i):
+        """Signed distances of points `p` (M, 3) to cones `i` (M,), and the fraction `t`
+        (M,) along the cone (0 at `c0`, 1 at `c1`) of the interpolated sphere that attains
+        them (the distance's derivatives with respect to the two spheres follow from it)."""
         c0, r0 = self.c0[i], self.r0[i]
         d0 = p - c0
         end0 = np.sqrt(_dot(d0, d0)) - r0
@@ -56,7 +62,10 @@ class _Cones:
         t = x - y * s / co
         lateral = np.where(self.proper[i] & (t >= 0) & (t <= length), x * s + y * co - r0,
                            np.inf)
-        return np.minimum(np.minimum(end0, end1), lateral)
+        ends = np.minimum(end0, end1)
+        fraction = np.where(lateral < ends, np.clip(t / length, 0, 1),
+                            np.where(end0 <= end1, 0.0, 1.0))
+        return np.minimum(ends, lateral), fraction
 
 
 class _Slabs:
@@ -76,6 +85,11 @@ class _Slabs:
     def distance(self, p, i):
         """Signed distances of `p` (M, 3) to the tangent-plane parts of slabs `i` (M,), `inf`
         where the minimiser is not inside the triangle."""
+        return self.closest(p, i)[0]
+
+    def closest(self, p, i):
+        """`distance`, and the barycentric coordinates `(M, 3)` of the interpolated sphere
+        that attains it (meaningless where the distance is `inf`)."""
         d = p - self.c0[i]
         m = self.m[i]
         height = _dot(d, m)
@@ -87,7 +101,8 @@ class _Slabs:
         b1 = gi[:, 0] * w1 + gi[:, 1] * w2
         b2 = gi[:, 1] * w1 + gi[:, 2] * w2
         inside = self.ok[i] & (b1 >= 0) & (b2 >= 0) & (b1 + b2 <= 1)
-        return np.where(inside, _dot(n, d) - self.r0[i], np.inf)
+        return (np.where(inside, _dot(n, d) - self.r0[i], np.inf),
+                np.stack([1 - b1 - b2, b1, b2], 1))
 
 
 def cone_distance(p, c0, r0, c1, r1):
@@ -141,6 +156,46 @@ def bounding_spheres(centers, radii, edges, faces):
     return kind.astype(np.int8), index.astype(np.int64), centre, radius
 
 
+class UnionPrimitives:
+    """The primitives of a medial mesh, for evaluating (point, primitive) pairs: the bounding
+    spheres of `bounding_spheres` (`kind`, `index`, `centre`, `radius`, one per primitive)
+    and the per-cone and per-slab quantities, computed once."""
+
+    def __init__(self, centers, radii, edges, faces):
+        self.centers, self.radii = centers, radii
+        self.edges, self.faces = edges, faces
+        self.kind, self.index, self.centre, self.radius = bounding_spheres(centers, radii,
+                                                                           edges, faces)
+        self.cones = _Cones(centers[edges[:, 0]], radii[edges[:, 0]], centers[edges[:, 1]],
+                            radii[edges[:, 1]])
+        self.slabs = _Slabs(*(x for k in range(3) for x in (centers[faces[:, k]],
+                                                             radii[faces[:, k]])))
+
+    def closest(self, p, prim):
+        """Signed distances `(M,)` of points `p (M, 3)` to primitives `prim (M,)` (indices
+        into the bounding spheres, **ascending**, so that each kind is one slice), the three
+        spheres `(M, 3)` each primitive interpolates and the weights `(M, 3)` of the
+        interpolated sphere that attains the distance (a sphere is itself with weight 1; a
+        cone's third entry has weight 0)."""
+        value = np.empty(len(p))
+        spheres = np.zeros((len(p), 3), dtype=np.int64)
+        weights = np.zeros((len(p), 3))
+        cut = np.searchsorted(self.kind[prim], [1, 2])
+        lone, cone, slab = slice(0, cut[0]), slice(cut[0], cut[1]), slice(cut[1], len(p))
+        j = self.index[prim[lone]]
+        value[lone] = np.linalg.norm(p[lone] - self.centers[j], axis=1) - self.radii[j]
+        spheres[lone] = j[:, None]
+        weights[lone, 0] = 1.0
+        i = self.index[prim[cone]]
+        value[cone], t = self.cones.closest(p[cone], i)
+        spheres[cone] = self.edges[i][:, [0, 1, 1]]
+        weights[cone, 0], weights[cone, 1] = 1 - t, t
+        i = self.index[prim[slab]]
+        value[slab], weights[slab] = self.slabs.closest(p[slab], i)
+        spheres[slab] = self.faces[i]
+        return value, spheres, weights
+
+
 def union_distance(points, centers, radii, edges, faces, *, cutoff: float, group: int = 64):
     """Signed distance of `points` (N, 3) to the union of a medial mesh's primitives.
 
@@ -154,15 +209,12 @@ def union_distance(points, centers, radii, edges, faces, *, cutoff: float, group
     out = np.full(len(points), float(cutoff))
     if len(points) == 0:
         return out
-    kind, index, centre, radius = bounding_spheres(centers, radii, edges, faces)
-    cones = _Cones(centers[edges[:, 0]], radii[edges[:, 0]], centers[edges[:, 1]],
-                   radii[edges[:, 1]])
-    slabs = _Slabs(*(x for k in range(3) for x in (centers[faces[:, k]], radii[faces[:, k]])))
+    union = UnionPrimitives(centers, radii, edges, faces)
     tree = cKDTree(points)
     # Primitives in groups, so that the (point, primitive) pairs of a group stay small.
-    for start in range(0, len(kind), group):
+    for start in range(0, len(union.kind), group):
         sl = slice(start, start + group)
-        lists = tree.query_ball_point(centre[sl], radius[sl] + cutoff)
+        lists = tree.query_ball_point(union.centre[sl], union.radius[sl] + cutoff)
         sizes = np.fromiter(map(len, lists), dtype=np.int64, count=len(lists))
         if sizes.sum() == 0:
             continue
@@ -170,12 +222,5 @@ def union_distance(points, centers, radii, edges, faces, *, cutoff: float, group
         prim = np.repeat(np.arange(start, start + len(lists)), sizes)
         open_ = out[pts] > -cutoff  # points already deep inside need nothing more
         pts, prim = pts[open_], prim[open_]
-        value = np.empty(len(pts))
-        k, i, p = kind[prim], index[prim], points[pts]
-        for code, evaluate in ((0, lambda q, j: np.linalg.norm(q - centers[j], axis=1)
-                                - radii[j]), (1, cones.distance), (2, slabs.distance)):
-            sel = k == code
-            if sel.any():
-                value[sel] = evaluate(p[sel], i[sel])
-        np.minimum.at(out, pts, value)
+        np.minimum.at(out, pts, union.closest(points[pts], prim)[0])
     return out

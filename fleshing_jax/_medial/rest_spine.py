@@ -41,7 +41,8 @@ def rest_spine(
     **Arguments:**
 
     - `mesh_or_medial`: a closed mesh (`trimesh.Trimesh` or `(vertices, faces)`, whose medial
-      mesh is computed with `medial_mesh(..., spheres=spheres, seed=seed)`) or a `MedialMesh`.
+      mesh is computed with `medial_mesh(..., spheres=spheres, seed=seed, refine=0)`) or a
+      `MedialMesh`.
     - `ends`: optional (2, 3) points: the spine runs between the spheres nearest to them
       (default: along the longest path of the medial graph).
     - `control_points`: of the B-spline (default: about one per two radii along the path,
@@ -61,7 +62,10 @@ def rest_spine(
         from .construct import medial_mesh
         from .surface import closed_mesh_arrays
 
-        medial = medial_mesh(mesh_or_medial, spheres=spheres, seed=seed, progress=False)
+        # No fit of the spheres (`refine=0`): a least-squares spline through the path
+        # smooths them anyway, and `deform` without `--from` stays as fast as before.
+        medial = medial_mesh(mesh_or_medial, spheres=spheres, seed=seed, refine=0,
+                             progress=False)
         surface = closed_mesh_arrays(mesh_or_medial)[0]
     centers, radii, edges, _ = medial.numpy()
     path = _medial_path(centers, radii, edges, _check_ends(ends))

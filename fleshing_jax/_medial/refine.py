@@ -1,0 +1,181 @@
+"""A last pass over a simplified medial mesh: its spheres fitted to the surface samples.
+
+Our own addition; Q-MAT (Li et al. 2015) stops at the edge collapses. Later works optimise
+the spheres of a medial mesh against the surface as well (MATFP, Coverage Axis++), each
+in its own way. Here the connectivity stays fixed and the centres and radii of all spheres
+minimise the squared signed distances of the surface samples to the union of spheres,
+cones and slabs, by damped Gauss-Newton (Levenberg-Marquardt) steps:
+
+- the signed distance of a point to a primitive is `min |p − c(w)| − r(w)` over the
+  spheres `(c(w), r(w))` interpolated linearly with weights `w` between the primitive's
+  spheres (`primitives`); by the envelope theorem its derivative with respect to sphere
+  `k` is `−w_k (u, 1)` with `u` the unit vector from `c(w)` to `p`, so each sample's row of
+  the Jacobian has at most 12 non-zeros and the normal equations are sparse;
+- a sample's distance to the union is that of its closest primitive (inside the union: the
+  deepest). Moving every sphere by at most `δ` (centre plus radius) changes every distance
+  by at most `δ`, so the (sample, primitive) pairs whose distance is within `2 margin` of
+  the sample's best stay the only candidates while no sphere has moved more than `margin`
+  since they were found: steps are clipped to that, and the candidates found again when a
+  step would leave it;
+- samples that the union misses pull its boundary out; samples inside it (a bulge) push the
+  primitive that covers them deepest back in;
+- points inside the shape are fitted too, to minus their depth, so that the union does not
+  open holes inside (whose boundary would be far from the surface);
+- and each sphere is kept inside the surface (`max(0, s(c) + r)`, `s` its signed distance):
+  without it, a sphere shrunk to radius 0 slid out of the bunny's ear, the tip of a needle
+  that holds too few samples for a least-squares fit to notice (envelope → surface 10 %).
+
+`medial_mesh` fits the samples the initial axis was built from, and centres of that axis.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import scipy.sparse as sparse
+import scipy.sparse.linalg as sparse_linalg
+from scipy.spatial import cKDTree
+
+from .primitives import UnionPrimitives
+from .surface import SurfaceQuery
+
+
+def _candidates(tree, points, union: UnionPrimitives, margin: float, reach: float):
+    """(sample, primitive) pairs within `2 margin` of each sample's smallest distance.
+    Every sample gets one: the search radius grows from `reach` until it does."""
+    best = np.full(len(points), np.inf)
+    found_pts, found_prim, found_val = [], [], []
+    todo = np.arange(len(points))
+    while len(todo):
+        sub = tree if len(todo) == len(points) else cKDTree(points[todo])
+        lists = sub.query_ball_point(union.centre, union.radius + reach)
+        sizes = np.fromiter(map(len, lists), dtype=np.int64, count=len(lists))
+        if sizes.sum():
+            pts = todo[np.concatenate([np.asarray(x, dtype=np.int64) for x in lists])]
+            prim = np.repeat(np.arange(len(lists)), sizes)
+            value = union.closest(points[pts], prim)[0]
+            np.minimum.at(best, pts, value)
+            found_pts.append(pts), found_prim.append(prim), found_val.append(value)
+        # A sample whose best is beyond `reach` may have a closer primitive not yet searched.
+        todo = todo[~(best[todo] <= reach)]
+        reach *= 4
+    pts, prim, value = (np.concatenate(x) for x in (found_pts, found_prim, found_val))
+    keep = value <= best[pts] + 2 * margin
+    order = np.argsort(prim[keep], kind="stable")  # `UnionPrimitives.closest` wants them so
+    return pts[keep][order], prim[keep][order]
+
+
+def _closest(points, pts, prim, union: UnionPrimitives):
+    """Each sample's distance to the union `(N,)`, and its closest primitive's spheres and
+    weights `(N, 3)`, from candidate pairs (every sample has one)."""
+    value, spheres, weights = union.closest(points[pts], prim)
+    best = np.full(len(points), np.inf)
+    np.minimum.at(best, pts, value)
+    # One attaining pair per sample: of several, the last in the pairs' order (NumPy's
+    # assignment with repeated indices keeps the last write), the same on every run.
+    hit = np.flatnonzero(value == best[pts])
+    pick = np.empty(len(points), dtype=np.int64)
+    pick[pts[hit]] = hit
+    return best, spheres[pick], weights[pick]
+
+
+def _jacobian(points, spheres, weights, params):
+    """Sparse Jacobian `(N, 4n)` of the samples' distances with respect to the spheres'
+    `(x, y, z, r)`: `−w_k (u, 1)` in the columns of sphere `k` (see the module's notes)."""
+    n = len(params)
+    foot = np.einsum("ij,ijk->ik", weights, params[spheres, :3])
+    u = points - foot
+    u /= np.maximum(np.linalg.norm(u, axis=1, keepdims=True), 1e-300)
+    rows = np.repeat(np.arange(len(points)), 12)
+    cols = (4 * spheres[:, :, None] + np.arange(4)).reshape(-1)
+    du = np.concatenate([u, np.ones((len(u), 1))], axis=1)
+    values = -(weights[:, :, None] * du[:, None, :]).reshape(-1)
+    return sparse.csr_matrix((values, (rows, cols)), shape=(len(points), 4 * n))
+
+
+def refine_spheres(points, targets, centers, radii, edges, faces, *, scale: float,
+                   surface: SurfaceQuery | None = None, iterations: int = 12,
+                   margin: float = 0.01):
+    """Fits the spheres of a medial mesh to surface samples, its connectivity fixed.
+
+    **Arguments:**
+
+    - `points`: `(N, 3)` samples: on the surface, and inside it (see `targets`).
+    - `targets`: `(N,)` their signed distances to the surface (0 on it, minus the depth
+      inside): the fit makes the union's signed distance match them.
+    - `centers (n, 3)`, `radii (n,)`, `edges (e, 2)`, `faces (f, 3)`: the medial mesh.
+    - `scale`: the mesh's bounding-box diagonal.
+    - `surface`: the closed mesh (`SurfaceQuery`); when given, every sphere is also kept
+      inside it (a penalty on `max(0, s(c) + r)`, `s` the signed distance to the surface).
+    - `iterations`: Levenberg-Marquardt steps taken (each accepted or damped further).
+    - `margin`: the largest move of a sphere (centre plus radius) before the candidate
+      primitives of each sample are searched again, in units of `scale`.
+
+    **Returns:** `(centers (n, 3), radii (n,))`, radii `>= 0`; never a worse fit (sum of
+    squared distances) than the input.
+    """
+    points = np.asarray(points, dtype=np.float64)
+    targets = np.asarray(targets, dtype=np.float64)
+    params = np.concatenate([centers, radii[:, None]], axis=1).astype(np.float64)
+    edges, faces = np.asarray(edges).reshape(-1, 2), np.asarray(faces).reshape(-1, 3)
+    margin = margin * scale
+    tree = cKDTree(points)
+    n = len(params)
+    # A sphere's containment weighs a tenth of its share of the samples: more (1, 10) kept
+    # the merged spheres, which overhang the surface a little by design, too small (the
+    # capped bunny at 50 spheres lost 2.5 % and 5.8 % of its volume).
+    contain_weight = np.sqrt(0.1 * len(points) / n)
+
+    def evaluate(params, pairs=None):
+        """Residuals and Jacobian of the samples, then of the spheres' containment."""
+        union = UnionPrimitives(params[:, :3], params[:, 3], edges, faces)
+        if pairs is None:
+            pairs = _candidates(tree, points, union, margin, 0.02 * scale)
+        value, spheres, weights = _closest(points, *pairs, union)
+        residual, jac = value - targets, _jacobian(points, spheres, weights, params)
+        if surface is not None:
+            # max(0, s(c) + r) with `s` the signed distance to the surface (its gradient
+            # the unit vector from the closest point, flipped inside).
+            distance, foot, inside = surface.query(params[:, :3], exact=False)
+            sign = np.where(inside, -1.0, 1.0)
+            out = np.maximum(sign * distance + params[:, 3], 0.0)
+            grad = sign[:, None] * (params[:, :3] - foot) / np.maximum(distance, 1e-300)[:, None]
+            rows = sparse.csr_matrix((np.concatenate([grad, np.ones((n, 1))], 1).reshape(-1)
+                                      * np.repeat(out > 0, 4),
+                                      (np.repeat(np.arange(n), 4), np.arange(4 * n))),
+                                     shape=(n, 4 * n))
+            residual = np.concatenate([residual, contain_weight * out])
+            jac = sparse.vstack([jac, contain_weight * rows]).tocsr()
+        return pairs, residual, jac
+
+    pairs, residual, jac = evaluate(params)
+    anchor = params
+    damping = 1e-3
+    for _ in range(iterations):
+        hessian = (jac.T @ jac).tocsc()
+        gradient = jac.T @ residual
+        diagonal = hessian.diagonal()
+        # Spheres that no sample sees keep still (a tiny ridge makes the system regular).
+        ridge = diagonal + 1e-9 * max(diagonal.max(), 1e-300)
+        current = np.sum(residual**2)
+        for _ in range(8):
+            step = -sparse_linalg.spsolve((hessian + sparse.diags(damping * ridge)).tocsc(),
+                                          gradient).reshape(-1, 4)
+            # No sphere moves by more than half of `margin` in one step, so that the
+            # candidates serve a few steps (see the module's notes).
+            move = np.linalg.norm(step[:, :3], axis=1) + np.abs(step[:, 3])
+            step *= np.minimum(1.0, margin / 2 / np.maximum(move, 1e-300))[:, None]
+            trial = params + step
+            trial[:, 3] = np.maximum(trial[:, 3], 0.0)
+            moved = np.linalg.norm(trial[:, :3] - anchor[:, :3], axis=1) + np.abs(
+                trial[:, 3] - anchor[:, 3])
+            if moved.max() > margin:  # outside the candidates' validity: search again here
+                pairs, anchor = evaluate(params)[0], params
+            _, t_residual, t_jac = evaluate(trial, pairs)
+            if np.sum(t_residual**2) < current:
+                params, residual, jac = trial, t_residual, t_jac
+                damping = max(damping / 3, 1e-7)
+                break
+            damping *= 4
+        else:
+            break  # no step along the damped directions helps: a (local) optimum
+    return params[:, :3], params[:, 3]
