@@ -169,10 +169,12 @@ class MedialRig(eqx.Module):
 
     Binding is NumPy/SciPy (measured on the shared, busy 2-core machine: 2.2–2.5 s for 30k
     vertices on spot's 200-sphere medial mesh with 338 slabs, 4.2–5.5 s for its 47k-vertex
-    mesh with faces, 2 s for a 111k-vertex capsule on a 200-sphere chain); the fields are JAX
-    arrays (float64 when x64 is on), cast to the pose's dtype by `pose`. `rig.pose` is
-    compiled (`eqx.filter_jit`, the rig's arrays traced); `jax.jit(rig.pose)` works too (the
-    rig hashes by identity; its arrays then become constants of the program).
+    mesh with faces, 2 s for a 111k-vertex capsule on a 200-sphere chain; on the idle machine,
+    30,722 capsule vertices: 3.8 s on 200 spheres with 373 slabs, 6.4 s on 300 with 986, the
+    medial meshes fitted by `medial_mesh`'s `refine`: binding grows with the slabs); the
+    fields are JAX arrays (float64 when x64 is on), cast to the pose's dtype by `pose`.
+    `rig.pose` is compiled (`eqx.filter_jit`, the rig's arrays traced); `jax.jit(rig.pose)`
+    works too (the rig hashes by identity; its arrays then become constants of the program).
     """
 
     rest_vertices: Float[Array, "n 3"]
