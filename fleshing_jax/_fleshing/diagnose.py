@@ -86,8 +86,13 @@ def _checks(registration, target, method, twist):
 def planar_bend(spine: AbstractSpine, angle: float) -> AbstractSpine:
     """The arc of `spine`'s length that starts as `spine` does and turns by `angle` (radians)
     towards its initial normal `I(0)` (a negative angle turns the other way; 0 is a line)."""
-    length = float(spine.length)
-    origin, tangent, normal = _start_frame(spine)
+    return _arc_from(_start_frame(spine), float(spine.length), angle)
+
+
+def _arc_from(start: tuple, length: float, angle: float) -> AbstractSpine:
+    """`planar_bend` from the spine's `_start_frame` and length (computed once per bisection:
+    the frame at 0 of a free-form spine is an eager evaluation of many small operations)."""
+    origin, tangent, normal = start
     if angle == 0:
         return Line(length, origin=origin, tangent=tangent)
     if angle < 0:
@@ -108,18 +113,20 @@ def largest_valid_bend(
     twist: ArrayLike = 0.0,
     check_projection: bool = True,
     sign: float = 1.0,
-    steps: int = 20,
+    steps: int = 16,
 ) -> float:
     """The largest angle (radians, ≤ 2π·(1 − 1e-6)) of `planar_bend(source, sign·angle)` for
-    which every point whose registration is valid stays valid, by bisection (`steps` poses).
+    which every point whose registration is valid stays valid, by bisection (`steps` poses;
+    16 bring the bracket below 0.006°, finer than the 0.01° that the command line prints).
 
     Validity is assumed monotone in the angle (true for the method limits and the reach of an
     arc, which tighten as it bends); 0 when no bend at all keeps them valid.
     """
     keep = np.asarray(registration.valid)
+    start, length = _start_frame(source), float(source.length)
 
     def all_valid(angle: float) -> bool:
-        target = planar_bend(source, sign * angle)
+        target = _arc_from(start, length, sign * angle)
         _, valid = pose(
             registration, target, method=method, twist=twist, check_projection=check_projection
         )
