@@ -194,3 +194,66 @@ def test_flesh_chunked_default_progress_bar(monkeypatch, capsys, small):
     assert "vertices" in capsys.readouterr().err
     expected = fj.deform_mesh(small, fj.Line(4.0), fj.Arc(1.6, 4.0))
     np.testing.assert_allclose(out, expected.vertices, atol=1e-12)
+
+
+def _prepared_in(monkeypatch):
+    """Records the thread each target preparation of `register_and_prepare` runs in."""
+    import threading
+
+    from fleshing_jax._mesh import overlap
+
+    threads = []
+
+    def recorded(*args, **kwargs):
+        threads.append(threading.get_ident())
+        return prepare_target(*args, **kwargs)
+
+    prepare_target = overlap.prepare_target
+    monkeypatch.setattr(overlap, "prepare_target", recorded)
+    return overlap.register_and_prepare, threads
+
+
+@pytest.mark.parametrize("dtype", [np.float64, np.float32])
+def test_target_prepared_beside_the_registration_poses_as_pose(small, monkeypatch, dtype):
+    # The target's preparation runs in a second thread (its compilation overlaps the
+    # registration's on a cold start); the pose is that of `register` then `pose`.
+    import threading
+
+    import jax.numpy as jnp
+
+    from fleshing_jax._fleshing.pipeline import pose_prepared
+
+    register_and_prepare, threads = _prepared_in(monkeypatch)
+    points = jnp.asarray(np.asarray(small.vertices), dtype)
+    registration, poser = register_and_prepare(points, SOURCE, TARGET, method="normal", twist=0.3)
+    assert threads and threads[0] != threading.get_ident()
+    out, ok = pose_prepared(registration, poser)
+    expected, valid = fj.pose(fj.register(points, SOURCE), TARGET, method="normal", twist=0.3)
+    assert out.dtype == dtype
+    np.testing.assert_array_equal(np.asarray(out), np.asarray(expected))
+    np.testing.assert_array_equal(np.asarray(ok), np.asarray(valid))
+
+
+def test_thread_local_precision_prepares_in_the_callers_thread(small, monkeypatch):
+    # `jax.enable_x64(False)` holds in this thread only: a second thread would prepare the
+    # target in float64 for float32 points, so the preparation stays in the caller's thread.
+    import threading
+
+    import jax
+    import jax.numpy as jnp
+
+    from fleshing_jax._mesh.deform import flesh_chunked
+
+    register_and_prepare, threads = _prepared_in(monkeypatch)
+    with jax.enable_x64(False):
+        points = jnp.asarray(np.asarray(small.vertices), np.float32)
+        registration, poser = register_and_prepare(points, SOURCE, TARGET)
+        assert threads == [threading.get_ident()]
+        assert poser.frames.twist.dtype == np.float32
+        out, _ = flesh_chunked(np.asarray(small.vertices, np.float32), SOURCE, TARGET)
+    assert out.dtype == np.float32 and len(threads) == 2
+
+
+def test_errors_of_the_preparation_reach_the_caller(small):
+    with pytest.raises(TypeError, match="`target` must be a spine"):
+        fj.deform_mesh(small, SOURCE, "arc")

@@ -325,10 +325,27 @@ def pose(
     """
     if not isinstance(registration, Registration):
         raise TypeError(f"`registration` must come from `register`, got {type(registration)}.")
+    options = dict(method=method, twist=twist, check_projection=check_projection)
+    return pose_prepared(registration, prepare_target(target, registration.points.dtype, **options))
+
+
+def prepare_target(
+    target: AbstractSpine,
+    dtype,
+    *,
+    method: str = "radial",
+    twist: ArrayLike = 0.0,
+    check_projection: bool = True,
+) -> Poser:
+    """`target` prepared once for posing points of `dtype` (`pose` = `pose_prepared` of this):
+    a compiled call of its own, which `_mesh.overlap` may run beside the registration."""
     _check_spine(target, "target")
-    dtype = registration.points.dtype
     target, twist = cast_floats((target, as_twist(twist, dtype)), dtype)
-    poser = _poser(target._bucketed(), check_method(method), twist, bool(check_projection))
+    return _poser(target._bucketed(), check_method(method), twist, bool(check_projection))
+
+
+def pose_prepared(registration: Registration, poser: Poser) -> tuple[Array, Array]:
+    """`pose` onto a target from `prepare_target` (with the registered points' dtype)."""
     if is_concrete(registration):  # called eagerly: the global check compiled only if needed
         n = registration.points.shape[0]  # and the batch padded to a bucket size
         return unpad_batch(pose_eagerly(poser, pad_batch(registration, bucket(n))), n)

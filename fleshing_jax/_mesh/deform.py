@@ -14,8 +14,9 @@ import trimesh
 
 from .._checks import as_points, as_twist
 from .._fleshing.methods import check_method
-from .._fleshing.pipeline import pose, register
+from .._fleshing.pipeline import pose_prepared, register
 from .._spines.spine import AbstractSpine
+from .overlap import register_and_prepare
 
 CHUNK_SIZE = 200_000
 PROGRESS_POINTS = 4_000_000
@@ -57,13 +58,19 @@ def flesh_chunked(
     deformed, valid = np.empty_like(points), np.zeros(n, dtype=bool)
     if progress is None and n >= PROGRESS_POINTS:
         progress = _progress_bar(n)
+    poser = None  # the target, prepared once for all chunks
     for start in range(0, n, size):
         chunk = points[start : start + size]
         m = len(chunk)
         if m < size:
             chunk = np.concatenate([chunk, np.repeat(chunk[:1], size - m, axis=0)])
-        registration = register(jnp.asarray(chunk), source)
-        out, ok = pose(registration, target, method=method, twist=twist)
+        chunk = jnp.asarray(chunk)
+        if poser is None:
+            options = dict(method=method, twist=twist)
+            registration, poser = register_and_prepare(chunk, source, target, **options)
+        else:
+            registration = register(chunk, source)
+        out, ok = pose_prepared(registration, poser)
         deformed[start : start + m] = np.asarray(out)[:m]
         valid[start : start + m] = np.asarray(ok)[:m]
         if progress is not None:
