@@ -26,8 +26,10 @@ def medial_mesh(mesh, spheres: int = 200, *, seed: int = 0, samples: int = 20_00
        our own change, see `simplify`), down to `spheres` (`simplify.simplify`).
     4. Our own addition: `refine` damped Gauss-Newton steps on all centres and radii, the
        connectivity fixed, fitting the union's signed distance to the samples (0) and to
-       a quarter as many centres of the initial axis (minus their radii), with every sphere
-       kept inside the surface (`refine.refine_spheres`).
+       a quarter as many centres of the initial axis (minus their radii), the samples
+       weighted towards the worst covered (an approximate `Σ |d|⁴`: the targets are
+       Hausdorff distances), with every sphere kept inside the surface
+       (`refine.refine_spheres`).
 
     Deterministic for a given `seed` (NumPy and SciPy only; no threads involved).
 
