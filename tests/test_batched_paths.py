@@ -310,3 +310,14 @@ def test_large_batches_flesh_in_blocks(monkeypatch, capsys):
     np.testing.assert_allclose(np.asarray(images), np.asarray(whole), rtol=0, atol=1e-6)
     assert images.dtype == jnp.float32 and not valid[3]
     assert "flesh" in capsys.readouterr().err  # the progress bar
+
+
+def test_closed_form_feet_need_no_reach_bounds():
+    # Lines and arcs are registered by their closed-form feet: their preparation builds no
+    # reach bounds (which only certify the searched feet of the other spines).
+    from fleshing_jax._fleshing.projection import Registrar
+
+    for spine in (fj.Line(2.0), fj.Arc(1.5, 3.0)):
+        assert Registrar(spine).reach is None
+    bounds = Registrar(fj.BSpline(np.array([[0, 0, 0], [1, 0.3, 0], [2, 0, 0.2], [3, 0, 0.0]])))
+    assert isinstance(bounds.reach, LocalReach)

@@ -201,7 +201,9 @@ class Registrar(eqx.Module):
     spine: AbstractSpine | SpineTable  # prepared, or tabulated in single precision
     exact: AbstractSpine  # prepared, gradients stopped: for a closed-form foot, if it has one
     search: _Search
-    reach: LocalReach
+    # The fast path's certificate; not built where the foot has a closed form (most of the
+    # preparation's compilation: a line's compiles 2.5× faster, an arc's 1.9×).
+    reach: LocalReach | None
 
     def __init__(self, spine: AbstractSpine, samples: int | None = None):
         samples = spine.default_samples() if samples is None else samples
@@ -209,7 +211,7 @@ class Registrar(eqx.Module):
         self.spine = fast_evaluator(spine)
         self.exact = jax.lax.stop_gradient(spine)
         self.search = _search(self.spine, samples)
-        self.reach = LocalReach(self.spine)
+        self.reach = None if spine._has_closed_form_foot() else LocalReach(self.spine)
 
     @property
     def fused(self) -> bool:

@@ -143,6 +143,10 @@ class AbstractSpine(eqx.Module):
         no closed form: the batched registration then searches (`_fleshing.projection`)."""
         return None
 
+    def _has_closed_form_foot(self) -> bool:
+        """Whether `_closest_start` has a closed form (static: the spine's type decides)."""
+        return type(self)._closest_start is not AbstractSpine._closest_start
+
     def _foot_terms(self, x: Array, s: Array) -> tuple[Array, Array, Array]:
         """What the closest-point search needs at `s` for a point `x` (3,): `(f, slope,
         distance)`, where `f = (C − x)·T` vanishes at a foot, `slope = f'(s) = 1 − k·(x − C)`
