@@ -319,5 +319,5 @@ def test_closed_form_feet_need_no_reach_bounds():
 
     for spine in (fj.Line(2.0), fj.Arc(1.5, 3.0)):
         assert Registrar(spine).reach is None
-    bounds = Registrar(fj.BSpline(np.array([[0, 0, 0], [1, 0.3, 0], [2, 0, 0.2], [3, 0, 0.0]])))
-    assert isinstance(bounds.reach, LocalReach)
+    curve = fj.BSpline(np.array([[0, 0, 0], [1, 0.3, 0], [2, 0, 0.2], [3, 0, 0.0]]), degree=3)
+    assert isinstance(Registrar(curve).reach, LocalReach)
