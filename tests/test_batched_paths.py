@@ -321,3 +321,34 @@ def test_closed_form_feet_need_no_reach_bounds():
         assert Registrar(spine).reach is None
     curve = fj.BSpline(np.array([[0, 0, 0], [1, 0.3, 0], [2, 0, 0.2], [3, 0, 0.0]]), degree=3)
     assert isinstance(Registrar(curve).reach, LocalReach)
+
+
+@pytest.mark.parametrize("dtype", [jnp.float64, jnp.float32])
+def test_projection_check_on_lines_and_arcs_equals_the_global_check(dtype):
+    # Onto lines and arcs, the batched pose checks each image by its closed-form foot (no
+    # reach bounds): the same flags and images as the one-point path, whose check is the
+    # global search, eagerly (two phases) and in one compiled program. The arcs bend a thick
+    # tube past their centres (images on the other side) and wrap more than a turn.
+    rng = np.random.default_rng(11)
+    n = 300
+    points = np.column_stack([rng.uniform(-0.5, 4.5, n), rng.uniform(-1.2, 1.2, (n, 2))])
+    source = fj.Line(4.0)
+    registration = fj.register(jnp.asarray(points, dtype), source)
+    arcs = (fj.Arc(0.9, 4.0), fj.Arc(0.5, 4.0, origin=(0, 0, 0.3)))
+    for target in (*arcs, fj.Line(4.0, tangent=(0, 1, 1))):
+        expected = jax.jit(jax.vmap(fj.Fleshing(source, target, method="skinning").apply))(
+            jnp.asarray(points, dtype)
+        )
+        eager = fj.pose(registration, target, method="skinning")
+        compiled = jax.jit(lambda r, t: fj.pose(r, t, method="skinning"))(registration, target)
+        for images, valid in (eager, compiled):
+            # (float32: within round-off of the tolerance, a flag may differ.)
+            assert np.mean(np.asarray(valid) != np.asarray(expected[1])) <= (
+                0 if dtype == jnp.float64 else 0.01
+            )
+            both = np.asarray(valid) & np.asarray(expected[1])
+            atol = 1e-9 if dtype == jnp.float64 else 1e-4
+            np.testing.assert_allclose(np.asarray(images)[both], np.asarray(expected[0])[both],
+                                       atol=atol)  # fmt: skip
+        if isinstance(target, fj.Arc):  # both verdicts are tested
+            assert 0.1 < float(jnp.mean(expected[1])) < 0.95, target

@@ -107,21 +107,27 @@ class Poser(eqx.Module):
     The projection check is certified on the way for the images closer to the target than the
     lower bound of its reach (`reach`); the few others are bent again and run the global
     search (`update_where`), so that the images are consumed once (by the output) and XLA
-    computes them in the same kernel as the frames they are made of.
+    computes them in the same kernel as the frames they are made of. Lines and arcs are
+    checked by their closed-form feet instead (`exact`), with no reach bounds to build (most of
+    the preparation's compilation); only the images whose foot is not unique (on an arc's
+    axis, or a turn away from a second candidate) run the global search.
     """
 
     frames: TargetFrames  # what the points are bent with
     target: AbstractSpine | SpineTable  # what the images are projected back on: `fast_evaluator`
     method: str = eqx.field(static=True)
     check_projection: bool = eqx.field(static=True)
-    reach: LocalReach | None  # for the projection check
+    reach: LocalReach | None  # for the projection check, without a closed-form foot
+    exact: AbstractSpine | None  # for the projection check, with one (gradients stopped)
 
     def __init__(self, target, method, twist, check_projection=True):
         self.target = fast_evaluator(target)
         # Tabulated from the spine table (its nodes are the table's, so no exact evaluation).
         self.frames = TargetFrames(self.target, twist, tabulate=tabulates(target))
         self.method, self.check_projection = method, check_projection
-        self.reach = LocalReach(self.target) if check_projection else None
+        closed = check_projection and target._has_closed_form_foot()
+        self.exact = jax.lax.stop_gradient(target._prepare()) if closed else None
+        self.reach = LocalReach(self.target) if check_projection and not closed else None
 
     @property
     def fused(self) -> bool:
@@ -131,33 +137,45 @@ class Poser(eqx.Module):
     def pose(self, registration: Registration) -> tuple[Array, Array]:
         """`pose_point` for a batch of registered points (`length` shared or repeated per
         point): `(images (n, 3), valid (n,))`."""
-        image, valid, certified = self._bend(registration)
+        image, valid, certified, pending = self._bend(registration)
         if self.check_projection:
-            valid = update_where(valid & ~certified, self._projects, certified, registration)
+            valid = update_where(pending, self._projects, certified, registration)
         return jnp.where(valid[:, None], image, registration.points), valid
 
     def pose_certified(self, registration: Registration) -> tuple[Array, Array, Array]:
         """`pose` without the global projection check: `(images, valid, pending)`, where the
         pending points (valid but not certified by the reach bound) have their image but are
         not valid yet, for `eager` to check them."""
-        image, valid, certified = self._bend(registration)
+        image, valid, certified, pending = self._bend(registration)
         kept = jnp.where(valid[:, None], image, registration.points)
-        return kept, certified, valid & ~certified
+        return kept, certified, pending
 
     def projects(self, registration: Registration) -> Array:
         """The global projection check of each registered point (n,), bent again."""
         return jax.vmap(self._projects, in_axes=(batch_axes(registration),))(registration)
 
-    def _bend(self, registration: Registration) -> tuple[Array, Array, Array]:
-        """`(images, valid, certified)`: valid before the projection check, and certified by
-        the reach bound (or valid, without the check)."""
+    def _bend(self, registration: Registration) -> tuple[Array, Array, Array, Array]:
+        """`(images, valid, certified, pending)`: valid before the projection check; certified
+        by the reach bound or the closed-form foot (or valid, without the check); pending: the
+        valid points that neither certifies nor rules out, for the global search."""
         image, valid, s1, distance = jax.vmap(
             lambda reg: bend_point(reg, self.frames, self.method),
             in_axes=(batch_axes(registration),),
         )(registration)
         if not self.check_projection:
-            return image, valid, valid
-        return image, valid, valid & (distance < jax.vmap(self.reach)(s1))
+            return image, valid, valid, jnp.zeros_like(valid)
+        if self.exact is None:
+            certified = valid & (distance < jax.vmap(self.reach)(s1))
+            return image, valid, certified, valid & ~certified
+        matches, unique = jax.vmap(self._foot_matches)(image, s1, distance)
+        return image, valid, valid & unique & matches, valid & ~unique
+
+    def _foot_matches(self, image: Array, s1: Array, distance: Array) -> tuple[Array, Array]:
+        """`(matches, unique)` for one image: its closed-form foot on the target is at `s₁`
+        (to `projects_back`'s tolerance), and that foot is the unique closest point."""
+        s, unique = self.exact._closest_start(image, self.frames.lo, self.frames.hi)
+        tol = relative_tolerance(image.dtype) * (self.frames.length + distance)
+        return jnp.abs(s - s1) <= tol, unique
 
     def _projects(self, reg: Registration) -> Array:
         image, _, s1, distance = bend_point(reg, self.frames, self.method)
