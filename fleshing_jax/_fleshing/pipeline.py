@@ -35,7 +35,7 @@ from .projection import (
     closest_arc_length,
     register_point,
 )
-from .reach import LocalReach
+from .reach import LocalReach, search_range
 from .target import TargetFrames
 
 
@@ -73,9 +73,19 @@ def bend_checks(
     return image, (reg.valid, unbent & bent, inside), s1, norm(d1)
 
 
-def projects_back(target: AbstractSpine, image: Array, s1: Array, distance: Array) -> Array:
-    """Whether `image` (3,) projects on `target` at `s₁` (the global reach test, one point)."""
-    back, converged = closest_arc_length(target, image)
+def projects_back(
+    target: AbstractSpine | SpineTable, image: Array, s1: Array, distance: Array
+) -> Array:
+    """Whether `image` (3,) projects on `target` at `s₁` (the global reach test, one point).
+
+    Lines and arcs answer by their closed-form foot: where it is not unique (an arc's axis, a
+    wrapped arc's two candidates a turn apart) the global search does not converge either.
+    """
+    if isinstance(target, AbstractSpine) and target._has_closed_form_foot():
+        lo, hi = search_range(target)
+        back, converged = target._closest_start(jax.lax.stop_gradient(image), lo, hi)
+    else:
+        back, converged = closest_arc_length(target, image)
     tol = relative_tolerance(image.dtype) * (target.length + distance)
     return converged & (jnp.abs(back - s1) <= tol)
 
@@ -108,9 +118,8 @@ class Poser(eqx.Module):
     lower bound of its reach (`reach`); the few others are bent again and run the global
     search (`update_where`), so that the images are consumed once (by the output) and XLA
     computes them in the same kernel as the frames they are made of. Lines and arcs are
-    checked by their closed-form feet instead (`exact`), with no reach bounds to build (most of
-    the preparation's compilation); only the images whose foot is not unique (on an arc's
-    axis, or a turn away from a second candidate) run the global search.
+    checked by their closed-form feet instead (`exact`, see `projects_back`): no reach bounds
+    to build (most of the preparation's compilation), and no global search.
     """
 
     frames: TargetFrames  # what the points are bent with
@@ -137,17 +146,17 @@ class Poser(eqx.Module):
     def pose(self, registration: Registration) -> tuple[Array, Array]:
         """`pose_point` for a batch of registered points (`length` shared or repeated per
         point): `(images (n, 3), valid (n,))`."""
-        image, valid, certified, pending = self._bend(registration)
-        if self.check_projection:
-            valid = update_where(pending, self._projects, certified, registration)
+        image, _, valid, pending = self._bend(registration)
+        if self.reach is not None:  # the global search, for the images left pending
+            valid = update_where(pending, self._projects, valid, registration)
         return jnp.where(valid[:, None], image, registration.points), valid
 
     def pose_certified(self, registration: Registration) -> tuple[Array, Array, Array]:
         """`pose` without the global projection check: `(images, valid, pending)`, where the
         pending points (valid but not certified by the reach bound) have their image but are
         not valid yet, for `eager` to check them."""
-        image, valid, certified, pending = self._bend(registration)
-        kept = jnp.where(valid[:, None], image, registration.points)
+        _, _, certified, pending = bent = self._bend(registration)
+        kept = jnp.where((certified | pending)[:, None], bent[0], registration.points)
         return kept, certified, pending
 
     def projects(self, registration: Registration) -> Array:
@@ -156,8 +165,8 @@ class Poser(eqx.Module):
 
     def _bend(self, registration: Registration) -> tuple[Array, Array, Array, Array]:
         """`(images, valid, certified, pending)`: valid before the projection check; certified
-        by the reach bound or the closed-form foot (or valid, without the check); pending: the
-        valid points that neither certifies nor rules out, for the global search."""
+        by the reach bound or checked by the closed-form foot (or valid, without the check);
+        pending: the valid points that the bound does not certify, for the global search."""
         image, valid, s1, distance = jax.vmap(
             lambda reg: bend_point(reg, self.frames, self.method),
             in_axes=(batch_axes(registration),),
@@ -167,15 +176,8 @@ class Poser(eqx.Module):
         if self.exact is None:
             certified = valid & (distance < jax.vmap(self.reach)(s1))
             return image, valid, certified, valid & ~certified
-        matches, unique = jax.vmap(self._foot_matches)(image, s1, distance)
-        return image, valid, valid & unique & matches, valid & ~unique
-
-    def _foot_matches(self, image: Array, s1: Array, distance: Array) -> tuple[Array, Array]:
-        """`(matches, unique)` for one image: its closed-form foot on the target is at `s₁`
-        (to `projects_back`'s tolerance), and that foot is the unique closest point."""
-        s, unique = self.exact._closest_start(image, self.frames.lo, self.frames.hi)
-        tol = relative_tolerance(image.dtype) * (self.frames.length + distance)
-        return jnp.abs(s - s1) <= tol, unique
+        checked = jax.vmap(lambda *a: projects_back(self.exact, *a))(image, s1, distance)
+        return image, valid, valid & checked, jnp.zeros_like(valid)
 
     def _projects(self, reg: Registration) -> Array:
         image, _, s1, distance = bend_point(reg, self.frames, self.method)
