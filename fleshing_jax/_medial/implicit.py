@@ -33,7 +33,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Float, Int
 
-from .._numerics import dot, norm, safe_divide, safe_sqrt
+from .._numerics import dot, norm, safe_divide, safe_sqrt, weighted_sum
 
 BLOCK = 1024  # vertices per block of the field's evaluation (see `correct`)
 
@@ -287,9 +287,11 @@ def correct(
     if data.ring is not None and relax_iterations:
         if g is None:
             _, g = evaluate(x)
-        delta = jnp.einsum("nij,nj->ni", rotations, data.laplacian)
+        # (Explicit sums of products, not `einsum` or `jnp.sum` over the short axes: see
+        # `weighted_sum`.)
+        delta = dot(rotations, data.laplacian[:, None, :])
         for _ in range(relax_iterations):
-            ring = jnp.sum(data.ring_weights[:, :, None] * x[data.ring], axis=1)
+            ring = jax.vmap(weighted_sum)(data.ring_weights, x[data.ring])
             move = ring + delta - x
             move = move - dot(move, g)[:, None] * g
             x = jnp.where(active[:, None], x + relax_step * move, x)
