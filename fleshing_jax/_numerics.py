@@ -24,6 +24,14 @@ def dot(a: Array, b: Array) -> Array:
     return sum(a[..., i] * b[..., i] for i in range(a.shape[-1]))
 
 
+def weighted_sum(weights: Array, rows: Array) -> Array:
+    """`Σ_k weights[k] · rows[k]` over the first axis of `rows` (`weights (K,)`, `rows (K,
+    ...)`), as an explicit sum of products: batched by `vmap`, `jnp.sum` over a short axis
+    becomes a reduction that XLA's CPU backend runs several times slower (see `dot`; measured
+    on the medial skin, `benchmarks/README.md`)."""
+    return sum(weights[k] * rows[k] for k in range(rows.shape[0]))
+
+
 def norm(a: Array) -> Array:
     """`|a|` over the last axis (see `dot`)."""
     return jnp.sqrt(dot(a, a))

@@ -26,7 +26,8 @@ from scipy.spatial import cKDTree
 
 from .primitives import _Cones, _Slabs
 
-CHUNK = 4096  # points per block of the (point, primitive) bound matrix
+CHUNK = 1024  # points per block of the (point, primitive) bound matrix
+PAIRS = 32768  # (point, primitive) pairs per block of distance evaluations
 
 
 class Binding(NamedTuple):
@@ -146,19 +147,58 @@ def _rank(points):
     return np.arange(len(points)) - np.repeat(starts, sizes)
 
 
-def _nearest_k(pts, prim, dist, n_points, k, fallback):
-    """The `k` nearest primitives per point from pairs `(pts, prim, dist)`; rows with fewer
-    repeat their nearest (duplicates do not change a minimum), `fallback` for none."""
+def _nearest_k(pts, prim, dist, n_points, k, fallback, bound):
+    """The `k` nearest primitives per point from pairs `(pts, prim, dist)`, each pair once
+    (ties: the lower primitive index), and their distances: `(n_points,
+    k)` each; rows with fewer repeat their nearest (duplicates do not change a minimum),
+    `fallback` (at distance `inf`) for none. `bound (n_points,)`: a distance that at least
+    `k` of each point's pairs do not exceed (pairs beyond it are skipped)."""
     out = np.full((n_points, k), fallback, dtype=np.int64)
+    out_d = np.full((n_points, k), np.inf)
     if k == 0 or len(pts) == 0:
-        return out
-    order = np.lexsort((dist, pts))
-    pts, prim = pts[order], prim[order]
+        return out, out_d
+    near = dist <= bound[pts]
+    pts, prim, dist = pts[near], prim[near], dist[near]
+    order = np.lexsort((prim, dist, pts))
+    pts, prim, dist = pts[order], prim[order], dist[order]
     rank = _rank(pts)
     first = rank == 0
     out[pts[first]] = prim[first][:, None]
+    out_d[pts[first]] = dist[first][:, None]
     keep = rank < k
     out[pts[keep], rank[keep]] = prim[keep]
+    out_d[pts[keep], rank[keep]] = dist[keep]
+    return out, out_d
+
+
+def _reachable(points, upper, near, b_centre, b_square, b_radius, margin):
+    """The (point, primitive) pairs `(i (P,), j (P,))`, in order of point then primitive,
+    whose bounding sphere (`b_centre`, `b_square = |b_centre|²`, `b_radius`) comes within
+    `upper (M,)` of `points (M, 3)`, except each point's `near (M, k)` primitives.
+
+    `|p − b| ≤ upper + radius` compared squared, `|p − b|²` expanded as a matrix product
+    (the (points, primitives, 3) differences would cost several times more), in place (the
+    same operations in the same order as the plain expression); `margin` covers its
+    rounding."""
+    square = points @ b_centre.T
+    square *= -2
+    square += (points * points).sum(1)[:, None]
+    square += b_square[None]
+    reach = upper[:, None] + b_radius[None]
+    reach += margin
+    np.maximum(reach, 0, out=reach)
+    reach *= reach
+    reach[np.arange(len(points))[:, None], near] = -1
+    return np.nonzero(square <= reach)
+
+
+def _in_blocks(distance, points, pts, prim):
+    """`distance(points[pts], prim)` over blocks of `PAIRS` pairs: the closed forms' (pairs,
+    3) temporaries then stay in cache (binding 300 spheres: these evaluations ~1.5× faster)."""
+    out = np.empty(len(pts))
+    for start in range(0, len(pts), PAIRS):
+        block = slice(start, start + PAIRS)
+        out[block] = distance(points[pts[block]], prim[block])
     return out
 
 
@@ -212,48 +252,39 @@ def bind(points, centers, radii, edges, faces, *, field_cones=4, field_slabs=1,
                                  near_s.reshape(-1)).reshape(m, ks)
         upper = np.minimum(upper, d_near_s.min(1))
 
+    # Per block of points (everything per pair stays in cache, nothing as long as all pairs
+    # is built): the pairs within reach, their distances, and the nearest cones and slabs of
+    # each point (ties: the lower index). Pairs farther than a distance already known `k`
+    # times over (the near candidates') cannot be among the `k` nearest: dropped before the
+    # sort. Every point has its near candidates among its pairs, so every row is filled.
     b_square = (b_centre * b_centre).sum(1)
-    scale = float(np.abs(b_centre).max() + np.abs(p_all).max())
-    pts_l, prim_l = [], []
+    margin = 1e-7 * float(np.abs(b_centre).max() + np.abs(p_all).max())
+    near = np.concatenate([near_c, near_s + n_cones], 1)  # their distances known
+    fc, dfc = np.zeros((m, kc), np.int64), np.zeros((m, kc))
+    fs, dfs = np.zeros((m, ks), np.int64), np.zeros((m, ks))
     for start in range(0, m, CHUNK):
-        block = p_all[start:start + CHUNK]
-        # |p − b| ≤ upper + radius compared squared, |p − b|² expanded as a matrix product
-        # (the (points, primitives, 3) differences would cost several times more); the
-        # margin covers its rounding.
-        square = (block * block).sum(1)[:, None] - 2 * block @ b_centre.T + b_square[None]
-        reach = np.maximum(upper[start:start + CHUNK, None] + b_radius[None] + 1e-7 * scale, 0)
-        i, j = np.nonzero(square <= reach * reach)
-        pts_l.append(i + start)
-        prim_l.append(j)
-    pts = np.concatenate(pts_l + [np.repeat(np.arange(m), kc + near_s.shape[1])])
-    prim = np.concatenate(prim_l + [np.concatenate([near_c, near_s + n_cones], 1).reshape(-1)])
-    known = np.concatenate([np.full(len(pts) - m * (kc + near_s.shape[1]), np.nan),
-                            np.concatenate([d_near_c, d_near_s], 1).reshape(-1)])
-    # Each (point, primitive) pair once: the near ones (distances known) win.
-    key = pts * np.int64(len(b_centre)) + prim
-    _, first = np.unique(key[::-1], return_index=True)
-    keep = len(key) - 1 - first
-    pts, prim, known = pts[keep], prim[keep], known[keep]
-
-    is_cone = prim < n_cones
-    pc, qc = pts[is_cone], prim[is_cone]
-    dc = known[is_cone]
-    todo = np.isnan(dc)
-    dc[todo] = seg.distance(p_all[pc[todo]], qc[todo])
-    ps, qs = pts[~is_cone], prim[~is_cone] - n_cones
-    full = known[~is_cone]
-    todo = np.isnan(full)
-    full[todo] = slab_distance(p_all[ps[todo]], slabs, slab_edges, qs[todo])
-
-    # The nearest primitive of each point (ties: the cone, listed first).
-    all_pts, all_d = np.concatenate([pc, ps]), np.concatenate([dc, full])
-    all_prim = np.concatenate([qc, qs + n_cones])
-    order = np.lexsort((all_d, all_pts))
-    first = np.r_[True, np.diff(all_pts[order]) != 0]
-    nearest = np.zeros(m, np.int64)
-    distance = np.full(m, np.inf)
-    nearest[all_pts[order][first]] = all_prim[order][first]
-    distance[all_pts[order][first]] = all_d[order][first]
+        rows = slice(start, start + CHUNK)
+        block = p_all[rows]
+        i, j = _reachable(block, upper[rows], near[rows], b_centre, b_square, b_radius, margin)
+        local = np.arange(len(block))
+        cone = j < n_cones
+        d = _in_blocks(seg.distance, block, i[cone], j[cone])
+        fc[rows], dfc[rows] = _nearest_k(
+            np.r_[i[cone], np.repeat(local, kc)], np.r_[j[cone], near_c[rows].reshape(-1)],
+            np.r_[d, d_near_c[rows].reshape(-1)], len(block), kc, 0, d_near_c[rows].max(1))
+        if n_slabs:
+            d = _in_blocks(lambda p, k: slab_distance(p, slabs, slab_edges, k), block,
+                           i[~cone], j[~cone] - n_cones)
+            fs[rows], dfs[rows] = _nearest_k(
+                np.r_[i[~cone], np.repeat(local, ks)],
+                np.r_[j[~cone] - n_cones, near_s[rows].reshape(-1)],
+                np.r_[d, d_near_s[rows].reshape(-1)], len(block), ks, 0, d_near_s[rows].max(1))
+    # The nearest primitive (ties: the cone).
+    on_slab = dfs[:, 0] < dfc[:, 0] if n_slabs else np.zeros(m, bool)
+    nearest = np.where(on_slab, fs[:, 0] + n_cones if n_slabs else 0, fc[:, 0])
+    distance = np.where(on_slab, dfs[:, 0] if n_slabs else 0, dfc[:, 0])
+    # No more candidates than primitives: repeats would cost field evaluations for nothing.
+    fs = fs[:, :min(field_slabs, n_slabs)]
 
     spheres = np.zeros((m, 3), np.int64)
     beta = np.zeros((m, 3))
@@ -271,24 +302,6 @@ def bind(points, centers, radii, edges, faces, *, field_cones=4, field_slabs=1,
     offset = p_all - np.einsum("mk,mkd->md", beta, centers[spheres])
 
     valid = finite & np.isfinite(distance) & (distance <= max_distance)
-    # No more candidates than primitives: repeats would cost field evaluations for nothing.
-    fc = _nearest_k(pc, qc, dc, m, min(field_cones, n_cones), 0)
-    fs = _nearest_k(ps, qs, full, m, min(field_slabs, n_slabs), 0)
-    # Points with no slab nearby get their nearest slab from the whole list (by bounding
-    # sphere); with no faces at all the slab part of the field is empty.
-    if len(faces) and field_slabs:
-        seen = np.zeros(m, bool)
-        seen[ps] = True
-        if (~seen).any():
-            gap = np.linalg.norm(p_all[~seen][:, None] - b_centre[None, n_cones:], axis=2)
-            fs[~seen] = np.argmin(gap - b_radius[None, n_cones:], axis=1)[:, None]
-    # Cone candidates missing (a point seen by no cone): its nearest cone by bounding sphere.
-    seen = np.zeros(m, bool)
-    seen[pc] = True
-    if (~seen).any():
-        gap = np.linalg.norm(p_all[~seen][:, None] - b_centre[None, :n_cones], axis=2)
-        fc[~seen] = np.argmin(gap - b_radius[None, :n_cones], axis=1)[:, None]
-    fs = fs if len(faces) else fs[:, :0]
     width = blend * np.maximum((beta * radii[spheres]).sum(1), 1e-3 * float(radii.max()) + 1e-12)
     iso = rest_field(p_all, seg, slabs, slab_edges, fc, fs, width)
     edge_cones, edge_slots = distinct_edges(fc, fs, faces, cones)

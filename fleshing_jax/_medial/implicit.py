@@ -31,9 +31,10 @@ from __future__ import annotations
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array, Float, Int
 
-from .._numerics import dot, norm, safe_divide, safe_sqrt
+from .._numerics import dot, norm, safe_divide, safe_sqrt, weighted_sum
 
 BLOCK = 1024  # vertices per block of the field's evaluation (see `correct`)
 
@@ -156,12 +157,16 @@ def slab_field(p: Float[Array, " 3"], slab: Slabs, edge_values: Float[Array, " 3
             jnp.where(inside, n, edge_grad))
 
 
-def smooth_union(a, ga, b, gb, width):
+def smooth_union(a, ga, b, gb, width, half_inverse=None):
     """Polynomial smooth minimum of two fields (and its gradient): the minimum where they
     differ by more than `width`, a quadratic blend `mix(b, a, h) − width·h(1 − h)`,
     `h = clip(½ + (b − a)/(2 width), 0, 1)`, near their crease; continuously differentiable,
-    with gradient `h ∇a + (1 − h) ∇b`."""
-    h = jnp.clip(0.5 + 0.5 * (b - a) / width, 0, 1)
+    with gradient `h ∇a + (1 − h) ∇b`. `half_inverse`: `1/(2 width)` if the caller has it
+    (a fold over several fields then divides once rather than per field: the field's
+    evaluation ~0.87× as long, measured; equal to round-off)."""
+    if half_inverse is None:
+        half_inverse = 0.5 / width
+    h = jnp.clip(0.5 + (b - a) * half_inverse, 0, 1)
     return b + h * (a - b) - width * h * (1 - h), gb + h * (ga - gb)
 
 
@@ -202,9 +207,36 @@ def field(p: Float[Array, " 3"], width: Array, cones: Cones, extra: Cones,
         candidates += [slab_field(p, row(slabs, j), values[edge_slots[j]],
                                   grads[edge_slots[j]]) for j in range(edge_slots.shape[0])]
     value, grad = candidates[0]
+    half_inverse = 0.5 / width
     for v, g in candidates[1:]:
-        value, grad = smooth_union(value, grad, v, g, width)
+        value, grad = smooth_union(value, grad, v, g, width, half_inverse)
     return value, grad
+
+
+def pack_rows(table) -> tuple[Array, tuple]:
+    """The arrays of a per-primitive table (an equinox Module whose leaves share their first
+    axis, `Cones` or `Slabs`) side by side as one `(rows, width)` array, and the static layout
+    `unpack_rows` needs. Why: each vertex then gathers its candidates' rows with one gather
+    of contiguous rows, where a gather per field costs XLA's CPU backend a kernel and a
+    round trip through memory each (the field's evaluation 0.8× as long, measured)."""
+    leaves, treedef = jax.tree.flatten(table)
+    dtype = jnp.result_type(*(a for a in leaves if jnp.issubdtype(a.dtype, jnp.floating)))
+    columns = [a.reshape(a.shape[0], -1).astype(dtype) for a in leaves]
+    layout = (treedef, tuple((a.shape[1:], a.dtype == jnp.bool_) for a in leaves))
+    return jnp.concatenate(columns, axis=1), layout
+
+
+def unpack_rows(rows: Float[Array, "... width"], layout: tuple):
+    """The table of `pack_rows` back from (gathered) rows `(..., width)`: its fields
+    `(..., *shape)`, booleans restored."""
+    treedef, fields = layout
+    leaves, start = [], 0
+    for shape, is_bool in fields:
+        size = int(np.prod(shape, dtype=int))
+        a = rows[..., start:start + size].reshape(rows.shape[:-1] + shape)
+        leaves.append(a > 0.5 if is_bool else a)
+        start += size
+    return jax.tree.unflatten(treedef, leaves)
 
 
 class Correction(eqx.Module):
@@ -244,20 +276,21 @@ def correct(
     """Implicit-skinning correction of skinned vertices on the posed envelope
     `(centers, radii)`. **Returns:** `(vertices (n, 3), contact (n,))`, `contact` where a
     vertex was stopped by the gradient test."""
-    # The per-primitive tables are small (a few hundred rows) and gathered inside each
-    # evaluation, where XLA fuses the gathers with the arithmetic (as fast as gathering the
-    # (vertices, candidates) rows once, measured, without their memory).
-    cone_tab = cone_table(centers, radii, cones)
-    slab_tab = None
+    # The per-primitive tables are small (a few hundred rows), packed into one array each
+    # (`pack_rows`) and gathered inside each evaluation, where XLA fuses the gathers with the
+    # arithmetic (as fast as gathering the (vertices, candidates) rows once, measured,
+    # without their memory).
+    cone_rows, cone_layout = pack_rows(cone_table(centers, radii, cones))
+    slab_rows = None
     if data.field_slabs.shape[1] and faces.shape[0]:
-        slab_tab = slab_table(centers, radii, faces)
+        slab_rows, slab_layout = pack_rows(slab_table(centers, radii, faces))
 
     def one(p, width, ic, ie, js, slots):
-        def rows(i):
-            return jax.tree.map(lambda a: a[i], cone_tab)
-
-        slabs = None if slab_tab is None else jax.tree.map(lambda a: a[js], slab_tab)
-        return field(p, width, rows(ic), rows(ie), slabs, slots)
+        rows = unpack_rows(cone_rows[jnp.concatenate([ic, ie])], cone_layout)
+        kc = ic.shape[0]
+        slabs = None if slab_rows is None else unpack_rows(slab_rows[js], slab_layout)
+        return field(p, width, jax.tree.map(lambda a: a[:kc], rows),
+                     jax.tree.map(lambda a: a[kc:], rows), slabs, slots)
 
     def evaluate(x):
         # In blocks of vertices (a loop, each block vectorised): the (block, candidates)
@@ -287,9 +320,11 @@ def correct(
     if data.ring is not None and relax_iterations:
         if g is None:
             _, g = evaluate(x)
-        delta = jnp.einsum("nij,nj->ni", rotations, data.laplacian)
+        # (Explicit sums of products, not `einsum` or `jnp.sum` over the short axes: see
+        # `weighted_sum`.)
+        delta = dot(rotations, data.laplacian[:, None, :])
         for _ in range(relax_iterations):
-            ring = jnp.sum(data.ring_weights[:, :, None] * x[data.ring], axis=1)
+            ring = jax.vmap(weighted_sum)(data.ring_weights, x[data.ring])
             move = ring + delta - x
             move = move - dot(move, g)[:, None] * g
             x = jnp.where(active[:, None], x + relax_step * move, x)

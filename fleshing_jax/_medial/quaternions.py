@@ -9,6 +9,8 @@ from __future__ import annotations
 import jax.numpy as jnp
 from jaxtyping import Array, Float
 
+from .._numerics import dot
+
 
 def quaternion_from_matrix(r: Float[Array, "3 3"]) -> Float[Array, " 4"]:
     """A unit quaternion `(w, x, y, z)` of the rotation `r` (either sign), differentiable.
@@ -32,7 +34,7 @@ def quaternion_from_matrix(r: Float[Array, "3 3"]) -> Float[Array, " 4"]:
 
 def matrix_from_quaternion(q: Float[Array, " 4"]) -> Float[Array, "3 3"]:
     """The rotation of a quaternion `q` (normalised here; the identity for `q = 0`)."""
-    size = jnp.sqrt(jnp.sum(q * q))
+    size = jnp.sqrt(dot(q, q))
     ok = size > 0
     w, x, y, z = jnp.where(ok, q / jnp.where(ok, size, 1), jnp.eye(4, dtype=q.dtype)[0])
     return jnp.stack([

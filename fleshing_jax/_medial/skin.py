@@ -23,7 +23,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Float
 
-from .._numerics import dot, safe_divide, safe_sqrt
+from .._numerics import dot, safe_divide, safe_sqrt, weighted_sum
 from .quaternions import matrix_from_quaternion, quaternion_from_matrix
 
 
@@ -39,7 +39,7 @@ def _aligned(quats: Float[Array, "K 4"], weights: Float[Array, " K"]) -> Array:
 
 def blend_quaternion(quats: Float[Array, "K 4"], weights: Float[Array, " K"]) -> Array:
     """Normalised blend of quaternions (nlerp), signs aligned with the first (heaviest)."""
-    q = jnp.sum(_aligned(quats, weights)[:, None] * quats, axis=0)
+    q = weighted_sum(_aligned(quats, weights), quats)
     length = safe_sqrt(dot(q, q))
     identity = jnp.zeros(4, q.dtype).at[0].set(1)
     return jnp.where(length > 0, safe_divide(q, length), identity)
@@ -56,7 +56,7 @@ def medial_vertex(
     centres of its footprint's spheres, `β`, the rest offset, the quaternions and weights of
     its rotation spheres. **Returns:** `(position (3,), R (3, 3))`."""
     r = matrix_from_quaternion(blend_quaternion(quats, weights))
-    centre = jnp.sum(beta[:, None] * centers, axis=0)
+    centre = weighted_sum(beta, centers)
     return centre + _rotate(r, offset), r
 
 
@@ -68,7 +68,7 @@ def lbs_vertex(
 ) -> Array:
     """Linear blend skinning of one rest vertex with sphere transforms `x ↦ R x + t`."""
     moved = jax.vmap(_rotate, (0, None))(rotations, point) + translations
-    return jnp.sum(weights[:, None] * moved, axis=0)
+    return weighted_sum(weights, moved)
 
 
 def _multiply(a: Array, b: Array) -> Array:
@@ -87,7 +87,7 @@ def dqs_vertex(dual: Float[Array, "K 8"], weights: Float[Array, " K"], point: Ar
     """Dual-quaternion skinning of one rest vertex (Kavan et al. 2008: blend, divide by the
     real part's norm, apply)."""
     w = _aligned(dual[:, :4], weights)
-    b = jnp.sum(w[:, None] * dual, axis=0)
+    b = weighted_sum(w, dual)
     length = safe_sqrt(dot(b[:4], b[:4]))
     b = jnp.where(length > 0, safe_divide(b, length), jnp.zeros(8, b.dtype).at[0].set(1))
     real, d = b[:4], b[4:]
