@@ -30,7 +30,14 @@ cones and slabs, by damped Gauss-Newton (Levenberg-Marquardt) steps:
   and a plain least-squares fit leaves a few badly covered samples (a box's sharp edges and
   corners) for many slightly better ones. `p = 4` (`power`) took the box at 200 spheres
   from 1.19 to 0.94 % and the bunny from 1.11 to 0.99 % (benchmarks/README.md); `p = 6`
-  did better on the box but let the bunny's envelope overshoot (3.1 % at 50 spheres).
+  did better on the box but let the bunny's envelope overshoot (3.1 % at 50 spheres);
+- each edge's length is held, weakly (`REGULARITY`), to first order: the samples do not see
+  a sphere slide along a tube's axis, and without this term the spheres of a capsule's chain
+  slid past each other (edges across three spheres); the envelope was as good, but the
+  medial mesh deformed by handles folded (a capsule bent 90° by `arap_medial` lost 77 % of
+  its radius in places, +1.5 % of volume; now 4.5 % and −0.02 %). Held fully (all three
+  components of the edge vectors, or a weight of 1) it kept the box's spheres from its
+  corners (1.59 % at 200 spheres).
 
 `medial_mesh` fits the samples the initial axis was built from, and centres of that axis.
 """
@@ -110,6 +117,23 @@ def _weights(residual, samples: int, power: float):
     return weight
 
 
+REGULARITY = 0.05  # the edges' weight, relative to the containment's (see `refine_spheres`)
+
+
+def _edge_rows(edges, centers, weight: float):
+    """Sparse `(e, 4n)`: `weight t_e·(c_i − c_j)` for each edge `(i, j)`, `t_e` its unit
+    direction at `centers` `(n, 3)`, from the spheres' `(x, y, z, r)` flattened: the edge's
+    length, to first order, so that spheres do not slide along the edges (past each other)."""
+    n = len(centers)
+    direction = centers[edges[:, 0]] - centers[edges[:, 1]]
+    direction /= np.maximum(np.linalg.norm(direction, axis=1, keepdims=True), 1e-300)
+    rows = np.repeat(np.arange(len(edges)), 6)
+    cols = np.concatenate([4 * edges[:, :1] + np.arange(3), 4 * edges[:, 1:] + np.arange(3)], 1)
+    values = weight * np.concatenate([direction, -direction], 1)
+    return sparse.csr_matrix((values.reshape(-1), (rows, cols.reshape(-1))),
+                             shape=(len(edges), 4 * n))
+
+
 def refine_spheres(points, targets, centers, radii, edges, faces, *, scale: float,
                    surface: SurfaceQuery | None = None, iterations: int = 12,
                    margin: float = 0.01, power: float = 4.0):
@@ -144,6 +168,12 @@ def refine_spheres(points, targets, centers, radii, edges, faces, *, scale: floa
     # the merged spheres, which overhang the surface a little by design, too small (the
     # capped bunny at 50 spheres lost 2.5 % and 5.8 % of its volume).
     contain_weight = np.sqrt(0.1 * len(points) / n)
+    # Each edge keeps its vector `c_i − c_j` unless the samples ask otherwise: along a tube the
+    # samples do not see a sphere slide along the axis, and without this term the spheres of
+    # a capsule's chain slid past each other (edges 0.7 long across a chain of 0.07 steps),
+    # which the envelope does not show but a deformation of the medial mesh does.
+    keep = _edge_rows(edges, params[:, :3], REGULARITY * contain_weight)
+    rest = keep @ params.reshape(-1)
 
     def evaluate(params, pairs=None):
         """Residuals and Jacobian of the samples, then of the spheres' containment."""
@@ -165,7 +195,8 @@ def refine_spheres(points, targets, centers, radii, edges, faces, *, scale: floa
                                      shape=(n, 4 * n))
             residual = np.concatenate([residual, contain_weight * out])
             jac = sparse.vstack([jac, contain_weight * rows]).tocsr()
-        return pairs, residual, jac
+        residual = np.concatenate([residual, keep @ params.reshape(-1) - rest])
+        return pairs, residual, sparse.vstack([jac, keep]).tocsr()
 
     pairs, residual, jac = evaluate(params)
     anchor = params
