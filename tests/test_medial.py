@@ -13,8 +13,13 @@ from fleshing_jax._medial.construct import medial_mesh
 from fleshing_jax._medial.distance import medial_distance
 from fleshing_jax._medial.files import load_medial, save_medial
 from fleshing_jax._medial.medial_mesh import MedialMesh
-from fleshing_jax._medial.primitives import cone_distance, slab_plane_distance, union_distance
-from fleshing_jax._medial.refine import _weights
+from fleshing_jax._medial.primitives import (
+    UnionPrimitives,
+    cone_distance,
+    slab_plane_distance,
+    union_distance,
+)
+from fleshing_jax._medial.refine import _closest, _weights
 from fleshing_jax._medial.surface import SurfaceQuery
 
 DATA = Path(__file__).parents[1].parent / "shared" / "data"
@@ -198,6 +203,32 @@ def test_primitive_distances_match_brute_force():
     slab = slab_plane_distance(points, *(x for k in range(3) for x in (
         np.tile(centres[k], (n, 1)), np.full(n, radii[k]))))
     assert np.isfinite(slab).any() and np.isinf(slab).any()
+
+
+def test_pairs_evaluated_in_blocks_match_one_pass():
+    """`UnionPrimitives.closest`/`distance` work in blocks of pairs (for the cache), and the
+    fit's `_closest` evaluates spheres and weights for each sample's attaining pair only:
+    the same values as one pass over all pairs, and spheres and weights that attain them."""
+    rng = np.random.default_rng(5)
+    centres, radii = rng.normal(size=(5, 3)), rng.uniform(0.2, 0.6, 5)
+    edges = np.array([[0, 1], [0, 2], [1, 2], [2, 3], [3, 4]])
+    union = UnionPrimitives(centres, radii, edges, np.array([[0, 1, 2]]))
+    points = 1.5 * rng.normal(size=(50, 3))
+    pts = np.tile(np.arange(len(points)), len(union.kind))  # every pair, primitives ascending
+    prim = np.repeat(np.arange(len(union.kind)), len(points))
+    whole = union.closest(points, pts, prim, block=len(pts))
+    for got in (union.closest(points, pts, prim, block=7), (union.distance(points, pts, prim,
+                                                                          block=7),)):
+        for a, b in zip(got, whole):
+            np.testing.assert_array_equal(a, b)
+    best, spheres, weights = _closest(points, pts, prim, union)
+    value = whole[0].reshape(-1, len(points))
+    np.testing.assert_array_equal(best, value.min(axis=0))
+    # The interpolated sphere of each sample's spheres and weights attains its distance.
+    foot = np.einsum("ij,ijk->ik", weights, centres[spheres])
+    np.testing.assert_allclose(weights.sum(axis=1), 1.0)
+    np.testing.assert_allclose(np.linalg.norm(points - foot, axis=1)
+                               - np.einsum("ij,ij->i", weights, radii[spheres]), best, atol=1e-12)
 
 
 def test_two_sphere_envelope_is_a_closed_capsule():

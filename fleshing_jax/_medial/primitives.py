@@ -171,12 +171,35 @@ class UnionPrimitives:
         self.slabs = _Slabs(*(x for k in range(3) for x in (centers[faces[:, k]],
                                                              radii[faces[:, k]])))
 
-    def closest(self, p, prim):
-        """Signed distances `(M,)` of points `p (M, 3)` to primitives `prim (M,)` (indices
-        into the bounding spheres, **ascending**, so that each kind is one slice), the three
-        spheres `(M, 3)` each primitive interpolates and the weights `(M, 3)` of the
-        interpolated sphere that attains the distance (a sphere is itself with weight 1; a
-        cone's third entry has weight 0)."""
+    def closest(self, points, pts, prim, block: int = 32768):
+        """Signed distances `(M,)` of the pairs (point `points[pts]`, primitive `prim`) for
+        `points (N, 3)`, `pts (M,)` and `prim (M,)` (indices into the bounding spheres,
+        **ascending**, so that each kind is one slice), the three spheres `(M, 3)` each
+        primitive interpolates and the weights `(M, 3)` of the interpolated sphere that
+        attains the distance (a sphere is itself with weight 1; a cone's third entry has
+        weight 0).
+
+        Evaluated `block` pairs at a time: the closed forms make a few dozen temporaries per
+        pair, which for the fit's millions of pairs would be fresh memory (page faults) on
+        every call; in blocks they stay in the cache (10x faster, the same values)."""
+        value = np.empty(len(pts))
+        spheres = np.empty((len(pts), 3), dtype=np.int64)
+        weights = np.empty((len(pts), 3))
+        for start in range(0, len(pts), block):
+            part = slice(start, start + block)
+            value[part], spheres[part], weights[part] = self._closest_block(
+                points[pts[part]], prim[part])
+        return value, spheres, weights
+
+    def distance(self, points, pts, prim, block: int = 32768):
+        """The signed distances `(M,)` alone of `closest` (no `(M, 3)` outputs to fill)."""
+        value = np.empty(len(pts))
+        for start in range(0, len(pts), block):
+            part = slice(start, start + block)
+            value[part] = self._closest_block(points[pts[part]], prim[part])[0]
+        return value
+
+    def _closest_block(self, p, prim):
         value = np.empty(len(p))
         spheres = np.zeros((len(p), 3), dtype=np.int64)
         weights = np.zeros((len(p), 3))
@@ -222,5 +245,5 @@ def union_distance(points, centers, radii, edges, faces, *, cutoff: float, group
         prim = np.repeat(np.arange(start, start + len(lists)), sizes)
         open_ = out[pts] > -cutoff  # points already deep inside need nothing more
         pts, prim = pts[open_], prim[open_]
-        np.minimum.at(out, pts, union.closest(points[pts], prim)[0])
+        np.minimum.at(out, pts, union.distance(points, pts, prim))
     return out

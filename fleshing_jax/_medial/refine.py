@@ -66,7 +66,7 @@ def _candidates(tree, points, union: UnionPrimitives, margin: float, reach: floa
         if sizes.sum():
             pts = todo[np.concatenate([np.asarray(x, dtype=np.int64) for x in lists])]
             prim = np.repeat(np.arange(len(lists)), sizes)
-            value = union.closest(points[pts], prim)[0]
+            value = union.distance(points, pts, prim)
             np.minimum.at(best, pts, value)
             found_pts.append(pts), found_prim.append(prim), found_val.append(value)
         # A sample whose best is beyond `reach` may have a closer primitive not yet searched.
@@ -81,7 +81,7 @@ def _candidates(tree, points, union: UnionPrimitives, margin: float, reach: floa
 def _closest(points, pts, prim, union: UnionPrimitives):
     """Each sample's distance to the union `(N,)`, and its closest primitive's spheres and
     weights `(N, 3)`, from candidate pairs (every sample has one)."""
-    value, spheres, weights = union.closest(points[pts], prim)
+    value = union.distance(points, pts, prim)
     best = np.full(len(points), np.inf)
     np.minimum.at(best, pts, value)
     # One attaining pair per sample: of several, the last in the pairs' order (NumPy's
@@ -89,7 +89,13 @@ def _closest(points, pts, prim, union: UnionPrimitives):
     hit = np.flatnonzero(value == best[pts])
     pick = np.empty(len(points), dtype=np.int64)
     pick[pts[hit]] = hit
-    return best, spheres[pick], weights[pick]
+    # Spheres and weights of the attaining pairs only (evaluated again: cheaper than filling
+    # them for every pair). `pick` follows the pairs' order, so its primitives ascend.
+    pick.sort()
+    _, spheres, weights = union.closest(points, pts[pick], prim[pick])
+    order = np.empty(len(points), dtype=np.int64)
+    order[pts[pick]] = np.arange(len(points))
+    return best, spheres[order], weights[order]
 
 
 def _jacobian(points, spheres, weights, params):
