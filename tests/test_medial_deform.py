@@ -120,3 +120,21 @@ def test_medial_deform_command(capsule, tmp_path, capsys):
     _, err = capsys.readouterr()
     assert code == 2 and "Traceback" not in err and len(err.strip().splitlines()) == 1
     assert "handles" in err
+
+
+def test_a_computed_medial_chain_bends_onto_the_arc():
+    # The medial mesh computed from a capsule (not laid by hand): its spheres, moved by
+    # handles at both ends onto an arc, all follow the arc (a chain folded by the fit, its
+    # spheres slid past each other along the axis, left them up to 0.4 off it).
+    capsule = trimesh.creation.capsule(height=4.0, radius=0.5, count=[24, 24])
+    capsule = trimesh.Trimesh(*trimesh.remesh.subdivide_to_size(capsule.vertices, capsule.faces,
+                                                                 0.2), process=False)  # fmt: skip
+    medial = fj.medial_mesh(capsule, 60, progress=False)
+    centers = np.asarray(medial.centers)
+    handles = np.flatnonzero(np.abs(centers[:, 2]) > 1.0)
+    radius = 4.0 / np.radians(90)
+    t = (centers[:, 2] + 2.0) / radius
+    on_arc = np.column_stack([radius * (1 - np.cos(t)), centers[:, 1], radius * np.sin(t) - 2])
+    posed = np.asarray(fj.arap_medial(medial, handles, on_arc[handles]).centers)
+    off = np.hypot(np.hypot(posed[:, 0] - radius, posed[:, 2] + 2.0) - radius, posed[:, 1])
+    assert off.max() < 0.05

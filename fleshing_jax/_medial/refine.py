@@ -31,13 +31,13 @@ cones and slabs, by damped Gauss-Newton (Levenberg-Marquardt) steps:
   corners) for many slightly better ones. `p = 4` (`power`) took the box at 200 spheres
   from 1.19 to 0.94 % and the bunny from 1.11 to 0.99 % (benchmarks/README.md); `p = 6`
   did better on the box but let the bunny's envelope overshoot (3.1 % at 50 spheres);
-- each edge's length is held, weakly (`REGULARITY`), to first order: the samples do not see
-  a sphere slide along a tube's axis, and without this term the spheres of a capsule's chain
-  slid past each other (edges across three spheres); the envelope was as good, but the
-  medial mesh deformed by handles folded (a capsule bent 90° by `arap_medial` lost 77 % of
-  its radius in places, +1.5 % of volume; now 4.5 % and −0.02 %). Held fully (all three
-  components of the edge vectors, or a weight of 1) it kept the box's spheres from its
-  corners (1.59 % at 200 spheres).
+- no edge shrinks below half its length (`SHORTEST`; a one-sided penalty, weighted as the
+  containment): the samples do not see a sphere slide along a tube's axis, and without it
+  the spheres of a capsule's chain slid past each other (edges across three spheres); the
+  envelope was as good, but the medial mesh deformed by handles folded (a capsule bent 90°
+  by `arap_medial` lost 77 % of its radius in places, +1.5 % of volume; now 6 % and
+  −0.01 %). Holding every edge vector, even weakly, kept the box's spheres from its corners
+  and spot's from its extremities (1.59 % and 1.15 % at 200 spheres).
 
 `medial_mesh` fits the samples the initial axis was built from, and centres of that axis.
 """
@@ -123,21 +123,24 @@ def _weights(residual, samples: int, power: float):
     return weight
 
 
-REGULARITY = 0.05  # the edges' weight, relative to the containment's (see `refine_spheres`)
+SHORTEST = 0.5  # an edge may shrink to this fraction of its length before the fit (see below)
 
 
-def _edge_rows(edges, centers, weight: float):
-    """Sparse `(e, 4n)`: `weight t_e·(c_i − c_j)` for each edge `(i, j)`, `t_e` its unit
-    direction at `centers` `(n, 3)`, from the spheres' `(x, y, z, r)` flattened: the edge's
-    length, to first order, so that spheres do not slide along the edges (past each other)."""
+def _shrunk_edges(edges, centers, rest, weight: float):
+    """Residuals `(e,)` `weight min(0, ℓ − SHORTEST ℓ₀)` of the edges' lengths `ℓ` against
+    their lengths `ℓ₀` before the fit, and their sparse Jacobian `(e, 4n)` (rows of the
+    edges not shrunk that far are zero)."""
     n = len(centers)
-    direction = centers[edges[:, 0]] - centers[edges[:, 1]]
-    direction /= np.maximum(np.linalg.norm(direction, axis=1, keepdims=True), 1e-300)
+    vector = centers[edges[:, 0]] - centers[edges[:, 1]]
+    length = np.linalg.norm(vector, axis=1)
+    short = np.minimum(length - SHORTEST * rest, 0.0)
+    unit = vector / np.maximum(length, 1e-300)[:, None] * (short < 0)[:, None]
     rows = np.repeat(np.arange(len(edges)), 6)
     cols = np.concatenate([4 * edges[:, :1] + np.arange(3), 4 * edges[:, 1:] + np.arange(3)], 1)
-    values = weight * np.concatenate([direction, -direction], 1)
-    return sparse.csr_matrix((values.reshape(-1), (rows, cols.reshape(-1))),
-                             shape=(len(edges), 4 * n))
+    values = weight * np.concatenate([unit, -unit], 1)
+    jac = sparse.csr_matrix((values.reshape(-1), (rows, cols.reshape(-1))),
+                            shape=(len(edges), 4 * n))
+    return weight * short, jac
 
 
 def refine_spheres(points, targets, centers, radii, edges, faces, *, scale: float,
@@ -174,12 +177,10 @@ def refine_spheres(points, targets, centers, radii, edges, faces, *, scale: floa
     # the merged spheres, which overhang the surface a little by design, too small (the
     # capped bunny at 50 spheres lost 2.5 % and 5.8 % of its volume).
     contain_weight = np.sqrt(0.1 * len(points) / n)
-    # Each edge keeps its vector `c_i − c_j` unless the samples ask otherwise: along a tube the
-    # samples do not see a sphere slide along the axis, and without this term the spheres of
-    # a capsule's chain slid past each other (edges 0.7 long across a chain of 0.07 steps),
-    # which the envelope does not show but a deformation of the medial mesh does.
-    keep = _edge_rows(edges, params[:, :3], REGULARITY * contain_weight)
-    rest = keep @ params.reshape(-1)
+    # No edge shrinks below `SHORTEST` of its length: along a tube the samples do not see a
+    # sphere slide along the axis, and without this term the spheres of a capsule's chain slid
+    # past each other (see the module's notes).
+    rest = np.linalg.norm(params[edges[:, 0], :3] - params[edges[:, 1], :3], axis=1)
 
     def evaluate(params, pairs=None):
         """Residuals and Jacobian of the samples, then of the spheres' containment."""
@@ -201,8 +202,8 @@ def refine_spheres(points, targets, centers, radii, edges, faces, *, scale: floa
                                      shape=(n, 4 * n))
             residual = np.concatenate([residual, contain_weight * out])
             jac = sparse.vstack([jac, contain_weight * rows]).tocsr()
-        residual = np.concatenate([residual, keep @ params.reshape(-1) - rest])
-        return pairs, residual, sparse.vstack([jac, keep]).tocsr()
+        shrunk, rows = _shrunk_edges(edges, params[:, :3], rest, contain_weight)
+        return pairs, np.concatenate([residual, shrunk]), sparse.vstack([jac, rows]).tocsr()
 
     pairs, residual, jac = evaluate(params)
     anchor = params
