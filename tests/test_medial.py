@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 import trimesh
 
+from fleshing_jax._medial import primitives
 from fleshing_jax._medial.construct import medial_mesh
 from fleshing_jax._medial.distance import medial_distance
 from fleshing_jax._medial.files import load_medial, save_medial
@@ -205,7 +206,7 @@ def test_primitive_distances_match_brute_force():
     assert np.isfinite(slab).any() and np.isinf(slab).any()
 
 
-def test_pairs_evaluated_in_blocks_match_one_pass():
+def test_pairs_evaluated_in_blocks_match_one_pass(monkeypatch):
     """`UnionPrimitives.closest`/`distance` work in blocks of pairs (for the cache), and the
     fit's `_closest` evaluates spheres and weights for each sample's attaining pair only:
     the same values as one pass over all pairs, and spheres and weights that attain them."""
@@ -216,9 +217,9 @@ def test_pairs_evaluated_in_blocks_match_one_pass():
     points = 1.5 * rng.normal(size=(50, 3))
     pts = np.tile(np.arange(len(points)), len(union.kind))  # every pair, primitives ascending
     prim = np.repeat(np.arange(len(union.kind)), len(points))
-    whole = union.closest(points, pts, prim, block=len(pts))
-    for got in (union.closest(points, pts, prim, block=7), (union.distance(points, pts, prim,
-                                                                          block=7),)):
+    whole = union.closest(points, pts, prim)  # one block
+    monkeypatch.setattr(primitives, "PAIRS", 7)
+    for got in (union.closest(points, pts, prim), (union.distance(points, pts, prim),)):
         for a, b in zip(got, whole):
             np.testing.assert_array_equal(a, b)
     best, spheres, weights = _closest(points, pts, prim, union)

@@ -11,7 +11,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from fleshing_jax._medial import footprint
+from fleshing_jax._medial import footprint, primitives
 from fleshing_jax._medial.footprint import _nearest_k, bind, slab_distance
 from fleshing_jax._medial.implicit import cone_table, pack_rows, slab_table, unpack_rows
 from fleshing_jax._medial.primitives import _Cones, _Slabs
@@ -48,7 +48,7 @@ def test_blocks_give_the_same_binding(medial_and_points, monkeypatch):
     medial, points = medial_and_points
     whole = bind(points, *medial, field_cones=4, field_slabs=2)
     monkeypatch.setattr(footprint, "CHUNK", 64)  # 24 blocks of points, the last one short
-    monkeypatch.setattr(footprint, "PAIRS", 100)  # many blocks of pairs
+    monkeypatch.setattr(primitives, "PAIRS", 100)  # many blocks of pairs
     blocked = bind(points, *medial, field_cones=4, field_slabs=2)
     for name, a, b in zip(whole._fields, whole, blocked, strict=True):
         np.testing.assert_array_equal(a, b, err_msg=name)

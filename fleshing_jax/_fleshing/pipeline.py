@@ -153,10 +153,10 @@ class Poser(eqx.Module):
 
     def pose_certified(self, registration: Registration) -> tuple[Array, Array, Array]:
         """`pose` without the global projection check: `(images, valid, pending)`, where the
-        pending points (valid but not certified by the reach bound) have their image but are
-        not valid yet, for `eager` to check them."""
-        _, _, certified, pending = bent = self._bend(registration)
-        kept = jnp.where((certified | pending)[:, None], bent[0], registration.points)
+        pending points (valid but not certified by the reach bound; none on lines and arcs)
+        have their image but are not valid yet, for `eager` to check them."""
+        image, _, certified, pending = self._bend(registration)
+        kept = jnp.where((certified | pending)[:, None], image, registration.points)
         return kept, certified, pending
 
     def projects(self, registration: Registration) -> Array:

@@ -5,8 +5,9 @@ distance below the reach *is* that closest point (Federer 1959, Thm 4.8). The sa
 locally: a point whose Newton-converged foot `s` lies strictly inside the searched range
 `[lo, hi]`, at a distance `r` below a lower bound `ρ(s)` of the reach *around `s`*, is projected
 correctly without the global multi-candidate search. The bounds are computed once per spine
-(per pose, per registration), from `REACH_SAMPLES` samples `P_j` of the continued spine on
-`[lo, hi]` at spacing `h`, one per sample `t_i`, for the feet nearest to it:
+(per pose, per registration; not for lines and arcs, whose feet have closed forms), from
+`REACH_SAMPLES` samples `P_j` of the continued spine on `[lo, hi]` at spacing `h`, one per
+sample `t_i`, for the feet nearest to it:
 
 For a window `w`, split the spine points `t` into near (`|t − s| < w`) and far ones. Near:
 `f(t) = ½|X − C(t)|²` has `f'' = 1 − k(t)·(X − C(t)) ≥ 1 − κ̂ (r + |t − s|) > 0` when

@@ -24,10 +24,9 @@ from typing import NamedTuple
 import numpy as np
 from scipy.spatial import cKDTree
 
-from .primitives import _Cones, _Slabs
+from .primitives import _Cones, _Slabs, in_blocks
 
 CHUNK = 1024  # points per block of the (point, primitive) bound matrix
-PAIRS = 32768  # (point, primitive) pairs per block of distance evaluations
 
 
 class Binding(NamedTuple):
@@ -192,16 +191,6 @@ def _reachable(points, upper, near, b_centre, b_square, b_radius, margin):
     return np.nonzero(square <= reach)
 
 
-def _in_blocks(distance, points, pts, prim):
-    """`distance(points[pts], prim)` over blocks of `PAIRS` pairs: the closed forms' (pairs,
-    3) temporaries then stay in cache (binding 300 spheres: these evaluations ~1.5× faster)."""
-    out = np.empty(len(pts))
-    for start in range(0, len(pts), PAIRS):
-        block = slice(start, start + PAIRS)
-        out[block] = distance(points[pts[block]], prim[block])
-    return out
-
-
 def bind(points, centers, radii, edges, faces, *, field_cones=4, field_slabs=1,
          max_distance=None, blend=0.1) -> Binding:
     """Binds `points` (N, 3) to the medial mesh `(centers, radii, edges, faces)` (NumPy
@@ -268,12 +257,12 @@ def bind(points, centers, radii, edges, faces, *, field_cones=4, field_slabs=1,
         i, j = _reachable(block, upper[rows], near[rows], b_centre, b_square, b_radius, margin)
         local = np.arange(len(block))
         cone = j < n_cones
-        d = _in_blocks(seg.distance, block, i[cone], j[cone])
+        d = in_blocks(seg.distance, block, i[cone], j[cone])
         fc[rows], dfc[rows] = _nearest_k(
             np.r_[i[cone], np.repeat(local, kc)], np.r_[j[cone], near_c[rows].reshape(-1)],
             np.r_[d, d_near_c[rows].reshape(-1)], len(block), kc, 0, d_near_c[rows].max(1))
         if n_slabs:
-            d = _in_blocks(lambda p, k: slab_distance(p, slabs, slab_edges, k), block,
+            d = in_blocks(lambda p, k: slab_distance(p, slabs, slab_edges, k), block,
                            i[~cone], j[~cone] - n_cones)
             fs[rows], dfs[rows] = _nearest_k(
                 np.r_[i[~cone], np.repeat(local, ks)],

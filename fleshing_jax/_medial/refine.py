@@ -114,7 +114,7 @@ def _jacobian(points, spheres, weights, params):
 
 def _weights(residual, samples: int, power: float):
     """Weights `(R,)` of the squared residuals: `(1 + (d/σ)²)^(power/2 − 1)` for the first
-    `samples` (σ their root mean square), 1 for the rest (the containment penalties)."""
+    `samples` (σ their root mean square), 1 for the rest (containment and edge penalties)."""
     weight = np.ones(len(residual))
     if power != 2:
         d = residual[:samples]

@@ -168,11 +168,10 @@ class MedialRig(eqx.Module):
       vertices by at most 2.4e-7 (float32), for a third of the correction's time.
 
     Binding is NumPy/SciPy, in blocks of points (`footprint.bind`; 30,722 capsule vertices
-    on medial meshes fitted by `medial_mesh`'s `refine`, measured on the shared, loaded
-    2-core machine: 2.5–2.8 s on 200 spheres with 373 slabs, 4.4–4.5 s on 300 with 986,
-    against 9.5–10.0 s and 19–21 s before the blocks in the same runs, which took 3.8 s and
-    6.4 s on the idle machine; binding grows with the slabs); the fields are JAX arrays
-    (float64 when x64 is on), cast to the pose's dtype by `pose`.
+    on medial meshes fitted by `medial_mesh`'s `refine`, idle 2-core machine: 1.7 s on 200
+    spheres with 373 slabs, 2.3 s on 300 with 986, where all pairs at once took 3.8 s and
+    6.4 s; binding grows with the slabs); the fields are JAX arrays (float64 when x64 is on),
+    cast to the pose's dtype by `pose`.
     `rig.pose` is compiled (`eqx.filter_jit`, the rig's arrays traced); `jax.jit(rig.pose)`
     works too (the rig hashes by identity; its arrays then become constants of the program).
     """
