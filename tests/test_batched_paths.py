@@ -266,11 +266,15 @@ def test_flesh_in_chunks_equals_one_point_path(monkeypatch):
 
 
 @pytest.mark.parametrize("dtype", ["float32", "float64"])
-def test_eager_two_phase_paths_equal_the_one_program_paths(dtype):
+def test_eager_two_phase_paths_equal_the_one_program_paths(dtype, monkeypatch):
     # Called eagerly, `register` and `pose` run the global searches in a second program, on
     # the pending points only; under `jit`, in one program. Same results, point for point, on
-    # a target that comes back near itself (many pending points), over more than one chunk.
+    # a target that comes back near itself (many pending points), over more than one chunk
+    # (float64 spines are exact: in chunks; 1024 points a chunk keeps the batch small).
     from fleshing_jax._fleshing import eager, pipeline
+
+    monkeypatch.setattr(chunks, "CHUNK_POINTS", 1024)
+    jax.clear_caches()  # the chunk size is read when tracing
 
     turn = fj.BSpline(np.array([[0, 0, 0], [1, 0, 0], [2, 0, 0], [2.3, 0.6, 0], [1, 0.8, 0],
                                 [0, 0.8, 0]], dtype))  # fmt: skip
@@ -299,8 +303,10 @@ def test_eager_two_phase_paths_equal_the_one_program_paths(dtype):
     np.testing.assert_allclose(np.asarray(images), np.asarray(images_one), rtol=0, atol=atol)
     # The U-turn makes the projection check reject points: returned unchanged.
     rejected = np.asarray(fj.pose(registration, turn, check_projection=False)[1]) & ~valid
-    assert rejected.sum() > 50
+    assert rejected.sum() > n // 100
     np.testing.assert_array_equal(np.asarray(images)[rejected], np.asarray(points)[rejected])
+    monkeypatch.undo()
+    jax.clear_caches()
 
 
 def test_large_batches_flesh_in_blocks(monkeypatch, capsys):

@@ -11,7 +11,7 @@ one). Sampling the primitives' boundaries and reconstructing a surface from the 
 lie inside no other primitive was the alternative; reconstruction is the fragile part there.
 
 The distance is evaluated exactly only in a narrow band: first at the centres of blocks of
-8³ cells, and then at the grid points of blocks where `|distance|` does not exceed the
+4³ cells, and then at the grid points of blocks where `|distance|` does not exceed the
 block's half-diagonal (the union's distance is a lower bound on the distance to its boundary
 inside too, so other blocks hold no surface and keep their sign).
 """
@@ -20,9 +20,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from .primitives import union_distance
+from .primitives import union_closest, union_distance
 
-_BLOCK = 8
+_BLOCK = 4
 
 
 def _block_points(blocks, counts, lo, h):
@@ -112,16 +112,13 @@ def _surface_nets(field, lo, h):
 
 
 def _project(vertices, centers, radii, edges, faces, h):
-    """One Newton step of every vertex towards the zero level set (steps capped at `h`)."""
-    delta = 1e-4 * h
-    offsets = np.concatenate([np.zeros((1, 3)), delta * np.eye(3)])
-    probes = (vertices[:, None, :] + offsets[None]).reshape(-1, 3)
-    values = union_distance(probes, centers, radii, edges, faces, cutoff=2 * h)
-    values = values.reshape(len(vertices), 4)
-    grad = (values[:, 1:4] - values[:, :1]) / delta
-    step = values[:, :1] * grad / np.maximum((grad**2).sum(axis=1, keepdims=True), 1e-12)
-    norm = np.linalg.norm(step, axis=1, keepdims=True)
-    step *= np.minimum(1.0, h / np.maximum(norm, 1e-300))
+    """One Newton step of every vertex towards the zero level set (steps capped at `h`): the
+    distance's gradient is the unit vector from the sphere that attains it (`union_closest`),
+    so the step is the distance along it."""
+    values, centre = union_closest(vertices, centers, radii, edges, faces, cutoff=2 * h)
+    away = vertices - centre
+    unit = away / np.maximum(np.linalg.norm(away, axis=1, keepdims=True), 1e-300)
+    step = np.clip(values, -h, h)[:, None] * unit
     return vertices - step
 
 

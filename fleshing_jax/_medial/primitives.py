@@ -232,10 +232,23 @@ def union_distance(points, centers, radii, edges, faces, *, cutoff: float, group
 
     **Returns:** `(N,)` array, clipped above at `cutoff`.
     """
+    return _union(points, centers, radii, edges, faces, cutoff, group, attaining=False)[0]
+
+
+def union_closest(points, centers, radii, edges, faces, *, cutoff: float, group: int = 64):
+    """`union_distance` and, for each point, the centre `(N, 3)` of the interpolated sphere
+    that attains it: the distance's gradient at the point is the unit vector from that centre
+    (by the envelope theorem). Points with no primitive within `cutoff` keep their own
+    position as centre (no gradient)."""
+    return _union(points, centers, radii, edges, faces, cutoff, group, attaining=True)
+
+
+def _union(points, centers, radii, edges, faces, cutoff, group, attaining):
     points = np.asarray(points, dtype=np.float64)
     out = np.full(len(points), float(cutoff))
+    centre = points.copy() if attaining else None
     if len(points) == 0:
-        return out
+        return out, centre
     union = UnionPrimitives(centers, radii, edges, faces)
     tree = cKDTree(points)
     # Primitives in groups, so that the (point, primitive) pairs of a group stay small.
@@ -249,5 +262,16 @@ def union_distance(points, centers, radii, edges, faces, *, cutoff: float, group
         prim = np.repeat(np.arange(start, start + len(lists)), sizes)
         open_ = out[pts] > -cutoff  # points already deep inside need nothing more
         pts, prim = pts[open_], prim[open_]
-        np.minimum.at(out, pts, union.distance(points, pts, prim))
-    return out
+        if not attaining:
+            np.minimum.at(out, pts, union.distance(points, pts, prim))
+            continue
+        value, spheres, weights = union.closest(points, pts, prim)
+        # Each point's smallest pair of the group (sorted by point, then value), where it
+        # improves on the groups before.
+        order = np.lexsort((value, pts))
+        first = order[np.r_[True, pts[order[1:]] != pts[order[:-1]]]]
+        better = first[value[first] < out[pts[first]]]
+        out[pts[better]] = value[better]
+        centre[pts[better]] = np.einsum("mk,mkd->md", weights[better],
+                                        centers[spheres[better]])
+    return out, centre
