@@ -147,6 +147,7 @@ def _centres_kept_inside(surface: SurfaceQuery, params, trial):
     out = after > limit
     if out.any():
         trial = trial.copy()
+        # 0.9 of the way: short of the surface, as the interpolation is exact on planes only.
         part = 0.9 * (limit - before)[out] / (after - before)[out]
         trial[out] = params[out] + part[:, None] * (trial[out] - params[out])
         still = np.flatnonzero(out)[signed(trial[out, :3]) > limit[out]]
