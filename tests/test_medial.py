@@ -20,7 +20,7 @@ from fleshing_jax._medial.primitives import (
     slab_plane_distance,
     union_distance,
 )
-from fleshing_jax._medial.refine import _closest, _weights
+from fleshing_jax._medial.refine import _centres_kept_inside, _closest, _weights
 from fleshing_jax._medial.surface import SurfaceQuery
 
 DATA = Path(__file__).parents[1].parent / "shared" / "data"
@@ -175,6 +175,21 @@ def test_fit_reaches_a_box_s_edges_and_corners():
     weight = _weights(residual, 3, 4.0)
     np.testing.assert_allclose(weight, [1, 1 + 1 / (5 / 3), 1 + 4 / (5 / 3), 1])
     np.testing.assert_array_equal(_weights(residual, 3, 2.0), 1.0)
+
+
+def test_long_steps_keep_centres_inside():
+    """The fit's longer steps (`refine_spheres(extra=...)`) keep every centre inside the
+    surface: a step that would take a centre out stops short of the surface, one that takes
+    an outside centre further out is not taken, others are kept. (Without this guard the
+    box at 60 spheres of `test_box_spheres_lie_on_its_medial_axis` lost 4 centres.)"""
+    box = trimesh.creation.box([3, 2, 1])
+    query = SurfaceQuery(box.vertices, box.faces)
+    params = np.array([[0, 0, 0, 0.1], [0.5, 0, 0, 0.2], [0, 0, 0.6, 0.1], [0, 0, 0.6, 0.1]])
+    trial = np.array([[0, 0, 0.8, 0.3], [0.6, 0, 0, 0.3], [0, 0, 0.7, 0.1], [0, 0, 0.55, 0]])
+    kept = _centres_kept_inside(query, params, trial.copy())
+    # The first stops at 0.9 of the way to the face (z = 0.5), the radius moved likewise.
+    np.testing.assert_allclose(kept[0], [0, 0, 0.45, 0.1 + 0.9 * 0.5 / 0.8 * 0.2])
+    np.testing.assert_array_equal(kept[1:], [trial[1], params[2], trial[3]])
 
 
 # --- primitives and envelopes of hand-made medial meshes ------------------------------

@@ -28,8 +28,9 @@ def medial_mesh(mesh, spheres: int = 200, *, seed: int = 0, samples: int = 20_00
        connectivity fixed, fitting the union's signed distance to the samples (0) and to
        a quarter as many centres of the initial axis (minus their radii), the samples
        weighted towards the worst covered (an approximate `Σ |d|⁴`: the targets are
-       Hausdorff distances), with every sphere kept inside the surface
-       (`refine.refine_spheres`).
+       Hausdorff distances), with every sphere kept inside the surface; then up to 21
+       steps twice as long, centres kept inside, in rounds of 3 kept while they bring the
+       worst sample nearer (`refine.refine_spheres`).
 
     Deterministic for a given `seed` (NumPy and SciPy only; no threads involved).
 
@@ -39,8 +40,8 @@ def medial_mesh(mesh, spheres: int = 200, *, seed: int = 0, samples: int = 20_00
     - `spheres`: number of spheres to keep (>= 2).
     - `seed`: seed of the surface samples.
     - `samples`: number of random surface samples (more: finer initial axis, slower).
-    - `refine`: number of fitting steps after the simplification (0: the spheres as the
-      collapses left them).
+    - `refine`: number of fitting steps after the simplification, before the longer ones
+      (0: no fit at all, the spheres as the collapses left them).
     - `progress`: show a progress bar of the simplification (`tqdm`).
 
     **Returns:** a `MedialMesh` with NumPy float64 centres and radii.
