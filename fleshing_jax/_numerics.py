@@ -8,9 +8,6 @@ explicit dot products keep XLA's CPU kernels fused (see `dot`).
 
 from __future__ import annotations
 
-import functools
-import operator
-
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -24,11 +21,7 @@ def dot(a: Array, b: Array) -> Array:
     which XLA's CPU backend runs about 7× slower than these fused multiply-adds
     (`benchmarks/README.md`). The per-point code of the batched paths uses this throughout.
     """
-    # One product, then its components added in order (no `0 +` to start from): half the
-    # operations of multiplying component by component, for tracing and compiling; XLA
-    # fuses either into the same multiply-adds.
-    products = a * b
-    return functools.reduce(operator.add, (products[..., i] for i in range(products.shape[-1])))
+    return sum(a[..., i] * b[..., i] for i in range(a.shape[-1]))
 
 
 def weighted_sum(weights: Array, rows: Array) -> Array:
@@ -36,7 +29,7 @@ def weighted_sum(weights: Array, rows: Array) -> Array:
     ...)`), as an explicit sum of products: batched by `vmap`, `jnp.sum` over a short axis
     becomes a reduction that XLA's CPU backend runs several times slower (see `dot`; measured
     on the medial skin, `benchmarks/README.md`)."""
-    return functools.reduce(operator.add, (weights[k] * rows[k] for k in range(rows.shape[0])))
+    return sum(weights[k] * rows[k] for k in range(rows.shape[0]))
 
 
 def norm(a: Array) -> Array:
