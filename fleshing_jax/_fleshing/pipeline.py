@@ -76,16 +76,18 @@ def bend_checks(
 def projects_back(
     target: AbstractSpine | SpineTable, image: Array, s1: Array, distance: Array
 ) -> Array:
-    """Whether `image` (3,) projects on `target` at `s₁` (the global reach test, one point).
+    """Whether `image` (3,) projects on `target` at `s₁` (the global reach test, one point),
+    where `image` was bent into the normal plane at `s₁`, inside the reach there and inside
+    the search range (`bend_checks`; the caller holds these conditions).
 
-    Lines and arcs answer by their closed-form foot: where it is not unique (an arc's axis, a
-    wrapped arc's two candidates a turn apart) the global search does not converge either.
+    Lines and arcs answer in closed form, from `s₁` alone (`_foot_is_unique`): their feet
+    are unique but for a wrapped arc's candidates a turn apart, where the global search does
+    not converge either. (Reading the image's foot instead, an arc's `arctan2` was 60 % of a
+    pose.)
     """
     if isinstance(target, AbstractSpine) and target._has_closed_form_foot():
-        lo, hi = search_range(target)
-        back, converged = target._closest_start(jax.lax.stop_gradient(image), lo, hi)
-    else:
-        back, converged = closest_arc_length(target, image)
+        return target._foot_is_unique(s1, *search_range(target))
+    back, converged = closest_arc_length(target, image)
     tol = relative_tolerance(image.dtype) * (target.length + distance)
     return converged & (jnp.abs(back - s1) <= tol)
 

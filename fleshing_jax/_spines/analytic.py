@@ -52,6 +52,10 @@ class Line(AbstractSpine):
         s = dot(x - self.origin, self.direction)
         return s, (s > lo) & (s < hi)
 
+    def _foot_is_unique(self, s, lo, hi):
+        # A point's foot on a line is the plane through it normal to the line.
+        return jnp.ones_like(s, dtype=bool)
+
 
 class Arc(AbstractSpine):
     """The circular arc `C(s) = o + R sin(s/R) t + R (1 − cos(s/R)) n`, `s ∈ [0, length]`.
@@ -123,6 +127,13 @@ class Arc(AbstractSpine):
         # later) outside the range.
         certified = (a**2 + b**2 > 0) & (s > lo) & (s < hi) & (s + turn >= hi)
         return s, certified
+
+    def _foot_is_unique(self, s, lo, hi):
+        # A point of the normal plane at `s` on the centre's side of the axis (inside the
+        # reach) is nearest to the circle's point at `s`, which the arc continued over
+        # `[lo, hi]` passes again a turn before or after, if the range holds a turn more.
+        turn = 2 * jnp.pi * self.radius
+        return (s - turn <= lo) & (s + turn >= hi)
 
     def default_samples(self) -> int:
         return _samples_for_turns(self.length / self.radius)

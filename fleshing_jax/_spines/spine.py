@@ -143,6 +143,13 @@ class AbstractSpine(eqx.Module):
         no closed form: the batched registration then searches (`_fleshing.projection`)."""
         return None
 
+    def _foot_is_unique(self, s: Array, lo: Array, hi: Array) -> Array:
+        """Where `_closest_start` has a closed form: whether every point in the normal plane
+        at `s` (inside `(lo, hi)`) and inside the local reach there (`1 − k·d > 0`) has `s`
+        as its unique foot on the spine continued over `[lo, hi]`. What the projection check
+        of a pose needs: its images are built in that plane, so that it reads no foot."""
+        raise NotImplementedError(f"{type(self).__name__} has no closed-form foot")
+
     def _has_closed_form_foot(self) -> bool:
         """Whether `_closest_start` has a closed form (static: the spine's type decides)."""
         return type(self)._closest_start is not AbstractSpine._closest_start
