@@ -132,12 +132,15 @@ class Poser(eqx.Module):
     exact: AbstractSpine | None  # for the projection check, with one (gradients stopped)
 
     def __init__(self, target, method, twist, check_projection=True):
-        self.target = fast_evaluator(target)
-        # Tabulated from the spine table (its nodes are the table's, so no exact evaluation).
+        closed = target._has_closed_form_foot()
+        # Tabulated from the spine table (its nodes are the table's, so no exact evaluation),
+        # but for lines and arcs: cheap to evaluate exactly, and checked without the table,
+        # so that none is built (half the preparation's compilation of an arc).
+        self.target = target._prepare() if closed else fast_evaluator(target)
         self.frames = TargetFrames(self.target, twist, tabulate=tabulates(target))
         self.method, self.check_projection = method, check_projection
-        closed = check_projection and target._has_closed_form_foot()
-        self.exact = jax.lax.stop_gradient(target._prepare()) if closed else None
+        checked = check_projection and closed
+        self.exact = jax.lax.stop_gradient(self.target) if checked else None
         self.reach = LocalReach(self.target) if check_projection and not closed else None
 
     @property
