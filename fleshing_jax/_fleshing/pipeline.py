@@ -120,12 +120,13 @@ class Poser(eqx.Module):
     lower bound of its reach (`reach`); the few others are bent again and run the global
     search (`update_where`), so that the images are consumed once (by the output) and XLA
     computes them in the same kernel as the frames they are made of. Lines and arcs are
-    checked by their closed-form feet instead (`exact`, see `projects_back`): no reach bounds
-    to build (most of the preparation's compilation), and no global search.
+    checked in closed form instead (`exact`, see `projects_back`): no reach bounds and no spine
+    table to build (most of the preparation's compilation), and no global search.
     """
 
     frames: TargetFrames  # what the points are bent with
-    target: AbstractSpine | SpineTable  # what the images are projected back on: `fast_evaluator`
+    # What the images are projected back on: `fast_evaluator`'s (the exact line or arc).
+    target: AbstractSpine | SpineTable
     method: str = eqx.field(static=True)
     check_projection: bool = eqx.field(static=True)
     reach: LocalReach | None  # for the projection check, without a closed-form foot
