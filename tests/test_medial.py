@@ -18,6 +18,7 @@ from fleshing_jax._medial.primitives import (
     UnionPrimitives,
     cone_distance,
     slab_plane_distance,
+    union_closest,
     union_distance,
 )
 from fleshing_jax._medial.refine import _centres_kept_inside, _closest, _weights
@@ -245,6 +246,32 @@ def test_pairs_evaluated_in_blocks_match_one_pass(monkeypatch):
     np.testing.assert_allclose(weights.sum(axis=1), 1.0)
     np.testing.assert_allclose(np.linalg.norm(points - foot, axis=1)
                                - np.einsum("ij,ij->i", weights, radii[spheres]), best, atol=1e-12)
+
+
+def test_union_closest_gives_the_distance_and_its_gradient():
+    """`union_closest` (the envelope's Newton projection): the distances of
+    `union_distance`, and the unit vector from each attaining centre is the distance's
+    gradient (central differences), outside and inside the union; points beyond the cutoff
+    keep their own position."""
+    rng = np.random.default_rng(8)
+    centres, radii = rng.normal(size=(5, 3)), rng.uniform(0.3, 0.7, 5)
+    arrays = (centres, radii, np.array([[0, 1], [0, 2], [1, 2], [2, 3], [3, 4]]),
+              np.array([[0, 1, 2]]))
+    points = 1.2 * rng.normal(size=(300, 3))
+    values, centre = union_closest(points, *arrays, cutoff=0.5)
+    np.testing.assert_array_equal(values, union_distance(points, *arrays, cutoff=0.5))
+    near = np.abs(values) < 0.4
+    assert near.sum() > 100 and (values[near] < 0).any()
+    h = 1e-6
+    fd = np.stack([(union_distance(points + h * e, *arrays, cutoff=0.5)
+                    - union_distance(points - h * e, *arrays, cutoff=0.5)) / (2 * h)
+                   for e in np.eye(3)], axis=1)
+    away = (points - centre)[near]
+    unit = away / np.linalg.norm(away, axis=1, keepdims=True)
+    np.testing.assert_allclose(unit, fd[near], atol=1e-5)
+    far = values >= 0.5
+    assert far.any()
+    np.testing.assert_array_equal(centre[far], points[far])
 
 
 def test_two_sphere_envelope_is_a_closed_capsule():
