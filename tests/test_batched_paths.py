@@ -340,9 +340,9 @@ def test_closed_form_feet_need_no_reach_bounds():
 
 @pytest.mark.parametrize("dtype", [jnp.float64, jnp.float32])
 def test_projection_check_on_lines_and_arcs_equals_the_global_check(dtype):
-    # Onto lines and arcs, the projection check reads the image's closed-form foot (no reach
-    # bounds, no search): the same flags as the global search (`closest_arc_length`) would
-    # give, on the batched path and on the one-point path. The arcs bend a thick
+    # Onto lines and arcs, the projection check is a closed form of `s₁` (no reach bounds, no
+    # search, no foot read back): the same flags as the global search (`closest_arc_length`)
+    # would give, on the batched path and on the one-point path. The arcs bend a thick
     # tube past their centres and wrap more than a turn (two candidate feet).
     from fleshing_jax._numerics import relative_tolerance
 

@@ -120,17 +120,16 @@ class Poser(eqx.Module):
     lower bound of its reach (`reach`); the few others are bent again and run the global
     search (`update_where`), so that the images are consumed once (by the output) and XLA
     computes them in the same kernel as the frames they are made of. Lines and arcs are
-    checked in closed form instead (`exact`, see `projects_back`): no reach bounds and no spine
-    table to build (most of the preparation's compilation), and no global search.
+    checked in closed form instead (`projects_back`, from `s₁` alone): no reach bounds and no
+    spine table to build (most of the preparation's compilation), and no global search.
     """
 
     frames: TargetFrames  # what the points are bent with
-    # What the images are projected back on: `fast_evaluator`'s (the exact line or arc).
+    # What the images are checked on: the spine's `fast_evaluator`, or the line or arc itself.
     target: AbstractSpine | SpineTable
     method: str = eqx.field(static=True)
     check_projection: bool = eqx.field(static=True)
     reach: LocalReach | None  # for the projection check, without a closed-form foot
-    exact: AbstractSpine | None  # for the projection check, with one (gradients stopped)
 
     def __init__(self, target, method, twist, check_projection=True):
         closed = target._has_closed_form_foot()
@@ -140,8 +139,6 @@ class Poser(eqx.Module):
         self.target = target._prepare() if closed else fast_evaluator(target)
         self.frames = TargetFrames(self.target, twist, tabulate=tabulates(target))
         self.method, self.check_projection = method, check_projection
-        checked = check_projection and closed
-        self.exact = jax.lax.stop_gradient(self.target) if checked else None
         self.reach = LocalReach(self.target) if check_projection and not closed else None
 
     @property
@@ -171,7 +168,7 @@ class Poser(eqx.Module):
 
     def _bend(self, registration: Registration) -> tuple[Array, Array, Array, Array]:
         """`(images, valid, certified, pending)`: valid before the projection check; certified
-        by the reach bound or checked by the closed-form foot (or valid, without the check);
+        by the reach bound or checked in closed form (or valid, without the check);
         pending: the valid points that the bound does not certify, for the global search."""
         image, valid, s1, distance = jax.vmap(
             lambda reg: bend_point(reg, self.frames, self.method),
@@ -179,10 +176,10 @@ class Poser(eqx.Module):
         )(registration)
         if not self.check_projection:
             return image, valid, valid, jnp.zeros_like(valid)
-        if self.exact is None:
+        if self.reach is not None:
             certified = valid & (distance < jax.vmap(self.reach)(s1))
             return image, valid, certified, valid & ~certified
-        checked = jax.vmap(lambda *a: projects_back(self.exact, *a))(image, s1, distance)
+        checked = jax.vmap(lambda *a: projects_back(self.target, *a))(image, s1, distance)
         return image, valid, valid & checked, jnp.zeros_like(valid)
 
     def _projects(self, reg: Registration) -> Array:
