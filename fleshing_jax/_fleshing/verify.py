@@ -9,7 +9,7 @@ from jaxtyping import Array, ArrayLike, Float
 
 from .._batching.buckets import bucket, pad_batch, unpad_batch
 from .._checks import is_concrete
-from .pipeline import Fleshing, _check_points
+from .pipeline import Fleshing, _check_points, apply_point
 
 
 def jacobian_determinant(fleshing: Fleshing, points: ArrayLike) -> Float[Array, " N"]:
@@ -42,7 +42,7 @@ def jacobian_determinant(fleshing: Fleshing, points: ArrayLike) -> Float[Array, 
 @eqx.filter_jit
 def _determinants(fleshing, points):
     def one(x):
-        jacobian, valid = jax.jacfwd(fleshing.apply, has_aux=True)(x)
+        jacobian, valid = jax.jacfwd(lambda x: apply_point(fleshing, x), has_aux=True)(x)
         return jnp.where(valid, jnp.linalg.det(jacobian), jnp.nan)
 
     return jax.vmap(one)(points)
