@@ -5,6 +5,8 @@ interpolation error must sit far below float32's resolution, so that those paths
 exact spines give, to float32 round-off (and float64 keeps the exact spines).
 """
 
+import functools
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -12,8 +14,9 @@ import pytest
 from conftest import cloud
 
 import fleshing_jax as fj
-from fleshing_jax._fleshing.projection import _nearest
+from fleshing_jax._fleshing.projection import Registrar, _nearest
 from fleshing_jax._fleshing.target import TargetFrames
+from fleshing_jax._spines.spine import AbstractSpine
 from fleshing_jax._spines.table import SpineTable, fast_evaluator
 
 TORSION = [[0, 0, 0], [1, 0.4, 0.1], [2, 0.1, 0.6], [3, -0.5, 0.4], [4, 0, 0.2], [5, 0.3, 0.8]]
@@ -122,6 +125,26 @@ def test_fast_evaluator_is_exact_in_float64_and_for_polylines():
     assert isinstance(fast_evaluator(arc32), SpineTable)
     polyline = fj.Polyline(np.asarray(INFLECTION, np.float32))
     assert not isinstance(fast_evaluator(polyline), SpineTable)
+
+
+def test_lines_are_evaluated_exactly_in_closed_form():
+    # A line is cheaper exactly than through a table: float32 searches it as it is, on whole
+    # batches, with its search and registration terms in closed form. They equal the generic
+    # terms from its jets and frames, past its ends too, and so do their derivatives.
+    line32 = fj.Line(np.float32(4.0))
+    assert fast_evaluator(line32) is line32
+    assert Registrar(line32).fused and not Registrar(fj.Helix(2.0, 3.0, 8.0)).fused
+    line = fj.Line(4.0, origin=(1, 2, 3), tangent=(0, 0.6, 0.8))
+    rng = np.random.default_rng(5)
+    s = jnp.asarray(rng.uniform(-2.0, 6.0, 50))
+    x = jax.vmap(line)(s) + jnp.asarray(rng.normal(0, 0.5, (50, 3)))
+    for terms in ("_foot_terms", "_local_terms"):
+        closed = getattr(line, terms)
+        generic = functools.partial(getattr(AbstractSpine, terms), line)
+        for f in (lambda f: f, lambda f: jax.jacfwd(f, argnums=(0, 1))):
+            want, got = jax.vmap(f(generic))(x, s), jax.vmap(f(closed))(x, s)
+            for w, g in zip(jax.tree.leaves(want), jax.tree.leaves(got), strict=True):
+                np.testing.assert_allclose(np.asarray(g), np.asarray(w), rtol=0, atol=1e-14)
 
 
 PAIRS = {

@@ -25,7 +25,7 @@ from .._batching.compact import update_where
 from .._checks import as_points, as_twist, is_concrete
 from .._numerics import cast_floats, dot, norm, relative_tolerance
 from .._spines.spine import AbstractSpine
-from .._spines.table import SpineTable, fast_evaluator, tabulates
+from .._spines.table import SpineTable, fast_evaluator, runs_whole, tabulates
 from .eager import pose_eagerly, register_eagerly
 from .maps import BEND, UNBEND
 from .methods import check_method
@@ -143,8 +143,9 @@ class Poser(eqx.Module):
 
     @property
     def fused(self) -> bool:
-        """Whether the frames are tabulated: batches then run whole (`map_chunks`)."""
-        return self.frames.table is not None
+        """Whether the frames are tabulated, or the target cheap exactly (lines): batches then
+        run whole (`map_chunks`)."""
+        return self.frames.table is not None or self.target._is_cheap()
 
     def pose(self, registration: Registration) -> tuple[Array, Array]:
         """`pose_point` for a batch of registered points (`length` shared or repeated per
@@ -431,12 +432,12 @@ def flesh(
     twist = as_twist(twist, points.dtype)  # checked before any work
     cast_source, cast_target = cast_floats((source, target), points.dtype)
     if points.shape[0] <= _chunks.CHUNK_POINTS or (
-        tabulates(cast_source) and tabulates(cast_target)
+        runs_whole(cast_source) and runs_whole(cast_target)
     ):
-        # One chunk, or tabulated spines (whose batches run whole): nothing to gain from one
-        # program, and compiled apart, the registration is compiled once for all the methods
-        # and targets a shape is fleshed onto. (In one program XLA fuses the registration's
-        # lookups into the pose's kernels, ~1.5× slower than the two calls.)
+        # One chunk, or tabulated or cheap spines (whose batches run whole): nothing to gain
+        # from one program, and compiled apart, the registration is compiled once for all the
+        # methods and targets a shape is fleshed onto. (In one program XLA fuses the
+        # registration's lookups into the pose's kernels, ~1.5× slower than the two calls.)
         options = dict(method=method, twist=twist, check_projection=check_projection)
         if is_concrete(points) and points.shape[0] > BLOCK_POINTS:
             return _flesh_in_blocks(points, source, target, options, progress)

@@ -215,8 +215,9 @@ class Registrar(eqx.Module):
 
     @property
     def fused(self) -> bool:
-        """Whether the spine is tabulated: batches then run whole (`map_chunks`)."""
-        return isinstance(self.spine, SpineTable)
+        """Whether the spine is tabulated or cheap exactly (lines): batches then run whole
+        (`map_chunks`)."""
+        return isinstance(self.spine, SpineTable) or self.spine._is_cheap()
 
     def start(self, x: Array) -> tuple[Array, Array]:
         """`(s, certified)` for one point: the spine's closed-form foot (lines, arcs), else

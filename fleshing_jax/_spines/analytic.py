@@ -13,7 +13,7 @@ from jaxtyping import Array, ArrayLike
 
 from .._batching.buckets import bucket
 from .._checks import as_float_array, check_positive, is_concrete, unit
-from .._numerics import dot
+from .._numerics import dot, norm
 from .spine import AbstractSpine, initial_normal
 
 
@@ -55,6 +55,22 @@ class Line(AbstractSpine):
     def _foot_is_unique(self, s, lo, hi):
         # A point's foot on a line is the plane through it normal to the line.
         return jnp.ones_like(s, dtype=bool)
+
+    def _is_cheap(self):
+        return True
+
+    # The search's and the registration's terms in closed form (the line continues as itself,
+    # with constant normals), without the generic jets at `s` and at both ends: the batched
+    # registration of a line is then a few multiply-adds a point.
+    def _foot_terms(self, x, s):
+        d = x - self.origin - s * self.direction
+        return -dot(d, self.direction), jnp.ones_like(s), norm(d)
+
+    def _local_terms(self, x, s):
+        i, j = self._normals(s)
+        d = x - self.origin - s * self.direction
+        offset = jnp.stack([dot(d, i), dot(d, j)])
+        return offset, jnp.zeros_like(offset), jnp.ones_like(s)
 
 
 class Arc(AbstractSpine):

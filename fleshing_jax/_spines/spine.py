@@ -136,6 +136,12 @@ class AbstractSpine(eqx.Module):
         cubic pieces (`table`): smooth spines yes, piecewise ones (polylines) no (static)."""
         return True
 
+    def _is_cheap(self) -> bool:
+        """Whether the spine is evaluated exactly in a few operations a point, fewer than a
+        table lookup takes (lines): the batched paths then use it as it is, on whole batches
+        (static)."""
+        return False
+
     def _closest_start(self, x: Array, lo: Array, hi: Array) -> tuple[Array, Array] | None:
         """A closed-form closest projection of `x` (3,) on the spine continued over the search
         range `[lo, hi]`, for the batched registration: `(s, certified)`, certified when `s` is

@@ -225,8 +225,15 @@ def _dot(x: Array, values: list[Array]) -> Array:
 
 def tabulates(spine: AbstractSpine) -> bool:
     """Whether the batched paths evaluate `spine` through tables: in single precision, and for
-    smooth spines (static)."""
-    return jnp.finfo(spine.length.dtype).bits <= 32 and spine._tabulable()
+    smooth spines that are not cheaper exactly (static)."""
+    return jnp.finfo(spine.length.dtype).bits <= 32 and spine._tabulable() and not spine._is_cheap()
+
+
+def runs_whole(spine: AbstractSpine) -> bool:
+    """Whether the batched paths run batches on `spine` whole: tabulated, or cheap exactly
+    (lines); other exact spines run in chunks, so that memory does not grow with their
+    intermediates per point (`map_chunks`; static)."""
+    return tabulates(spine) or spine._is_cheap()
 
 
 def fast_evaluator(spine: AbstractSpine) -> AbstractSpine | SpineTable:
