@@ -127,24 +127,43 @@ def test_fast_evaluator_is_exact_in_float64_and_for_polylines():
     assert not isinstance(fast_evaluator(polyline), SpineTable)
 
 
-def test_lines_are_evaluated_exactly_in_closed_form():
-    # A line is cheaper exactly than through a table: float32 searches it as it is, on whole
-    # batches, with its search and registration terms in closed form. They equal the generic
-    # terms from its jets and frames, past its ends too, and so do their derivatives.
+def _same_values_and_derivatives(f, g, *args):
+    for h in (lambda f: f, lambda f: jax.jacfwd(f, argnums=tuple(range(len(args))))):
+        want, got = jax.vmap(h(f))(*args), jax.vmap(h(g))(*args)
+        for w, v in zip(jax.tree.leaves(want), jax.tree.leaves(got), strict=True):
+            np.testing.assert_allclose(np.asarray(v), np.asarray(w), rtol=0, atol=1e-13)
+
+
+class _GenericLine(fj.Line):
+    def _continues_as_itself(self):
+        return False
+
+
+class _GenericArc(fj.Arc):
+    def _continues_as_itself(self):
+        return False
+
+
+def test_lines_and_arcs_are_evaluated_in_closed_form_past_their_ends():
+    # Both continue past their ends as themselves (an arc along its osculating circle): their
+    # closed forms at any `s` equal the generic continuation from the end, values and
+    # derivatives. A line is cheaper exactly than through a table: float32 searches it as it
+    # is, on whole batches, with its search and registration terms in closed form.
     line32 = fj.Line(np.float32(4.0))
     assert fast_evaluator(line32) is line32
     assert Registrar(line32).fused and not Registrar(fj.Helix(2.0, 3.0, 8.0)).fused
-    line = fj.Line(4.0, origin=(1, 2, 3), tangent=(0, 0.6, 0.8))
+    options = dict(origin=(1.0, 2.0, 3.0), tangent=(0.0, 0.6, 0.8))
+    line, generic_line = fj.Line(4.0, **options), _GenericLine(4.0, **options)
+    arc, generic_arc = (kind(2.0, 5.0, normal=(1.0, 0.0, 1.0), **options)
+                        for kind in (fj.Arc, _GenericArc))
     rng = np.random.default_rng(5)
-    s = jnp.asarray(rng.uniform(-2.0, 6.0, 50))
-    x = jax.vmap(line)(s) + jnp.asarray(rng.normal(0, 0.5, (50, 3)))
+    s = jnp.asarray(rng.uniform(-3.0, 8.0, 60))  # about a third of them past an end
+    for spine, generic in ((line, generic_line), (arc, generic_arc)):
+        _same_values_and_derivatives(generic.jet_and_normals, spine.jet_and_normals, s)
+    x = jax.vmap(line)(s) + jnp.asarray(rng.normal(0, 0.5, (60, 3)))
     for terms in ("_foot_terms", "_local_terms"):
-        closed = getattr(line, terms)
-        generic = functools.partial(getattr(AbstractSpine, terms), line)
-        for f in (lambda f: f, lambda f: jax.jacfwd(f, argnums=(0, 1))):
-            want, got = jax.vmap(f(generic))(x, s), jax.vmap(f(closed))(x, s)
-            for w, g in zip(jax.tree.leaves(want), jax.tree.leaves(got), strict=True):
-                np.testing.assert_allclose(np.asarray(g), np.asarray(w), rtol=0, atol=1e-14)
+        generic = functools.partial(getattr(AbstractSpine, terms), generic_line)
+        _same_values_and_derivatives(generic, getattr(line, terms), x, s)
 
 
 PAIRS = {

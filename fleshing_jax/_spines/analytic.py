@@ -59,6 +59,9 @@ class Line(AbstractSpine):
     def _is_cheap(self):
         return True
 
+    def _continues_as_itself(self):
+        return True
+
     # The search's and the registration's terms in closed form (the line continues as itself,
     # with constant normals), without the generic jets at `s` and at both ends: the batched
     # registration of a line is then a few multiply-adds a point.
@@ -109,6 +112,9 @@ class Arc(AbstractSpine):
         self.start_tangent, self.start_normal = t, n
         check_positive(self.radius, "radius")
         check_positive(self.length, "length")
+
+    def _continues_as_itself(self):
+        return True  # along its osculating circle: itself
 
     def _jet(self, s):
         t, n, r = self.start_tangent, self.start_normal, self.radius
