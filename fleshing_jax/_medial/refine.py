@@ -88,10 +88,12 @@ def _candidates(tree, points, union: UnionPrimitives, margin: float, reach: floa
         # A sample whose best is beyond `reach` may have a closer primitive not yet searched.
         todo = todo[~(best[todo] <= reach)]
         reach *= 4
-    pts, prim, value = (np.concatenate(x) for x in (found_pts, found_prim, found_val))
-    keep = value <= best[pts] + 2 * margin
-    order = np.argsort(prim[keep], kind="stable")  # `UnionPrimitives.closest` wants them so
-    return pts[keep][order], prim[keep][order]
+    pts, prim, value = (np.concatenate(x) if len(x) > 1 else x[0]
+                        for x in (found_pts, found_prim, found_val))
+    keep = np.flatnonzero(value <= best[pts] + 2 * margin)
+    if len(found_pts) > 1:  # `UnionPrimitives.closest` wants the primitives ascending
+        keep = keep[np.argsort(prim[keep], kind="stable")]
+    return pts[keep], prim[keep]
 
 
 def _closest(points, pts, prim, union: UnionPrimitives):
@@ -147,7 +149,11 @@ def _centres_kept_inside(surface: SurfaceQuery, params, trial):
     only up to where its centre's signed distance, linearly interpolated along the step,
     reaches the surface; one still outside there keeps still."""
     def signed(centres):
-        distance, _, inside = surface.query(centres)
+        # Not certified (`exact=False`): a centre deep inside keeps the best of its nearest
+        # faces, whose sign is unambiguous, and one near the surface, where the guard acts,
+        # is certified by them anyway. Certifying every centre on a capsule's axis (a ring
+        # of equidistant faces) took 0.5 s a call, 107 s of its fit at 200 spheres.
+        distance, _, inside = surface.query(centres, exact=False)
         return np.where(inside, -distance, distance)
 
     before, after = signed(params[:, :3]), signed(trial[:, :3])
