@@ -2,12 +2,14 @@
 
     python benchmarks/medial.py               # both tables
     python benchmarks/medial.py --quick       # procedural shapes only, no scaling table
+    python benchmarks/medial.py --scaling     # only the scaling table
 
 Prints Markdown tables:
 
 1. Accuracy per shape and sphere count: time of `medial_mesh` (sampling, Voronoi,
-   simplification), the one-sided Hausdorff distances surface → envelope and envelope →
-   surface (fractions of the bounding-box diagonal), the envelope's volume error, the Euler
+   simplification, fit), the one-sided Hausdorff distances surface → envelope and envelope →
+   surface (fractions of the bounding-box diagonal, on samples of seed 1, which the
+   construction did not fit), the envelope's volume error, the Euler
    characteristic `V − E + F` of the medial mesh, and the widest slab (smallest altitude of
    a face's triangle of centres, fraction of the diagonal). Shapes: a capsule (radius 0.5,
    axis 4), a torus (2, 0.5), a box 3 × 2 × 1, a flat ellipsoid 2 × 1.2 × 0.3, and, when
@@ -84,7 +86,8 @@ def accuracy(quick: bool):
             start = time.perf_counter()
             medial = medial_mesh(mesh, spheres, progress=False)
             elapsed = time.perf_counter() - start
-            to_envelope, to_surface = medial_distance(medial, mesh)
+            # seed 1: samples that the construction (seed 0) did not fit
+            to_envelope, to_surface = medial_distance(medial, mesh, seed=1)
             centers, _, edges, faces = medial.numpy()
             volume = medial.volume() / mesh.volume - 1
             print(f"| {name} | {len(mesh.vertices)} | {spheres} | {elapsed:.1f} | "
@@ -144,12 +147,15 @@ if __name__ == "__main__":
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true")
     parser.add_argument("--memory", action="store_true", help="only the memory table")
+    parser.add_argument("--scaling", action="store_true", help="only the scaling table")
     parser.add_argument("--_probe", help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args._probe:
         _probe(args._probe)
     elif args.memory:
         memory()
+    elif args.scaling:
+        scaling()
     else:
         accuracy(args.quick)
         if not args.quick:

@@ -2,6 +2,7 @@
 and bad input. Meshes are small and `samples` low so that the file runs in well under a minute.
 """
 
+import functools
 import os
 from pathlib import Path
 
@@ -9,7 +10,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from fleshing_jax._medial import primitives
+from fleshing_jax._medial import construct, primitives, simplify
 from fleshing_jax._medial.construct import medial_mesh
 from fleshing_jax._medial.distance import medial_distance
 from fleshing_jax._medial.files import load_medial, save_medial
@@ -120,9 +121,11 @@ def test_box_spheres_lie_on_its_medial_axis():
     diagonal = _diagonal(box)
     # A point is on a box's medial axis where its two nearest faces are equally near; the
     # medial radius is that distance. Merged spheres are optimised for the error, not kept
-    # exactly medial: they may move off the axis and past the surface by a little.
+    # exactly medial: they may move off the axis and past the surface by a little, and the
+    # fit's first steps (before its guard) may take a centre just outside a sharp edge (one
+    # by 0.07 % of the diagonal since the collapses count the worst uncovered sample).
     face_distance = np.sort(np.concatenate([half - centers, half + centers], axis=1), axis=1)
-    assert (face_distance[:, 0] > 0).all()
+    assert (face_distance[:, 0] > -0.001 * _diagonal(box)).all()
     off_axis = face_distance[:, 1] - face_distance[:, 0]
     assert off_axis.max() < 0.03 * diagonal and np.median(off_axis) < 0.01 * diagonal
     assert (radii <= face_distance[:, 0] + 0.025 * diagonal).all()
@@ -144,8 +147,9 @@ def test_spot_medial_mesh_approximates_it():
 
 def test_fit_brings_a_flat_ellipsoid_within_target():
     """The fit after the collapses (`refine`): 30 spheres for a flat ellipsoid (a slab-like
-    shape) end within 1.5 % of the diagonal both ways (4.4 % and 2.7 % without it) and
-    within 1 % of the volume (-6 % without), measured on samples the fit did not see."""
+    shape) end within 1.5 % of the diagonal both ways (2.1 % and 1.7 % without it; 4.4 % and
+    2.7 % before the collapses counted the worst uncovered sample) and within 1 % of the
+    volume, measured on samples the fit did not see."""
     ellipsoid = trimesh.creation.icosphere(3)
     ellipsoid.vertices *= [2, 1.2, 0.3]
     before = medial_mesh(ellipsoid, 30, samples=SAMPLES, refine=0, progress=False)
@@ -154,13 +158,29 @@ def test_fit_brings_a_flat_ellipsoid_within_target():
                                                                           after.faces)
     far = medial_distance(before, ellipsoid, samples=SAMPLES, seed=1, resolution=64)
     near = medial_distance(after, ellipsoid, samples=SAMPLES, seed=1, resolution=64)
-    assert max(far) > 0.025 and max(near) < 0.015
+    assert max(far) > 0.02 and max(near) < 0.015
     assert abs(after.volume() / ellipsoid.volume - 1) < 0.01
     # Every sphere stays inside the surface (up to the fit's tolerance) with radius >= 0.
     query = SurfaceQuery(ellipsoid.vertices, ellipsoid.faces)
     distance, _, inside = query.query(np.asarray(after.centers))
     assert (np.asarray(after.radii) >= 0).all() and inside.all()
     assert (np.asarray(after.radii) - distance).max() < 0.01 * _diagonal(ellipsoid)
+
+
+def test_collapses_count_the_worst_uncovered_sample(monkeypatch):
+    """Late in the collapses, an edge's cost counts the farthest of its spheres' contact
+    samples left outside what remains around them (`simplify._uncovered`, `hausdorff`):
+    30 spheres of a flat ellipsoid before any fit end within 2.2 % / 1.8 % of the diagonal,
+    4.4 % / 2.7 % without that term (the quadric error is a mean over the contacts)."""
+    ellipsoid = trimesh.creation.icosphere(3)
+    ellipsoid.vertices *= [2, 1.2, 0.3]
+    with_term = medial_mesh(ellipsoid, 30, samples=SAMPLES, refine=0, progress=False)
+    monkeypatch.setattr(construct, "simplify", functools.partial(simplify.simplify,
+                                                                 hausdorff=0.0))
+    without = medial_mesh(ellipsoid, 30, samples=SAMPLES, refine=0, progress=False)
+    near = medial_distance(with_term, ellipsoid, samples=SAMPLES, seed=1, resolution=64)
+    far = medial_distance(without, ellipsoid, samples=SAMPLES, seed=1, resolution=64)
+    assert near[0] < 0.025 and far[0] > 0.04 and near[1] < far[1]
 
 
 def test_fit_reaches_a_box_s_edges_and_corners():

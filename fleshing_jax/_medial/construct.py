@@ -23,7 +23,9 @@ def medial_mesh(mesh, spheres: int = 200, *, seed: int = 0, samples: int = 20_00
        circumcentres inside the mesh, radius = distance to the mesh, joined by Voronoi edges
        and faces (Q-MAT's initial medial axis).
     3. Q-MAT's edge collapses by sphere-quadric error with the stability ratio (saturated:
-       our own change, see `simplify`), down to `spheres` (`simplify.simplify`).
+       our own change, see `simplify`), down to `spheres` (`simplify.simplify`); from 4 ×
+       `spheres` (at most 200) down, the cost also counts the farthest contact sample that
+       a collapse would leave uncovered (our own addition).
     4. Our own addition: `refine` damped Gauss-Newton steps on all centres and radii, the
        connectivity fixed, fitting the union's signed distance to the samples (0) and to
        a quarter as many centres of the initial axis (minus their radii), the samples
@@ -90,7 +92,8 @@ def medial_mesh(mesh, spheres: int = 200, *, seed: int = 0, samples: int = 20_00
     with bar:
         centers, radii, edges, tris = simplify(axis.centers, axis.radii, axis.edges,
                                                axis.faces, quadrics, int(spheres),
-                                               scale=diagonal, progress=bar)
+                                               scale=diagonal, progress=bar,
+                                               contacts=(axis.points, axis.contacts))
     if refine:
         # The surface samples at distance 0, and centres of the initial axis at minus their
         # radius: without the latter, nothing would stop the fit from opening holes inside.
