@@ -130,6 +130,29 @@ def test_load_mesh(tmp_path, small):
         fj.load_mesh(junk)
 
 
+@pytest.mark.parametrize("corners", ["plain", "texture seams", "normal seams"])
+def test_obj_files_keep_one_vertex_per_v_line_in_file_order(tmp_path, corners):
+    # A tetrahedron and a vertex no face uses, written in no particular order: trimesh's
+    # default read drops the unused vertex and splits texture or normal seams.
+    vertices = np.array([[5.0, 5, 5], [0, 0, 1], [0, 1, 0], [1, 0, 0], [0, 0, 0]])
+    faces = np.array([[5, 3, 4], [5, 4, 2], [5, 2, 3], [4, 3, 2]])  # 1-based, as in the file
+    lines = [f"v {x} {y} {z}" for x, y, z in vertices]
+    if corners == "texture seams":
+        lines += ["vt 0 0", "vt 1 0", "vt 0 1", "vt 1 1"]
+        lines += ["f " + " ".join(f"{v}/{(k + j) % 4 + 1}" for j, v in enumerate(f))
+                  for k, f in enumerate(faces)]
+    elif corners == "normal seams":
+        lines += ["vn 1 0 0", "vn 0 1 0", "vn 0 0 1", "vn 1 1 1"]
+        lines += ["f " + " ".join(f"{v}//{k + 1}" for v in f) for k, f in enumerate(faces)]
+    else:
+        lines += ["f " + " ".join(map(str, f)) for f in faces]
+    path = tmp_path / "m.obj"
+    path.write_text("\n".join(lines) + "\n")
+    mesh = fj.load_mesh(path)
+    np.testing.assert_array_equal(mesh.vertices, vertices)
+    np.testing.assert_array_equal(mesh.faces, faces - 1)
+
+
 def test_cap_holes_closes_and_keeps_order():
     closed = fj.extrusion(np.c_[np.cos(np.arange(12) / 2), np.sin(np.arange(12) / 2)], 2.0, 4)
     m = len(closed.faces)
