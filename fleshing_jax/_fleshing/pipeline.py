@@ -143,9 +143,9 @@ class Poser(eqx.Module):
 
     @property
     def fused(self) -> bool:
-        """Whether the frames are tabulated, or the target cheap exactly (lines): batches then
-        run whole (`map_chunks`)."""
-        return self.frames.table is not None or self.target._is_cheap()
+        """Whether the target is tabulated (so are the frames), or cheap exactly (lines):
+        batches then run whole (`map_chunks`)."""
+        return runs_whole(self.target)
 
     def pose(self, registration: Registration) -> tuple[Array, Array]:
         """`pose_point` for a batch of registered points (`length` shared or repeated per

@@ -20,7 +20,7 @@ from .._batching.chunks import map_chunks
 from .._batching.compact import update_where
 from .._numerics import dot, polish_root, relative_tolerance
 from .._spines.spine import AbstractSpine
-from .._spines.table import SpineTable, fast_evaluator
+from .._spines.table import SpineTable, fast_evaluator, runs_whole
 from .reach import LocalReach, search_range
 
 NEWTON_STEPS = 8
@@ -217,7 +217,7 @@ class Registrar(eqx.Module):
     def fused(self) -> bool:
         """Whether the spine is tabulated or cheap exactly (lines): batches then run whole
         (`map_chunks`)."""
-        return isinstance(self.spine, SpineTable) or self.spine._is_cheap()
+        return runs_whole(self.spine)
 
     def start(self, x: Array) -> tuple[Array, Array]:
         """`(s, certified)` for one point: the spine's closed-form foot (lines, arcs), else

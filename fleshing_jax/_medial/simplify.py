@@ -126,11 +126,7 @@ def _gather(start, ids):
 
 def _pairs_by_row(rows_a, rows_b, m):
     """Every `(a, b)` index pair with `rows_a[a] == rows_b[b]`, both sorted by row `< m`."""
-    start_b = _groups(rows_b, m)
-    count = (start_b[1:] - start_b[:-1])[rows_a]
-    a = np.repeat(np.arange(len(rows_a)), count)
-    first = np.repeat(start_b[rows_a] - np.cumsum(count) + count, count)
-    return a, first + np.arange(len(a))
+    return _gather(_groups(rows_b, m), rows_a)
 
 
 def _uncovered(spheres, edges, faces, pairs, optimum, samples, points):

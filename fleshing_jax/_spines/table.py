@@ -229,15 +229,16 @@ def tabulates(spine: AbstractSpine) -> bool:
     return jnp.finfo(spine.length.dtype).bits <= 32 and spine._tabulable() and not spine._is_cheap()
 
 
-def runs_whole(spine: AbstractSpine) -> bool:
-    """Whether the batched paths run batches on `spine` whole: tabulated, or cheap exactly
-    (lines); other exact spines run in chunks, so that memory does not grow with their
-    intermediates per point (`map_chunks`; static)."""
-    return tabulates(spine) or spine._is_cheap()
+def runs_whole(spine: AbstractSpine | SpineTable) -> bool:
+    """Whether the batched paths run batches on `spine` (or on its `fast_evaluator`) whole:
+    tabulated, or cheap exactly (lines); other exact spines run in chunks, so that memory
+    does not grow with their intermediates per point (`map_chunks`; static)."""
+    return isinstance(spine, SpineTable) or tabulates(spine) or spine._is_cheap()
 
 
 def fast_evaluator(spine: AbstractSpine) -> AbstractSpine | SpineTable:
     """What the batched paths search: the prepared `spine` itself in double precision (and for
-    polylines), its `SpineTable` in single precision (the spine's dtype, cast to the points')."""
+    polylines and lines), its `SpineTable` in single precision (the spine's dtype, cast to the
+    points'; see `tabulates`)."""
     spine = spine._prepare()
     return SpineTable(spine) if tabulates(spine) else spine
