@@ -77,6 +77,54 @@ def test_tabulated_target_frames_match_the_exact_ones(name):
     np.testing.assert_allclose(np.asarray(jnp.cross(i1, j1)), np.asarray(t), atol=1e-7)
 
 
+@pytest.mark.parametrize("radius, length", [(3.0, 4.0), (0.5, 3.0), (0.4, 9.0)])
+def test_arc_target_frames_are_a_sinusoid(radius, length):
+    # An arc's frames (point, twisted normals, curvature in them) are `a + b sin φ + c (1 −
+    # cos φ)`: three coefficient rows give them exactly, everywhere (the last arc wraps more
+    # than three turns; its search range reaches a quarter turn past each end). Built in
+    # float64 to see the representation's error alone: round-off.
+    from fleshing_jax._spines.sinusoid import Sinusoid
+
+    arc = fj.Arc(radius, length, origin=(0.5, -1, 2), tangent=(1, 2, 0.5), normal=(0, 0, 1))
+    exact = TargetFrames(arc, jnp.asarray(0.4))
+    looked_up = TargetFrames(arc, jnp.asarray(0.4), tabulate=True)
+    assert isinstance(looked_up.table, Sinusoid) and looked_up.table.coefficients.shape == (3, 11)
+    s = jnp.linspace(exact.lo - 2 * length, exact.hi + 2 * length, 4001)
+    error = np.abs(
+        np.concatenate(jax.vmap(exact)(s), axis=-1) - np.concatenate(jax.vmap(looked_up)(s), -1)
+    )
+    assert error.max() < 1e-13 * (1 + length), error.max(axis=0)
+    # A spine that is not an arc keeps its table of cubic pieces.
+    assert not isinstance(TargetFrames(fj.Helix(2.0, 3.0, 8.0), 0.0, True).table, Sinusoid)
+
+
+def test_pose_onto_an_arc_in_two_programs_equals_one_program():
+    # Called eagerly on looked-up frames, `pose` bends the points in one program and places
+    # them in another (`eager.pose_eagerly`); under `jit`, one program. Same images and flags,
+    # in single precision, onto an arc (its frames a `Sinusoid`, its check in closed form),
+    # with points beyond its reach and its search range flagged and returned unchanged.
+    from fleshing_jax._fleshing import pipeline
+    from fleshing_jax._spines.sinusoid import Sinusoid
+
+    source, target = fj.Line(np.float32(4.0)), fj.Arc(np.float32(0.8), np.float32(4.0))
+    points = cloud(source, n=3000, radius=0.6, seed=5, overshoot=0.3).astype(np.float32)
+    registration = fj.register(points, source)
+    poser = pipeline._poser(target, "radial", jnp.asarray(0.3, jnp.float32), True)
+    assert isinstance(poser.frames.table, Sinusoid) and poser.fused
+    images, valid = fj.pose(registration, target, twist=0.3)
+    images_one, valid_one = pipeline._pose(poser, registration)
+    assert images.dtype == jnp.float32
+    np.testing.assert_array_equal(np.asarray(valid), np.asarray(valid_one))
+    assert 0.2 < np.mean(valid) < 0.95  # both kinds of points
+    np.testing.assert_allclose(np.asarray(images), np.asarray(images_one), rtol=0, atol=2e-6)
+    np.testing.assert_array_equal(np.asarray(images)[~valid], points[~np.asarray(valid)])
+    # And the exact float64 pose, to float32's round-off.
+    exact, valid64 = fj.pose(fj.register(points.astype(np.float64), fj.Line(4.0)),
+                             fj.Arc(0.8, 4.0), twist=0.3)
+    np.testing.assert_array_equal(np.asarray(valid), np.asarray(valid64))
+    np.testing.assert_allclose(np.asarray(images), np.asarray(exact), rtol=0, atol=4e-6)
+
+
 @pytest.mark.parametrize("name", sorted(ZOO))
 def test_tabulated_search_terms_match_the_spine(name):
     # The closest-point search's terms, formed per point from tabulated products (`C·T`,

@@ -13,6 +13,8 @@ straightened offset is scaled by `1/√λ`, so that `ds₁ dA₁ = ds dA` (`det 
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -23,7 +25,7 @@ from .._batching.buckets import bucket, pad_batch, unpad_batch
 from .._batching.chunks import batch_axes, map_chunks
 from .._batching.compact import update_where
 from .._checks import as_points, as_twist, is_concrete
-from .._numerics import cast_floats, dot, norm, relative_tolerance
+from .._numerics import cast_floats, dot, norm, per_component, relative_tolerance
 from .._spines.spine import AbstractSpine
 from .._spines.table import SpineTable, fast_evaluator, runs_whole, tabulates
 from .eager import pose_eagerly, register_eagerly
@@ -60,17 +62,37 @@ def bend_checks(
     inside_target), s₁, |d₁|)` — the point's registration on the source is valid; the method's
     unbend and bend equations have their solution; the image is inside the target's reach and
     search range. (What `diagnose` counts.)"""
+    s1 = target_arc_length(registration, frames)
+    frame = frames(s1)  # evaluated once (exact spines' frames cost a search each)
+    d1, causes = bent_offset(registration, frames, s1, frame[3], method)
+    return place(frame, d1), causes, s1, norm(d1)
+
+
+def target_arc_length(registration: Registration, frames: TargetFrames) -> Array:
+    """`s₁ = λ s`, where a point's cross-section goes on the target (`λ = L₁/L₀`)."""
+    return frames.length / registration.length * registration.arc_length
+
+
+def bent_offset(
+    registration: Registration, frames: TargetFrames, s1: Array, k1: Array, method: str
+) -> tuple[Array, tuple[Array, Array, Array]]:
+    """The offset `d₁` (2,) of a registered point from the target at `s₁`, in its twisted
+    normals, where the target's curvature vector is `k1` (2,) in them; and the causes of
+    validity of `bend_checks`."""
     reg = registration
-    stretch = frames.length / reg.length
-    s1 = stretch * reg.arc_length
     straight, unbent = UNBEND[method](reg.offset, reg.curvature)
     if method != "skinning":  # skinning is the uncorrected baseline: offsets carried rigidly
-        straight = straight / jnp.sqrt(stretch)
-    c1, i1, j1, k1_2d = frames(s1)
-    d1, bent = BEND[method](straight, k1_2d)
-    image = c1 + d1[0] * i1 + d1[1] * j1
-    inside = (s1 > frames.lo) & (s1 < frames.hi) & (1 - dot(k1_2d, d1) > 0)
-    return image, (reg.valid, unbent & bent, inside), s1, norm(d1)
+        straight = straight / jnp.sqrt(frames.length / reg.length)
+    d1, bent = BEND[method](straight, k1)
+    inside = (s1 > frames.lo) & (s1 < frames.hi) & (1 - dot(k1, d1) > 0)
+    return d1, (reg.valid, unbent & bent, inside)
+
+
+def place(frame: tuple[Array, ...], d1: Array) -> Array:
+    """The point at offset `d₁` (2,) from the target in its `frame` at `s₁` (`TargetFrames`):
+    `C₁ + d₁ₓ I₁ + d₁ᵧ J₁`, (3,)."""
+    c1, i1, j1, _ = frame
+    return per_component(lambda c, i, j: c + d1[0] * i + d1[1] * j, c1, i1, j1)
 
 
 def projects_back(
@@ -163,6 +185,32 @@ class Poser(eqx.Module):
         kept = jnp.where((certified | pending)[:, None], image, registration.points)
         return kept, certified, pending
 
+    def bend(self, registration: Registration) -> Bent:
+        """`pose_certified` up to the images: where each point goes, as a `Bent` (the
+        target's frames looked up for its curvature only)."""
+
+        def offset(reg):
+            s1 = target_arc_length(reg, self.frames)
+            d1, (registered, within_limit, inside_target) = bent_offset(
+                reg, self.frames, s1, self.frames(s1)[3], self.method
+            )
+            return s1, d1[0], d1[1], registered & within_limit & inside_target, norm(d1)
+
+        s1, x, y, valid, distance = jax.vmap(offset, in_axes=(batch_axes(registration),))(
+            registration
+        )
+        return Bent(s1, x, y, *self._certify(valid, s1, distance))
+
+    def place(self, bent: Bent, points: Array) -> Array:
+        """The images of `bend`, `(n, 3)`, or the `points` themselves where neither certified
+        nor pending."""
+
+        def image(s1, x, y, kept, point):
+            return jnp.where(kept, place(self.frames(s1), jnp.stack([x, y])), point)
+
+        kept = bent.certified | bent.pending
+        return jax.vmap(image)(bent.arc_length, bent.x, bent.y, kept, points)
+
     def projects(self, registration: Registration) -> Array:
         """The global projection check of each registered point (n,), bent again."""
         return jax.vmap(self._projects, in_axes=(batch_axes(registration),))(registration)
@@ -175,13 +223,19 @@ class Poser(eqx.Module):
             lambda reg: bend_point(reg, self.frames, self.method),
             in_axes=(batch_axes(registration),),
         )(registration)
+        return image, valid, *self._certify(valid, s1, distance)
+
+    def _certify(self, valid: Array, s1: Array, distance: Array) -> tuple[Array, Array]:
+        """`(certified, pending)` of valid images at `s₁` and `distance` from the target."""
         if not self.check_projection:
-            return image, valid, valid, jnp.zeros_like(valid)
+            return valid, jnp.zeros_like(valid)
         if self.reach is not None:
             certified = valid & (distance < jax.vmap(self.reach)(s1))
-            return image, valid, certified, valid & ~certified
-        checked = jax.vmap(lambda *a: projects_back(self.target, *a))(image, s1, distance)
-        return image, valid, valid & checked, jnp.zeros_like(valid)
+            return certified, valid & ~certified
+        # A line or an arc: checked in closed form from `s₁` alone (`projects_back`).
+        lo, hi = search_range(self.target)
+        checked = jax.vmap(lambda s: self.target._foot_is_unique(s, lo, hi))(s1)
+        return valid & checked, jnp.zeros_like(valid)
 
     def _projects(self, reg: Registration) -> Array:
         image, _, s1, distance = bend_point(reg, self.frames, self.method)
@@ -191,6 +245,18 @@ class Poser(eqx.Module):
         """`pose` for any number of registered points: in chunks (`map_chunks`) with exact
         frames, whole with tabulated ones."""
         return map_chunks(self.pose, registration, whole=self.fused)
+
+
+class Bent(NamedTuple):
+    """Registered points bent onto a target, not yet placed there (`Poser.bend`): the arc
+    length `s₁` on the target, the offset `(x, y)` in its twisted normals (`d₁`), and the
+    flags of `Poser.pose_certified`; each (n,)."""
+
+    arc_length: Array
+    x: Array
+    y: Array
+    certified: Array
+    pending: Array
 
 
 def pose_points(

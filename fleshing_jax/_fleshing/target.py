@@ -5,7 +5,9 @@ depends on the curvature vector `k₁` in the twisted normals `(I₁, J₁)`: 11
 `(C₁, I₁, J₁, (k₁·I₁, k₁·J₁))`. In single precision they are tabulated (`PiecewiseCubic`) with
 the twist folded in, so that a pose looks up exactly these 11 values and uses each once: XLA then
 fuses every lookup into the kernel that consumes it. (Looking up the spine table's 15 values and
-twisting per point was 5× slower: the shared values were materialised, one kernel each.)
+twisting per point was 5× slower: the shared values were materialised, one kernel each.) An
+arc's 11 values are sinusoids of `s₁`, given exactly by three coefficients each (`Sinusoid`):
+one `sincos` a point instead of 44 table reads, the most expensive part of a pose.
 """
 
 from __future__ import annotations
@@ -15,7 +17,9 @@ import jax.numpy as jnp
 from jaxtyping import Array
 
 from .._numerics import dot
+from .._spines.analytic import Arc
 from .._spines.frames import twist_normals
+from .._spines.sinusoid import Sinusoid
 from .._spines.spine import AbstractSpine
 from .._spines.table import PiecewiseCubic, SpineTable
 from .reach import search_range
@@ -33,8 +37,8 @@ class TargetFrames(eqx.Module):
     """The frames of a target spine, with a twist, as a function of arc length (`__call__`).
 
     **Arguments:** `spine`: the target (an `AbstractSpine` or its `SpineTable`); `twist`: scalar
-    radians; `tabulate`: look the frames up in a table (single precision) rather than evaluate
-    `spine` at every point.
+    radians; `tabulate`: look the frames up in a table (single precision; for an arc, its
+    `Sinusoid`) rather than evaluate `spine` at every point.
 
     **Attributes:** `length`; `lo`, `hi`: the target's closest-point search range, where frames
     are defined.
@@ -42,16 +46,18 @@ class TargetFrames(eqx.Module):
 
     spine: AbstractSpine | SpineTable  # prepared
     twist: Array
-    table: PiecewiseCubic | None
+    table: PiecewiseCubic | Sinusoid | None
 
     def __init__(self, spine: AbstractSpine | SpineTable, twist: Array, tabulate: bool = False):
         self.spine, self.twist = spine._prepare(), twist
         self.table = None
         if tabulate:
             prepared = self.spine  # (not `self` in a lambda: the module is not frozen yet)
-            self.table = PiecewiseCubic(
-                prepared, lambda s: jnp.concatenate(target_frame(prepared, twist, s))
-            )
+            function = lambda s: jnp.concatenate(target_frame(prepared, twist, s))  # noqa: E731
+            if isinstance(prepared, Arc):  # exact in three coefficients a value
+                self.table = Sinusoid(prepared.radius, function)
+            else:
+                self.table = PiecewiseCubic(prepared, function)
 
     @property
     def length(self) -> Array:
