@@ -232,13 +232,6 @@ class Registrar(eqx.Module):
         s, unique = update_where(~certified, self.search.global_start, (s, certified), fixed)
         return self._polished(points, s, unique)
 
-    def closest_certified(self, points: Array) -> tuple[Array, Array, Array]:
-        """`closest` without the global search: `(s, converged, pending)`, the points the
-        fast path does not certify reported unconverged and `pending` (see `eager`)."""
-        s, certified = jax.vmap(self.start)(jax.lax.stop_gradient(points))
-        s, converged = self._polished(points, s, certified)
-        return s, converged, ~certified
-
     def closest_global(self, points: Array) -> tuple[Array, Array]:
         """`closest` by the global search for every point (the pending ones, see `eager`)."""
         s, unique = jax.vmap(self.search.global_start)(jax.lax.stop_gradient(points))
@@ -251,24 +244,40 @@ class Registrar(eqx.Module):
     def register(self, points: Array, closest=None) -> Registration:
         """The registration of a batch of points (n, 3); its `length` is repeated per point.
         `closest`: the search (default `self.closest`; `closest_global` for pending points)."""
-        finite = jnp.all(jnp.isfinite(points), axis=-1)
         closest = self.closest if closest is None else closest
-        s, converged = closest(jnp.where(finite[:, None], points, 0))
+        s, converged = closest(_finite_or_zero(points))
         return jax.vmap(lambda *a: _local_coordinates(self.spine, *a))(points, s, converged)
 
     def register_certified(self, points: Array) -> tuple[Registration, Array]:
         """`register` without the global search: `(registration, pending (n,))`, the finite
         points the fast path does not certify marked invalid and pending (see `eager`)."""
-        finite = jnp.all(jnp.isfinite(points), axis=-1)
-        s, converged, pending = self.closest_certified(jnp.where(finite[:, None], points, 0))
+        return self.finish(points, *self.begin(points))
+
+    def begin(self, points: Array) -> tuple[Array, Array]:
+        """`register_certified` up to the fast path's start: `(s, certified)`, each (n,)."""
+        return jax.vmap(self.start)(jax.lax.stop_gradient(_finite_or_zero(points)))
+
+    def finish(
+        self, points: Array, s: Array, certified: Array
+    ) -> tuple[Registration, Array]:
+        """`register_certified` from the start `(s, certified)` of `begin`: Newton's polish
+        and the local coordinates."""
+        s, converged = self._polished(_finite_or_zero(points), s, certified)
         coordinates = jax.vmap(lambda *a: _local_coordinates(self.spine, *a))
-        return coordinates(points, s, converged), pending & finite
+        return coordinates(points, s, converged), ~certified & jnp.all(jnp.isfinite(points), -1)
 
     def register_all(self, points: Array) -> Registration:
         """`register` for any number of points (N, 3): in chunks (`map_chunks`) on exact
         spines, whole on tables; the `length` a scalar."""
         registration = map_chunks(self.register, points, whole=self.fused)
         return eqx.tree_at(lambda r: r.length, registration, self.spine.length)
+
+
+def _finite_or_zero(points: Array) -> Array:
+    """The points (n, 3), with 0 in place of those that are not finite (flagged invalid by
+    the registration; harmless in its search)."""
+    finite = jnp.all(jnp.isfinite(points), axis=-1)
+    return jnp.where(finite[:, None], points, 0)
 
 
 def closest_arc_lengths(spine: AbstractSpine, points: Array, samples: int | None = None):
