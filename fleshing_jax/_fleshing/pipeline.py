@@ -65,7 +65,7 @@ def bend_checks(
     s1 = target_arc_length(registration, frames)
     frame = frames(s1)  # evaluated once (exact spines' frames cost a search each)
     d1, causes = bent_offset(registration, frames, s1, frame[3], method)
-    return place(frame, d1), causes, s1, norm(d1)
+    return in_frame(frame, d1), causes, s1, norm(d1)
 
 
 def target_arc_length(registration: Registration, frames: TargetFrames) -> Array:
@@ -88,7 +88,7 @@ def bent_offset(
     return d1, (reg.valid, unbent & bent, inside)
 
 
-def place(frame: tuple[Array, ...], d1: Array) -> Array:
+def in_frame(frame: tuple[Array, ...], d1: Array) -> Array:
     """The point at offset `d₁` (2,) from the target in its `frame` at `s₁` (`TargetFrames`):
     `C₁ + d₁ₓ I₁ + d₁ᵧ J₁`, (3,)."""
     c1, i1, j1, _ = frame
@@ -172,7 +172,7 @@ class Poser(eqx.Module):
     def pose(self, registration: Registration) -> tuple[Array, Array]:
         """`pose_point` for a batch of registered points (`length` shared or repeated per
         point): `(images (n, 3), valid (n,))`."""
-        image, _, valid, pending = self._bend(registration)
+        image, _, valid, pending = self._bent_images(registration)
         if self.reach is not None:  # the global search, for the images left pending
             valid = update_where(pending, self._projects, valid, registration)
         return jnp.where(valid[:, None], image, registration.points), valid
@@ -181,7 +181,7 @@ class Poser(eqx.Module):
         """`pose` without the global projection check: `(images, valid, pending)`, where the
         pending points (valid but not certified by the reach bound; none on lines and arcs)
         have their image but are not valid yet, for `eager` to check them."""
-        image, _, certified, pending = self._bend(registration)
+        image, _, certified, pending = self._bent_images(registration)
         kept = jnp.where((certified | pending)[:, None], image, registration.points)
         return kept, certified, pending
 
@@ -206,7 +206,7 @@ class Poser(eqx.Module):
         nor pending."""
 
         def image(s1, x, y, kept, point):
-            return jnp.where(kept, place(self.frames(s1), jnp.stack([x, y])), point)
+            return jnp.where(kept, in_frame(self.frames(s1), jnp.stack([x, y])), point)
 
         kept = bent.certified | bent.pending
         return jax.vmap(image)(bent.arc_length, bent.x, bent.y, kept, points)
@@ -215,7 +215,7 @@ class Poser(eqx.Module):
         """The global projection check of each registered point (n,), bent again."""
         return jax.vmap(self._projects, in_axes=(batch_axes(registration),))(registration)
 
-    def _bend(self, registration: Registration) -> tuple[Array, Array, Array, Array]:
+    def _bent_images(self, registration: Registration) -> tuple[Array, Array, Array, Array]:
         """`(images, valid, certified, pending)`: valid before the projection check; certified
         by the reach bound or checked in closed form (or valid, without the check);
         pending: the valid points that the bound does not certify, for the global search."""

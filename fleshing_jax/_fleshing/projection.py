@@ -257,9 +257,7 @@ class Registrar(eqx.Module):
         """`register_certified` up to the fast path's start: `(s, certified)`, each (n,)."""
         return jax.vmap(self.start)(jax.lax.stop_gradient(_finite_or_zero(points)))
 
-    def finish(
-        self, points: Array, s: Array, certified: Array
-    ) -> tuple[Registration, Array]:
+    def finish(self, points: Array, s: Array, certified: Array) -> tuple[Registration, Array]:
         """`register_certified` from the start `(s, certified)` of `begin`: Newton's polish
         and the local coordinates."""
         s, converged = self._polished(_finite_or_zero(points), s, certified)
