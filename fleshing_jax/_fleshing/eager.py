@@ -4,9 +4,10 @@ Under `jit`, `Registrar.register` and `Poser.pose` carry their global fallback (
 multi-candidate search for the points that the reach bounds do not certify) inside the
 program, behind `update_where`: it is compiled even when no point needs it, and it is most of
 the program (a line → arc pose: 4383 operations with it, 598 without; its compilation 8× the
-rest's). Called with concrete points, `register` and `pose` instead run a lean program that
-says which points are pending, and compile and run the fallback for those points only,
-gathered into a batch of a power-of-two size (so that a few programs serve every count). A
+rest's). Called with concrete points, `register` and `pose` instead run a lean program (two,
+on looked-up spines: `register_eagerly`, `pose_eagerly`) that says which points are pending,
+and compile and run the fallback for those points only, gathered into a batch of a
+power-of-two size (so that a few programs serve every count). A
 command-line call on a tame target therefore never compiles a global search. Results are
 those of the one-program path: the same flags, and floats equal to their last bits (the two
 programs are fused differently; tested).
