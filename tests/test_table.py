@@ -94,8 +94,18 @@ def test_arc_target_frames_are_a_sinusoid(radius, length):
         np.concatenate(jax.vmap(exact)(s), axis=-1) - np.concatenate(jax.vmap(looked_up)(s), -1)
     )
     assert error.max() < 1e-13 * (1 + length), error.max(axis=0)
+    # So are the values and products its registration reads (`SpineTable`): no cubic pieces.
+    table = SpineTable(arc)
+    assert isinstance(table.cubics, Sinusoid)
+    assert float(table.lo) == float(exact.lo) and float(table.hi) == float(exact.hi)
+    for name in ("_foot_terms", "_local_terms"):
+        x = jnp.asarray([0.3, -0.2, 1.1])
+        terms = [jax.vmap(lambda t: getattr(spine, name)(x, t))(s) for spine in (arc, table)]
+        for a, b in zip(*terms):
+            np.testing.assert_allclose(np.asarray(b), np.asarray(a), rtol=0, atol=1e-12 * length)
     # A spine that is not an arc keeps its table of cubic pieces.
     assert not isinstance(TargetFrames(fj.Helix(2.0, 3.0, 8.0), 0.0, True).table, Sinusoid)
+    assert not isinstance(SpineTable(fj.Helix(2.0, 3.0, 8.0)).cubics, Sinusoid)
 
 
 def test_pose_onto_an_arc_in_two_programs_equals_one_program():
@@ -216,6 +226,7 @@ def test_lines_and_arcs_are_evaluated_in_closed_form_past_their_ends():
 
 PAIRS = {
     "line-arc": (fj.Line(4.0), fj.Arc(3.0, 4.0)),
+    "arc-line": (fj.Arc(1.5, 4.0), fj.Line(4.5)),
     "helix-helix": (fj.Helix(2.0, 3.0, 8.0), fj.Helix(1.5, -2.5, 8.0)),
     "bspline-bspline": (fj.BSpline(TORSION), fj.BSpline(INFLECTION)),
 }
@@ -223,7 +234,12 @@ PAIRS = {
 
 @pytest.mark.parametrize(
     "pair, method",
-    [("line-arc", "radial"), ("helix-helix", "normal"), ("bspline-bspline", "binormal")],
+    [
+        ("line-arc", "radial"),
+        ("arc-line", "radial"),
+        ("helix-helix", "normal"),
+        ("bspline-bspline", "binormal"),
+    ],
 )
 def test_float32_batched_paths_agree_with_exact_float64(pair, method):
     # (Gradients through the table: the float32 fit in tests/test_fit.py.)

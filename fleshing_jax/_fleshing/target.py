@@ -17,11 +17,10 @@ import jax.numpy as jnp
 from jaxtyping import Array
 
 from .._numerics import dot
-from .._spines.analytic import Arc
 from .._spines.frames import twist_normals
 from .._spines.sinusoid import Sinusoid
 from .._spines.spine import AbstractSpine
-from .._spines.table import PiecewiseCubic, SpineTable
+from .._spines.table import PiecewiseCubic, SpineTable, tabulated
 from .reach import search_range
 
 
@@ -53,11 +52,9 @@ class TargetFrames(eqx.Module):
         self.table = None
         if tabulate:
             prepared = self.spine  # (not `self` in a lambda: the module is not frozen yet)
-            function = lambda s: jnp.concatenate(target_frame(prepared, twist, s))  # noqa: E731
-            if isinstance(prepared, Arc):  # exact in three coefficients a value
-                self.table = Sinusoid(prepared.radius, function)
-            else:
-                self.table = PiecewiseCubic(prepared, function)
+            self.table = tabulated(
+                prepared, lambda s: jnp.concatenate(target_frame(prepared, twist, s))
+            )
 
     @property
     def length(self) -> Array:
