@@ -13,7 +13,8 @@ from jaxtyping import Array, ArrayLike
 
 from .._batching.buckets import bucket
 from .._checks import as_float_array, check_positive, is_concrete, unit
-from .._numerics import dot, norm, sincos
+from .._numerics import dot, norm
+from .sinusoid import turn
 from .spine import AbstractSpine, initial_normal
 
 
@@ -117,17 +118,9 @@ class Arc(AbstractSpine):
     def _continues_as_itself(self):
         return True  # along its osculating circle: itself
 
-    def _turn(self, s):
-        """`(sin φ, cos φ, 1 − cos φ)` at the angle `φ = s/R` turned from the start, from one
-        `sincos` of `φ/2` (fast in single precision, where the batched paths evaluate an arc
-        target at every point); `1 − cos φ = 2 sin²(φ/2)` has no cancellation near the start."""
-        half_sin, half_cos = sincos(s / (2 * self.radius))
-        versine = 2 * half_sin**2
-        return 2 * half_sin * half_cos, 1 - versine, versine
-
     def _jet(self, s):
         t, n, r = self.start_tangent, self.start_normal, self.radius
-        sin, cos, versine = self._turn(s)
+        sin, cos, versine = turn(s, self.radius)  # (one `sincos`)
         position = self.origin + r * sin * t + r * versine * n
         return position, cos * t + sin * n, (cos * n - sin * t) / r
 
@@ -135,7 +128,7 @@ class Arc(AbstractSpine):
         t, n = self.start_tangent, self.start_normal
         b = jnp.cross(t, n)
         i0 = initial_normal(t)
-        sin, cos, _ = self._turn(s)
+        sin, cos, _ = turn(s, self.radius)
         principal = cos * n - sin * t  # the Frenet normal N(s)
         normal = dot(i0, n) * principal + dot(i0, b) * b
         return normal, jnp.cross(cos * t + sin * n, normal)

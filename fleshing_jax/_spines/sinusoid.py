@@ -44,9 +44,14 @@ class Sinusoid(eqx.Module):
     def fields(self, s: Array) -> list[Array]:
         """The F values at `s`, as F scalars (as `PiecewiseCubic.fields`: callers use each
         once, so that XLA fuses its evaluation into the kernel that consumes it)."""
-        s = jnp.asarray(s, self.radius.dtype)
-        half_sin, half_cos = sincos(s / (2 * self.radius))
-        # sin φ and 1 − cos φ from the half angle: no cancellation near φ = 0.
-        sin, versine = 2 * half_sin * half_cos, 2 * half_sin**2
+        sin, _, versine = turn(jnp.asarray(s, self.radius.dtype), self.radius)
         a, b, c = self.coefficients
         return [a[f] + sin * b[f] + versine * c[f] for f in range(a.shape[0])]
+
+
+def turn(s: Array, radius: Array) -> tuple[Array, Array, Array]:
+    """`(sin φ, cos φ, 1 − cos φ)` at the angle `φ = s/R` turned along a circle of `radius`,
+    from one `sincos` of `φ/2`: `1 − cos φ = 2 sin²(φ/2)` has no cancellation near `φ = 0`."""
+    half_sin, half_cos = sincos(s / (2 * radius))
+    versine = 2 * half_sin**2
+    return 2 * half_sin * half_cos, 1 - versine, versine
