@@ -98,6 +98,19 @@ def as_twist(twist: ArrayLike, dtype=None) -> Array:
     return twist if dtype is None else twist.astype(dtype)
 
 
+def as_margin(margin: ArrayLike, dtype=None) -> Array:
+    """The margin of the valid region (`_fleshing.region`) as a scalar float array: `TypeError`
+    for a value that is not a real number, `ValueError` for a non-scalar, negative or (when
+    concrete) non-finite one."""
+    margin = as_float_array(margin, "margin", ())
+    if is_concrete(margin) and not (np.isfinite(np.asarray(margin)) and margin >= 0):
+        raise ValueError(
+            "`margin` must be a finite distance ≥ 0 (from the cut locus), "
+            f"got {np.asarray(margin)}."
+        )
+    return margin if dtype is None else margin.astype(dtype)
+
+
 def is_concrete(*values) -> bool:
     """Whether all `values` are known at trace time (so that value checks can run)."""
     return not any(isinstance(v, jax.core.Tracer) for v in jax.tree.leaves(values))

@@ -82,6 +82,13 @@ def _parser() -> argparse.ArgumentParser:
         help="close the holes of an open mesh first (fj.cap_holes): exact volumes, and a "
         "medial axis to find the rest spine on",
     )
+    deform.add_argument(
+        "--allow-invalid",
+        action="store_true",
+        help="write OUT even when vertices are invalid (left where they were, so that the "
+        "mesh may be torn between them and their neighbours); without it such a bend is not "
+        "written and the exit status is 3",
+    )
     medial = commands.add_parser(
         "medial",
         help="compute the medial mesh of a closed mesh (Q-MAT .ma file)",
@@ -170,12 +177,17 @@ def _deform(args) -> int:
 
     from ._fleshing.diagnose import diagnose, largest_valid_bend, planar_bend
     from ._fleshing.pipeline import register
-    from ._mesh.deform import deform_mesh
+    from ._mesh.deform import deform_mesh, longest_edge
     from ._mesh.files import check_output_path, write_mesh_atomic
     from ._mesh.volume import volume
     from ._spines.files import load_spine, spine_json
 
     check_output_path(args.output)
+    if args.bend_angle is not None and not abs(args.bend_angle) < 360:
+        raise ValueError(
+            f"--bend-angle {args.bend_angle:g}: an arc turning by 360 degrees or more comes "
+            "back on itself, where no vertex can stay valid; give an angle in (-360, 360)"
+        )
     mesh = _load_input(args.input, args.cap_holes)
     is_mesh = isinstance(mesh, trimesh.Trimesh) and len(mesh.faces) > 0
     started = time.perf_counter()
@@ -188,6 +200,7 @@ def _deform(args) -> int:
         target = load_spine(args.target)
     else:
         target = planar_bend(source, float(np.radians(args.bend_angle)))
+    margin = 0.5 * longest_edge(mesh.vertices, mesh.faces) if is_mesh else 0.0
     bent = deform_mesh(
         mesh,
         source,
@@ -195,6 +208,7 @@ def _deform(args) -> int:
         method=args.method,
         twist=args.twist,
         progress=_Progress(f"{args.method}: vertices"),
+        margin=margin,
     )
     if isinstance(bent, trimesh.Trimesh):
         valid = np.asarray(bent.vertex_attributes["valid"], dtype=bool)
@@ -204,8 +218,8 @@ def _deform(args) -> int:
         _print_volumes(mesh, bent, volume)
     print(f"invalid vertices: {int(np.sum(~valid))} of {len(valid)}")
     if args.bend_angle is not None or not valid.all():
-        registration = register(jnp.asarray(np.asarray(mesh.vertices)), source)
-        options = dict(method=args.method, twist=args.twist)
+        registration = register(jnp.asarray(np.asarray(mesh.vertices)), source, margin=margin)
+        options = dict(method=args.method, twist=args.twist, margin=margin)
         if not valid.all():
             _print_causes(diagnose(registration, target, **options))
         sign = -1.0 if args.bend_angle is not None and args.bend_angle < 0 else 1.0
@@ -216,6 +230,14 @@ def _deform(args) -> int:
             f"largest bend of the rest spine keeping every vertex valid ({args.method}): "
             f"{degrees:.2f} degrees (arc radius {radius:.6g})"
         )
+    if not valid.all() and not args.allow_invalid:
+        print(
+            f"not written: {int(np.sum(~valid))} vertices are invalid and would be left in "
+            "place, tearing the mesh around them; bend less, or pass --allow-invalid to write "
+            "it anyway",
+            file=sys.stderr,
+        )
+        return 3
     write_mesh_atomic(bent, args.output)
     print(f"wrote {args.output} ({args.method}, {time.perf_counter() - started:.1f} s)")
     return 0
@@ -249,12 +271,15 @@ def _print_volumes(mesh, bent, volume) -> None:
 
 def _print_causes(causes) -> None:
     print(f"  outside the rest spine's reach: {causes.outside_source}")
+    print(f"  beyond the rest spine's reach (the map is discontinuous there): "
+          f"{causes.beyond_reach}")
     print(f"  beyond the method's bending limit: {causes.beyond_limit}")
     print(f"  outside the bent spine's reach: {causes.outside_target}")
-    if causes.outside_source:
+    if causes.outside_source or causes.beyond_reach:
         print(
             "advice: vertices outside the rest spine's reach stay invalid for any bend: move "
-            "the rest spine closer to them or make it straighter"
+            "the rest spine closer to them or make it straighter (its stretches that come "
+            "close to each other, or bend tightly, tear the shape between them)"
         )
     if causes.beyond_limit or causes.outside_target:
         print("advice: bend less (a larger arc radius, below), or try another --method")

@@ -295,7 +295,8 @@ def test_eager_two_phase_paths_equal_the_one_program_paths(dtype, monkeypatch):
     atol = 1e-5 if dtype == "float32" else 1e-12
     for a, b in zip(jax.tree.leaves(registration), jax.tree.leaves(one_program)):
         np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=0, atol=atol)
-    poser = pipeline._poser(turn._bucketed(), "radial", jnp.asarray(0.0, dtype), True)
+    zero = jnp.asarray(0.0, dtype)
+    poser = pipeline._poser(turn._bucketed(), "radial", zero, True, zero, registration.ends)
     assert eager._pose_certified(poser, registration)[2].sum() > 0
     images, valid = fj.pose(registration, turn)
     images_one, valid_one = pipeline._pose(poser, registration)

@@ -206,14 +206,16 @@ def test_help_and_version_do_not_import_jax():
 def test_bend_angle_reports_the_largest_valid_bend(files, capsys):
     tmp, mesh = files
     out_path = tmp / "out.obj"
-    code, out, err = _run(
-        capsys, "deform", tmp / "in.obj", out_path, "--from", tmp / "a.json", "--bend-angle", 400
-    )
+    args = ("deform", tmp / "in.obj", out_path, "--from", tmp / "a.json", "--bend-angle", 300)
+    code, out, err = _run(capsys, *args)
+    # 300° of a 4-unit line is far too tight for the creature: invalid vertices, by cause,
+    # and the torn mesh is not written unless asked for.
+    assert code == 3 and "--allow-invalid" in err and not out_path.exists()
+    code, out, err = _run(capsys, *args, "--allow-invalid")
     assert code == 0, err
-    # 400° of a 4-unit line is far too tight for the creature: invalid vertices, by cause.
     invalid = int(out.split("invalid vertices: ")[1].split()[0])
     causes = [int(ln.rsplit(":", 1)[1]) for ln in out.splitlines() if ln.startswith("  ")]
-    assert invalid > 0 and len(causes) == 3 and sum(causes) == invalid
+    assert invalid > 0 and len(causes) == 4 and sum(causes) == invalid
     angle = float(out.split("keeping every vertex valid (radial): ")[1].split()[0])
     # At that angle, every vertex is valid (but those outside the rest spine's reach, which no
     # bend can make valid); 2 % more and some are not.
@@ -224,6 +226,16 @@ def test_bend_angle_reports_the_largest_valid_bend(files, capsys):
         ok = fj.deform_mesh(mesh, fj.Line(4.0), target).vertex_attributes["valid"]
         assert ok[registered].all() == all_valid
     assert "mtllib" not in out_path.read_text()
+
+
+def test_bend_angle_beyond_a_turn_refused_before_work(files, capsys):
+    tmp, _ = files
+    out_path = tmp / "out.obj"
+    for angle in (400, -360):
+        code, out, err = _run(capsys, "deform", tmp / "in.obj", out_path, "--from",
+                              tmp / "a.json", "--bend-angle", angle)  # fmt: skip
+        assert code == 2 and "--bend-angle" in err and "360" in err and not out_path.exists()
+        assert "volume" not in out  # refused before the mesh was read
 
 
 def test_output_checked_before_any_work(files, capsys):

@@ -92,9 +92,13 @@ def test_unequal_lengths_stretch_with_volume_compensation():
     # Arc length scales by λ, the cross-section by 1/√λ.
     np.testing.assert_allclose(image[1], 0.8 * stretch, atol=1e-14)
     frame0 = fj.rotation_minimizing_frame(source, 0.8)
-    frame1 = fj.rotation_minimizing_frame(target, 2.0)
+    # The target's first normal is the source's carried by the smallest rotation taking x to
+    # y (a quarter turn about z), not the target's own rule's (+x): I₁ = R I₀, J₁ = T₁ × I₁.
+    quarter = jnp.array([[0.0, -1, 0], [1, 0, 0], [0, 0, 1]])
+    normal = quarter @ frame0[1]
+    frame1 = jnp.stack([normal, jnp.cross(jnp.array([0.0, 1, 0]), normal)])
     offset0 = frame0[1:] @ (x - source(0.8))
-    offset1 = frame1[1:] @ (image - target(2.0))
+    offset1 = frame1 @ (image - target(2.0))
     np.testing.assert_allclose(offset1, offset0 / np.sqrt(stretch), atol=1e-14)
 
 

@@ -119,7 +119,8 @@ def test_pose_onto_an_arc_in_two_programs_equals_one_program():
     source, target = fj.Line(np.float32(4.0)), fj.Arc(np.float32(0.8), np.float32(4.0))
     points = cloud(source, n=3000, radius=0.6, seed=5, overshoot=0.3).astype(np.float32)
     registration = fj.register(points, source)
-    poser = pipeline._poser(target, "radial", jnp.asarray(0.3, jnp.float32), True)
+    twist, zero = jnp.asarray(0.3, jnp.float32), jnp.asarray(0.0, jnp.float32)
+    poser = pipeline._poser(target, "radial", twist, True, zero, registration.ends)
     assert isinstance(poser.frames.table, Sinusoid) and poser.fused
     images, valid = fj.pose(registration, target, twist=0.3)
     images_one, valid_one = pipeline._pose(poser, registration)

@@ -22,6 +22,7 @@ from .._numerics import cast_floats
 from .._spines.analytic import Arc, Line
 from .._spines.frames import rotation_minimizing_frame
 from .._spines.spine import AbstractSpine
+from .ends import aligned_twist
 from .pipeline import bend_checks, pose
 from .projection import Registration
 from .target import TargetFrames
@@ -31,15 +32,18 @@ class Causes(NamedTuple):
     """Counts of invalid points by their first failed condition (in this order)."""
 
     points: int  # all points
-    outside_source: int  # not finite, or not strictly inside the source's reach
+    outside_source: int  # not finite, or not strictly inside the source's local reach
     beyond_limit: int  # the method's unbend/bend equations have no solution (too bent)
     # the image outside the target's reach or search range, or not projecting back on it at
-    # the mapped arc length:
+    # the mapped arc length only (with the margin):
     outside_target: int
+    # inside the source's local reach, but within the margin of its cut locus or focal set:
+    # beyond the spine's reach, where the map is discontinuous (`region`)
+    beyond_reach: int = 0
 
     @property
     def invalid(self) -> int:
-        return self.outside_source + self.beyond_limit + self.outside_target
+        return self.outside_source + self.beyond_limit + self.outside_target + self.beyond_reach
 
 
 def diagnose(
@@ -49,15 +53,18 @@ def diagnose(
     method: str = "radial",
     twist: ArrayLike = 0.0,
     check_projection: bool = True,
+    margin: ArrayLike = 0.0,
+    beyond: str = "continue",
 ) -> Causes:
     """Counts the invalid points of `pose(registration, target, ...)` by cause.
 
-    A point is counted once, under the first condition it fails: the source's reach, the
-    method's bending limit, the target's reach (which includes the projection check).
+    A point is counted once, under the first condition it fails: the source's local reach,
+    the source's cut locus (`beyond_reach`, from `registration.discontinuous`), the method's
+    bending limit, the target's reach (which includes the projection check, with `margin`).
     """
-    _, valid = pose(
-        registration, target, method=method, twist=twist, check_projection=check_projection
-    )
+    options = dict(method=method, twist=twist, check_projection=check_projection, margin=margin,
+                   beyond=beyond)
+    _, valid = pose(registration, target, **options)
     dtype = registration.points.dtype
     n = registration.points.shape[0]  # (padded as in `pose`: one program per bucket of sizes)
     padded = pad_batch(registration, bucket(n)) if is_concrete(registration) else registration
@@ -66,15 +73,19 @@ def diagnose(
         n,
     )
     registered, within, valid = (np.asarray(a) for a in (registered, within, valid))
-    outside_source = int(np.sum(~registered))
+    discontinuous = np.asarray(registration.discontinuous)
+    outside_source = int(np.sum(~registered & ~discontinuous))
     beyond_limit = int(np.sum(registered & ~within))
     outside_target = int(np.sum(registered & within & ~valid))
-    return Causes(len(valid), outside_source, beyond_limit, outside_target)
+    return Causes(
+        len(valid), outside_source, beyond_limit, outside_target, int(np.sum(discontinuous))
+    )
 
 
 @eqx.filter_jit
 def _checks(registration, target, method, twist):
-    frames = TargetFrames(target._prepare(), twist)
+    target = target._prepare()
+    frames = TargetFrames(target, aligned_twist(registration.ends, target, twist))
 
     def one(reg):
         _, (registered, within_limit, _), _, _ = bend_checks(reg, frames, method)
@@ -112,6 +123,8 @@ def largest_valid_bend(
     method: str = "radial",
     twist: ArrayLike = 0.0,
     check_projection: bool = True,
+    margin: ArrayLike = 0.0,
+    beyond: str = "continue",
     sign: float = 1.0,
     steps: int = 16,
 ) -> float:
@@ -127,9 +140,8 @@ def largest_valid_bend(
 
     def all_valid(angle: float) -> bool:
         target = _arc_from(start, length, sign * angle)
-        _, valid = pose(
-            registration, target, method=method, twist=twist, check_projection=check_projection
-        )
+        options = dict(check_projection=check_projection, margin=margin, beyond=beyond)
+        _, valid = pose(registration, target, method=method, twist=twist, **options)
         return bool(np.all(np.asarray(valid)[keep]))
 
     hi = 2 * np.pi * (1 - 1e-6)

@@ -50,7 +50,7 @@ def register_eagerly(registrar: Registrar, points: Array) -> tuple:
     if bool(any_pending):
         registration = _register_pending(registrar, points, registration, pending_index(pending))
     r = registration
-    return r.arc_length, r.offset, r.curvature, r.valid, r.length
+    return r.arc_length, r.offset, r.curvature, r.valid, r.discontinuous, r.length, r.ends
 
 
 def pose_eagerly(poser, registration: Registration) -> tuple[Array, Array]:
@@ -71,14 +71,20 @@ def pose_eagerly(poser, registration: Registration) -> tuple[Array, Array]:
     if bool(any_pending):
         index = pending_index(pending)
         images, valid = _pose_pending(poser, registration, images, valid, index)
+    if poser.ends is not None:  # beyond="rigid"
+        images, valid = _rigid(poser, registration, images, valid)
     return images, valid
+
+
+@eqx.filter_jit
+def _rigid(poser, registration, images, valid):
+    return poser.rigid(registration, images, valid)
 
 
 @eqx.filter_jit
 def _register_certified(registrar, points):
     registration, pending = map_chunks(registrar.register_certified, points, whole=registrar.fused)
-    registration = eqx.tree_at(lambda r: r.length, registration, registrar.spine.length)
-    return registration, pending, jnp.any(pending)
+    return registrar.shared(registration), pending, jnp.any(pending)
 
 
 @eqx.filter_jit
@@ -89,14 +95,13 @@ def _register_start(registrar, points):
 @eqx.filter_jit
 def _register_finish(registrar, points, s, certified):
     registration, pending = registrar.finish(points, s, certified)
-    registration = eqx.tree_at(lambda r: r.length, registration, registrar.spine.length)
-    return registration, pending, jnp.any(pending)
+    return registrar.shared(registration), pending, jnp.any(pending)
 
 
 @eqx.filter_jit
 def _register_pending(registrar, points, registration, index):
     part = registrar.register(points[index], closest=registrar.closest_global)
-    fields = ("arc_length", "offset", "curvature", "valid")
+    fields = ("arc_length", "offset", "curvature", "valid", "discontinuous")
 
     def update(r):
         return tuple(getattr(r, name) for name in fields)

@@ -24,20 +24,21 @@ from .._batching import chunks as _chunks
 from .._batching.buckets import bucket, pad_batch, unpad_batch
 from .._batching.chunks import batch_axes, map_chunks
 from .._batching.compact import update_where
-from .._checks import as_points, as_twist, is_concrete
-from .._numerics import cast_floats, dot, norm, per_component, relative_tolerance
+from .._checks import as_margin, as_points, as_twist, is_concrete
+from .._numerics import cast_floats, dot, norm, per_component
 from .._spines.spine import AbstractSpine
 from .._spines.table import SpineTable, fast_evaluator, runs_whole, tabulates
 from .eager import pose_eagerly, register_eagerly
+from .ends import EndFrames, aligned_twist, check_beyond, rigid_beyond, target_ends
 from .maps import BEND, UNBEND
 from .methods import check_method
 from .projection import (
     Registrar,
     Registration,
-    closest_arc_length,
     register_point,
 )
-from .reach import LocalReach, search_range
+from .reach import search_range
+from .region import ValidRegion
 from .target import TargetFrames
 
 
@@ -96,22 +97,21 @@ def in_frame(frame: tuple[Array, ...], d1: Array) -> Array:
 
 
 def projects_back(
-    target: AbstractSpine | SpineTable, image: Array, s1: Array, distance: Array
+    target: AbstractSpine | SpineTable, image: Array, s1: Array, margin: Array = 0.0
 ) -> Array:
-    """Whether `image` (3,) projects on `target` at `s₁` (the global reach test, one point),
+    """Whether `image` (3,) projects on `target` at `s₁` only, with the ball of radius
+    `margin` around it clear of the target's cut locus and focal set (`region`; one point),
     where `image` was bent into the normal plane at `s₁`, inside the reach there and inside
-    the search range (`bend_checks`; the caller holds these conditions).
+    the search range (`bend_checks`; the caller holds these conditions). The target's
+    valid region is built here: the batched paths build it once (`Poser`).
 
     Lines and arcs answer in closed form, from `s₁` alone (`_foot_is_unique`): their feet
-    are unique but for a wrapped arc's candidates a turn apart, where the global search does
-    not converge either. (Reading the image's foot instead, an arc's `arctan2` was 60 % of a
-    pose.)
+    are unique but for a wrapped arc's candidates a turn apart. (Reading the image's foot
+    instead, an arc's `arctan2` was 60 % of a pose.)
     """
     if isinstance(target, AbstractSpine) and target._has_closed_form_foot():
         return target._foot_is_unique(s1, *search_range(target))
-    back, converged = closest_arc_length(target, image)
-    tol = relative_tolerance(image.dtype) * (target.length + distance)
-    return converged & (jnp.abs(back - s1) <= tol)
+    return ValidRegion(target, margin).clear(jax.lax.stop_gradient(image), s1)
 
 
 def pose_point(
@@ -120,6 +120,8 @@ def pose_point(
     method: str,
     twist: Array,
     check_projection: bool = True,
+    margin: Array = 0.0,
+    beyond: str = "continue",
 ) -> tuple[Array, Array]:
     """Maps one registered point onto `target`. Returns `(image (3,), valid)`.
 
@@ -127,23 +129,33 @@ def pose_point(
     discarded, so that neither values nor gradients of other points are affected).
     """
     target = target._prepare()
-    image, valid, s1, distance = bend_point(registration, TargetFrames(target, twist), method)
+    twist = aligned_twist(registration.ends, target, twist)
+    image, valid, s1, _ = bend_point(registration, TargetFrames(target, twist), method)
     if check_projection:
-        valid = valid & projects_back(target, image, s1, distance)
-    return jnp.where(valid, image, registration.points), valid
+        valid = valid & projects_back(target, image, s1, margin)
+    image = jnp.where(valid, image, registration.points)
+    if beyond == "rigid":
+        reg = registration
+        moved, outside = rigid_beyond(
+            reg.ends, target_ends(target, twist), reg.points, reg.arc_length, reg.length
+        )
+        finite = jnp.all(jnp.isfinite(reg.points))
+        image, valid = jnp.where(outside, moved, image), jnp.where(outside, finite, valid)
+    return image, valid
 
 
 class Poser(eqx.Module):
     """A target spine prepared for batched posing, once for all points: its frames with the
     twist (tabulated in single precision, `target`), its fast evaluator for the projection
-    check (`_spines.table`) and lower bounds of its reach around each arc length.
+    check (`_spines.table`) and its valid region with the margin (`region`).
 
     The projection check is certified on the way for the images closer to the target than the
-    lower bound of its reach (`reach`); the few others are bent again and run the global
-    search (`update_where`), so that the images are consumed once (by the output) and XLA
-    computes them in the same kernel as the frames they are made of. Lines and arcs are
-    checked in closed form instead (`projects_back`, from `s₁` alone): no reach bounds and no
-    spine table to build (most of the preparation's compilation), and no global search.
+    lower bound of its reach with the margin (`reach`); the few others are bent again and run
+    the region's sampled test (`update_where`; O(samples) a point, no global search), so that
+    the images are consumed once (by the output) and XLA computes them in the same kernel as
+    the frames they are made of. Lines and arcs are checked in closed form instead
+    (`projects_back`, from `s₁` alone): no region and no spine table to build (most of the
+    preparation's compilation).
     """
 
     frames: TargetFrames  # what the points are bent with
@@ -151,9 +163,19 @@ class Poser(eqx.Module):
     target: AbstractSpine | SpineTable
     method: str = eqx.field(static=True)
     check_projection: bool = eqx.field(static=True)
-    reach: LocalReach | None  # for the projection check, without a closed-form foot
+    region: ValidRegion | None  # for the projection check, without a closed-form foot
+    ends: EndFrames | None  # the target's end frames, for `beyond="rigid"`
 
-    def __init__(self, target, method, twist, check_projection=True):
+    def __init__(
+        self, target, method, twist, check_projection=True, margin=0.0, start=None,
+        beyond="continue",
+    ):
+        """`start`: the source's `EndFrames`, from which the target's first normal is carried
+        (`ends.aligned_twist`; `None`: the target's own, for callers that align the twist
+        themselves); `beyond`: `"continue"` or `"rigid"` (`ends`)."""
+        if start is not None:
+            twist = aligned_twist(start, target._prepare(), twist)
+        self.ends = target_ends(target._prepare(), twist) if beyond == "rigid" else None
         closed = target._has_closed_form_foot()
         # Tabulated from the spine table (its nodes are the table's, so no exact evaluation),
         # but for lines and arcs: cheap to evaluate exactly, and checked without the table,
@@ -161,7 +183,8 @@ class Poser(eqx.Module):
         self.target = target._prepare() if closed else fast_evaluator(target)
         self.frames = TargetFrames(self.target, twist, tabulate=tabulates(target))
         self.method, self.check_projection = method, check_projection
-        self.reach = LocalReach(self.target) if check_projection and not closed else None
+        use = check_projection and not closed
+        self.region = ValidRegion(self.target, margin) if use else None
 
     @property
     def fused(self) -> bool:
@@ -173,9 +196,26 @@ class Poser(eqx.Module):
         """`pose_point` for a batch of registered points (`length` shared or repeated per
         point): `(images (n, 3), valid (n,))`."""
         image, _, valid, pending = self._bent_images(registration)
-        if self.reach is not None:  # the global search, for the images left pending
+        if self.region is not None:  # the sampled test, for the images left pending
             valid = update_where(pending, self._projects, valid, registration)
-        return jnp.where(valid[:, None], image, registration.points), valid
+        image = jnp.where(valid[:, None], image, registration.points)
+        return self.rigid(registration, image, valid)
+
+    def rigid(self, registration: Registration, images: Array, valid: Array):
+        """`(images, valid)` with the points beyond the source's ends moved rigidly with the
+        end frames (`beyond="rigid"`, valid where finite); as they are otherwise."""
+        if self.ends is None:
+            return images, valid
+        reg = registration
+
+        def one(ends, x, s, length):
+            return rigid_beyond(ends, self.ends, x, s, length)
+
+        axes = batch_axes((reg.ends, reg.points, reg.arc_length, reg.length))
+        moved, outside = jax.vmap(one, in_axes=axes)(reg.ends, reg.points, reg.arc_length,
+                                                     reg.length)
+        finite = jnp.all(jnp.isfinite(reg.points), axis=-1)
+        return jnp.where(outside[:, None], moved, images), jnp.where(outside, finite, valid)
 
     def pose_certified(self, registration: Registration) -> tuple[Array, Array, Array]:
         """`pose` without the global projection check: `(images, valid, pending)`, where the
@@ -229,8 +269,8 @@ class Poser(eqx.Module):
         """`(certified, pending)` of valid images at `s₁` and `distance` from the target."""
         if not self.check_projection:
             return valid, jnp.zeros_like(valid)
-        if self.reach is not None:
-            certified = valid & (distance < jax.vmap(self.reach)(s1))
+        if self.region is not None:
+            certified = valid & jax.vmap(self.region.certified)(s1, distance)
             return certified, valid & ~certified
         # A line or an arc: checked in closed form from `s₁` alone (`projects_back`).
         lo, hi = search_range(self.target)
@@ -238,8 +278,8 @@ class Poser(eqx.Module):
         return valid & checked, jnp.zeros_like(valid)
 
     def _projects(self, reg: Registration) -> Array:
-        image, _, s1, distance = bend_point(reg, self.frames, self.method)
-        return projects_back(self.target, image, s1, distance)
+        image, _, s1, _ = bend_point(reg, self.frames, self.method)
+        return self.region.clear(image, s1)
 
     def pose_all(self, registration: Registration) -> tuple[Array, Array]:
         """`pose` for any number of registered points: in chunks (`map_chunks`) with exact
@@ -265,6 +305,8 @@ def pose_points(
     method: str,
     twist: Array,
     check_projection: bool = True,
+    margin: Array = 0.0,
+    beyond: str = "continue",
 ) -> tuple[Array, Array]:
     """`pose_point` for registered points: `(images (N, 3), valid (N,))`.
 
@@ -272,7 +314,8 @@ def pose_points(
     into a few kernels. Exact spines bend in chunks (`_batching.chunks`), their evaluation
     having many intermediates per point.
     """
-    return Poser(target, method, twist, check_projection).pose_all(registration)
+    poser = Poser(target, method, twist, check_projection, margin, registration.ends, beyond)
+    return poser.pose_all(registration)
 
 
 def flesh_points(
@@ -283,11 +326,14 @@ def flesh_points(
     twist: Array,
     check_projection: bool = True,
     samples: int | None = None,
+    margin: Array = 0.0,
+    beyond: str = "continue",
 ) -> tuple[Array, Array]:
     """`register_points` then `pose_points`, chunk by chunk: the registration of all points is
     never held in memory at once."""
-    registrar = Registrar(source, samples)
-    poser = Poser(target, method, twist, check_projection)
+    registrar = Registrar(source, samples, margin)
+    start = EndFrames(registrar.exact)
+    poser = Poser(target, method, twist, check_projection, margin, start, beyond)
     return map_chunks(lambda chunk: poser.pose(registrar.register(chunk)), points)
 
 
@@ -305,22 +351,45 @@ class Fleshing(eqx.Module):
     - `method`: `"radial"`, `"normal"`, `"binormal"` or `"skinning"` (the uncorrected baseline).
     - `twist`: scalar global twist in radians, applied to the target frame about `T₁(0)`.
     - `check_projection`: also require that `M(x)` projects back on `target` at the mapped arc
-      length (the global reach test: catches spines that come back near themselves).
+      length only (the target's valid region: catches spines that come back near themselves).
+    - `margin`: a point is valid only if the ball of this radius around it is clear of the
+      source's cut locus and focal set, where the map is discontinuous (and its image's ball
+      of the target's, with `check_projection`); see `register`.
+    - `beyond`: `"continue"` (default: points that project before `s = 0` or past the end are
+      fleshed against the spines' continuations) or `"rigid"` (they move rigidly with the
+      end frames: a body behind a bent tail stays still); see `_fleshing.ends`.
+
+    The target's first normal is the source's carried by the smallest rotation taking
+    `T₀(0)` to `T₁(0)`, and `twist` turns it from there.
     """
 
     source: AbstractSpine
     target: AbstractSpine
     twist: Array
+    margin: Array
     method: str = eqx.field(static=True)
     check_projection: bool = eqx.field(static=True)
+    beyond: str = eqx.field(static=True)
 
-    def __init__(self, source, target, *, method="radial", twist=0.0, check_projection=True):
+    def __init__(
+        self,
+        source,
+        target,
+        *,
+        method="radial",
+        twist=0.0,
+        check_projection=True,
+        margin=0.0,
+        beyond="continue",
+    ):
         _check_spine(source, "source")
         _check_spine(target, "target")
         self.source, self.target = source, target
         self.method = check_method(method)
         self.twist = as_twist(twist)
+        self.margin = as_margin(margin)
         self.check_projection = bool(check_projection)
+        self.beyond = check_beyond(beyond)
 
     def apply(self, x: ArrayLike) -> tuple[Array, Array]:
         """`(M(x), valid)` for one point `x` (3,)."""
@@ -347,6 +416,8 @@ class Fleshing(eqx.Module):
             method=self.method,
             twist=-self.twist,
             check_projection=self.check_projection,
+            margin=self.margin,
+            beyond=self.beyond,
         )
 
 
@@ -356,10 +427,14 @@ def apply_point(fleshing: Fleshing, x: Array) -> tuple[Array, Array]:
     trace this code once, rather than a nested program and then each of their rewrites of it
     (`jacobian_determinant`'s program on polylines and on helices: 27 and 33 % less time
     tracing, 3.4 → 2.5 s and 1.6 → 1.1 s, the same program)."""
-    source, target, twist = cast_floats((fleshing.source, fleshing.target, fleshing.twist),
-                                        x.dtype)
-    registration = register_point(source, x)
-    return pose_point(registration, target, fleshing.method, twist, fleshing.check_projection)
+    source, target, twist, margin = cast_floats(
+        (fleshing.source, fleshing.target, fleshing.twist, fleshing.margin), x.dtype
+    )
+    registration = register_point(source, x, margin=margin)
+    check = fleshing.check_projection
+    return pose_point(
+        registration, target, fleshing.method, twist, check, margin, fleshing.beyond
+    )
 
 
 def _check_points(points: ArrayLike, name: str, single: bool = False) -> Array:
@@ -371,20 +446,30 @@ def _check_spine(spine, name: str) -> None:
         raise TypeError(f"`{name}` must be a spine (AbstractSpine), got {type(spine)}.")
 
 
-def register(points: ArrayLike, source: AbstractSpine, *, samples: int | None = None):
+def register(
+    points: ArrayLike, source: AbstractSpine, *, samples: int | None = None, margin: ArrayLike = 0.0
+):
     """Registers `points` on the spine `source` (closest projection and local coordinates).
 
     **Arguments:** `points`: (N, 3) array; `source`: an `AbstractSpine`; `samples`: number of
-    coarse samples of the closest-point search (default: the spine's `default_samples()`).
+    coarse samples of the closest-point search (default: the spine's `default_samples()`);
+    `margin`: a point is valid only if the ball of this radius around it is clear of the
+    spine's cut locus (points with two closest feet) and focal set, where the closest
+    projection — and the map — is discontinuous (`_fleshing.region`). For a mesh, half its
+    longest edge (what `deform_mesh` uses): then no edge with two valid ends is torn. The
+    default 0 suits point sets: a point is valid when its own projection is unique (to within
+    half the region's sample spacing, `length / 383`).
 
-    **Returns:** a `Registration` (per-point arc length, offset, curvature and validity), to be
-    posed on any number of target spines with `pose`.
+    **Returns:** a `Registration` (per-point arc length, offset, curvature and validity, and
+    which invalid points are `discontinuous`), to be posed on any number of target spines
+    with `pose`.
     """
     points = _check_points(points, "points")
     _check_spine(source, "source")
     samples = source.default_samples() if samples is None else int(samples)
+    margin = as_margin(margin, points.dtype)
     # (Spines padded to a bucket of sizes, as the batch: `AbstractSpine._bucketed`.)
-    registrar = _registrar(cast_floats(source, points.dtype)._bucketed(), samples)
+    registrar = _registrar(cast_floats(source, points.dtype)._bucketed(), samples, margin)
     # The points are put in outside the compiled call: returned from it, they would be copied.
     if is_concrete(points):  # called eagerly: the global search compiled only if needed
         n = points.shape[0]  # and the batch padded to a bucket size (`_batching.buckets`)
@@ -396,14 +481,14 @@ def register(points: ArrayLike, source: AbstractSpine, *, samples: int | None = 
 # The prepared spine (tables, search samples, reach bounds) is built by a compiled call of its
 # own: compiled with the points, XLA fuses parts of it into every point's kernel (2× slower).
 @eqx.filter_jit
-def _registrar(source, samples):
-    return Registrar(source, samples)
+def _registrar(source, samples, margin=0.0):
+    return Registrar(source, samples, margin)
 
 
 @eqx.filter_jit
 def _register(registrar, points):
     r = registrar.register_all(points)
-    return r.arc_length, r.offset, r.curvature, r.valid, r.length
+    return r.arc_length, r.offset, r.curvature, r.valid, r.discontinuous, r.length, r.ends
 
 
 def pose(
@@ -413,19 +498,22 @@ def pose(
     method: str = "radial",
     twist: ArrayLike = 0.0,
     check_projection: bool = True,
+    margin: ArrayLike = 0.0,
+    beyond: str = "continue",
 ) -> tuple[Float[Array, "N 3"], Bool[Array, " N"]]:
     """Poses registered points on a new spine: the per-frame path of an animation.
 
     Same result as `flesh(points, source, target, ...)` without repeating the projection.
 
-    **Arguments:** `registration` from `register`; `target` spine; `method`, `twist` and
-    `check_projection` as for `Fleshing`.
+    **Arguments:** `registration` from `register`; `target` spine; `method`, `twist`,
+    `check_projection`, `margin` (on the target) and `beyond` as for `Fleshing`.
 
     **Returns:** `(deformed (N, 3), valid (N,) bool)`, in the dtype of the registered points.
     """
     if not isinstance(registration, Registration):
         raise TypeError(f"`registration` must come from `register`, got {type(registration)}.")
-    options = dict(method=method, twist=twist, check_projection=check_projection)
+    options = dict(method=method, twist=twist, check_projection=check_projection, margin=margin,
+                   start=registration.ends, beyond=beyond)
     return pose_prepared(registration, prepare_target(target, registration.points.dtype, **options))
 
 
@@ -436,12 +524,20 @@ def prepare_target(
     method: str = "radial",
     twist: ArrayLike = 0.0,
     check_projection: bool = True,
+    margin: ArrayLike = 0.0,
+    start: EndFrames | None = None,
+    beyond: str = "continue",
 ) -> Poser:
     """`target` prepared once for posing points of `dtype` (`pose` = `pose_prepared` of this):
-    a compiled call of its own, which `_mesh.overlap` may run beside the registration."""
+    a compiled call of its own, which `_mesh.overlap` may run beside the registration.
+    `start`: the source's `EndFrames` (`Registration.ends`, or `EndFrames(source)`), from
+    which the target's first normal is carried; `beyond` as for `Fleshing`."""
     _check_spine(target, "target")
-    target, twist = cast_floats((target, as_twist(twist, dtype)), dtype)
-    return _poser(target._bucketed(), check_method(method), twist, bool(check_projection))
+    target, twist, start = cast_floats((target, as_twist(twist, dtype), start), dtype)
+    margin = as_margin(margin, dtype)
+    options = (check_method(method), twist, bool(check_projection), margin, start,
+               check_beyond(beyond))
+    return _poser(target._bucketed(), *options)
 
 
 def pose_prepared(registration: Registration, poser: Poser) -> tuple[Array, Array]:
@@ -453,8 +549,9 @@ def pose_prepared(registration: Registration, poser: Poser) -> tuple[Array, Arra
 
 
 @eqx.filter_jit
-def _poser(target, method, twist, check_projection):  # compiled apart, as `_registrar`
-    return Poser(target, method, twist, check_projection)
+def _poser(target, method, twist, check_projection, margin=0.0, start=None, beyond="continue"):
+    # (compiled apart, as `_registrar`)
+    return Poser(target, method, twist, check_projection, margin, start, beyond)
 
 
 @eqx.filter_jit
@@ -470,6 +567,8 @@ def flesh(
     method: str = "radial",
     twist: ArrayLike = 0.0,
     check_projection: bool = True,
+    margin: ArrayLike = 0.0,
+    beyond: str = "continue",
     progress: bool | None = None,
 ) -> tuple[Float[Array, "N 3"], Bool[Array, " N"]]:
     """Bends `points` from around `source` to around `target`, preserving local volume.
@@ -480,7 +579,7 @@ def flesh(
     - `source`, `target`: `AbstractSpine`s.
     - `method`: `"radial"`, `"normal"`, `"binormal"` or `"skinning"`.
     - `twist`: scalar twist in radians.
-    - `check_projection`: see `Fleshing`.
+    - `check_projection`, `margin`, `beyond`: see `Fleshing` and `register`.
     - `progress`: show a progress bar (`tqdm`, on stderr) over the blocks of a large batch
       (default: when there are at least `PROGRESS_BLOCKS` of them).
 
@@ -496,6 +595,8 @@ def flesh(
     _check_spine(target, "target")
     method, check_projection = check_method(method), bool(check_projection)
     twist = as_twist(twist, points.dtype)  # checked before any work
+    margin = as_margin(margin, points.dtype)
+    beyond = check_beyond(beyond)
     cast_source, cast_target = cast_floats((source, target), points.dtype)
     if points.shape[0] <= _chunks.CHUNK_POINTS or (
         runs_whole(cast_source) and runs_whole(cast_target)
@@ -504,21 +605,23 @@ def flesh(
         # from one program, and compiled apart, the registration is compiled once for all the
         # methods and targets a shape is fleshed onto. (In one program XLA fuses the
         # registration's lookups into the pose's kernels, ~1.5× slower than the two calls.)
-        options = dict(method=method, twist=twist, check_projection=check_projection)
+        options = dict(method=method, twist=twist, check_projection=check_projection,
+                       margin=margin, beyond=beyond)
         if is_concrete(points) and points.shape[0] > BLOCK_POINTS:
             return _flesh_in_blocks(points, source, target, options, progress)
-        return pose(register(points, source), target, **options)
+        return pose(register(points, source, margin=margin), target, **options)
     samples = source.default_samples()
     n = points.shape[0]
     padded = pad_batch(points, bucket(n)) if is_concrete(points) else points
     images, valid = _flesh(padded, cast_source._bucketed(), cast_target._bucketed(), method,
-                           twist, check_projection, samples)
+                           twist, check_projection, samples, margin, beyond)
     return unpad_batch((images, valid), n)
 
 
 @eqx.filter_jit
-def _flesh(points, source, target, method, twist, check_projection, samples):
-    return flesh_points(points, source, target, method, twist, check_projection, samples)
+def _flesh(points, source, target, method, twist, check_projection, samples, margin, beyond):
+    options = (twist, check_projection, samples, margin, beyond)
+    return flesh_points(points, source, target, method, *options)
 
 
 BLOCK_POINTS = 1 << 21  # points fleshed at a time in large eager batches (~100 MB of work)
@@ -542,7 +645,7 @@ def _flesh_in_blocks(points, source, target, options, progress):
     for b in blocks:
         start = min(b * size, n - size)  # the last block overlaps the one before: same size
         block = jax.lax.dynamic_slice_in_dim(points, start, size)
-        image, ok = pose(register(block, source), target, **options)
+        image, ok = pose(register(block, source, margin=options["margin"]), target, **options)
         images, valid = _write_block(images, valid, image, ok, jnp.asarray(start, jnp.int32))
     return images, valid
 

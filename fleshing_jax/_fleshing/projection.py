@@ -18,10 +18,12 @@ from jaxtyping import Array, ArrayLike, Bool, Float
 
 from .._batching.chunks import map_chunks
 from .._batching.compact import update_where
-from .._numerics import dot, polish_root, relative_tolerance
+from .._numerics import dot, norm, polish_root, relative_tolerance
 from .._spines.spine import AbstractSpine
 from .._spines.table import SpineTable, fast_evaluator, runs_whole
+from .ends import EndFrames
 from .reach import LocalReach, search_range
+from .region import ValidRegion, closed_form_clear
 
 NEWTON_STEPS = 8
 FAST_STEPS = 3  # Newton steps of the certified fast path (from a sample at most h away)
@@ -195,8 +197,9 @@ def closest_arc_length(spine: AbstractSpine, x: Array, samples: int | None = Non
 
 class Registrar(eqx.Module):
     """A spine prepared for batched registration: its search samples and lower bounds of its
-    reach around each arc length, computed once for all points, and its closed-form foot where
-    it has one (lines, arcs; see `closest_arc_lengths`)."""
+    reach around each arc length, computed once for all points, its closed-form foot where
+    it has one (lines, arcs; see `closest_arc_lengths`), and its valid region with the margin
+    `margin` (`region`: points too close to the cut locus are flagged `discontinuous`)."""
 
     spine: AbstractSpine | SpineTable  # prepared, or tabulated in single precision
     exact: AbstractSpine  # prepared, gradients stopped: for a closed-form foot, if it has one
@@ -204,14 +207,19 @@ class Registrar(eqx.Module):
     # The fast path's certificate; not built where the foot has a closed form (most of the
     # preparation's compilation: a line's compiles 2.5× faster, an arc's 1.9×).
     reach: LocalReach | None
+    margin: Array
+    region: ValidRegion | None  # None where the margin has a closed form (lines, arcs)
 
-    def __init__(self, spine: AbstractSpine, samples: int | None = None):
+    def __init__(self, spine: AbstractSpine, samples: int | None = None, margin=0.0):
         samples = spine.default_samples() if samples is None else samples
         spine = spine._prepare()
         self.spine = fast_evaluator(spine)
         self.exact = jax.lax.stop_gradient(spine)
         self.search = _search(self.spine, samples)
-        self.reach = None if spine._has_closed_form_foot() else LocalReach(self.spine)
+        closed = spine._has_closed_form_foot()
+        self.reach = None if closed else LocalReach(self.spine)
+        self.margin = jnp.asarray(margin, spine.length.dtype)
+        self.region = None if closed else ValidRegion(self.spine, self.margin)
 
     @property
     def fused(self) -> bool:
@@ -246,7 +254,25 @@ class Registrar(eqx.Module):
         `closest`: the search (default `self.closest`; `closest_global` for pending points)."""
         closest = self.closest if closest is None else closest
         s, converged = closest(_finite_or_zero(points))
-        return jax.vmap(lambda *a: _local_coordinates(self.spine, *a))(points, s, converged)
+        registration = jax.vmap(lambda *a: _local_coordinates(self.spine, *a))(points, s, converged)
+        return self.cleared(registration)
+
+    def cleared(self, registration: Registration) -> Registration:
+        """`registration` with its points closer than the margin to the spine's cut locus or
+        focal set flagged `discontinuous` and not valid (`region`): certified in O(1) a point
+        where they can be, the sampled test run on the others only."""
+        reg, margin = registration, self.margin
+        if self.region is None:
+            clear = jax.vmap(closed_form_clear, (0, 0, None))(reg.offset, reg.curvature, margin)
+        else:
+            region = self.region
+            clear = jax.vmap(region.certified)(reg.arc_length, norm(reg.offset))
+            clear = update_where(
+                reg.valid & ~clear, lambda a: region.clear(*a), clear, (reg.points, reg.arc_length)
+            )
+        return eqx.tree_at(
+            lambda r: (r.valid, r.discontinuous), reg, (reg.valid & clear, reg.valid & ~clear)
+        )
 
     def register_certified(self, points: Array) -> tuple[Registration, Array]:
         """`register` without the global search: `(registration, pending (n,))`, the finite
@@ -262,13 +288,20 @@ class Registrar(eqx.Module):
         and the local coordinates."""
         s, converged = self._polished(_finite_or_zero(points), s, certified)
         coordinates = jax.vmap(lambda *a: _local_coordinates(self.spine, *a))
-        return coordinates(points, s, converged), ~certified & jnp.all(jnp.isfinite(points), -1)
+        registration = self.cleared(coordinates(points, s, converged))
+        return registration, ~certified & jnp.all(jnp.isfinite(points), -1)
 
     def register_all(self, points: Array) -> Registration:
         """`register` for any number of points (N, 3): in chunks (`map_chunks`) on exact
         spines, whole on tables; the `length` a scalar."""
-        registration = map_chunks(self.register, points, whole=self.fused)
-        return eqx.tree_at(lambda r: r.length, registration, self.spine.length)
+        return self.shared(map_chunks(self.register, points, whole=self.fused))
+
+    def shared(self, registration: Registration) -> Registration:
+        """`registration` with the spine's `length` and `ends` as scalars (shared by all
+        points) rather than repeated per point."""
+        return eqx.tree_at(
+            lambda r: (r.length, r.ends), registration, (self.spine.length, EndFrames(self.exact))
+        )
 
 
 def _finite_or_zero(points: Array) -> Array:
@@ -304,8 +337,13 @@ class Registration(eqx.Module):
     - `arc_length`: (N,) arc length `s` of the closest projection.
     - `offset`: (N, 2) offset `X − C₀(s)` in `(I₀, J₀)` coordinates.
     - `curvature`: (N, 2) curvature vector `k₀(s)` in `(I₀, J₀)` coordinates.
-    - `valid`: (N,) bool: finite, projected, and strictly inside the reach of the source.
+    - `valid`: (N,) bool: finite, projected, strictly inside the reach of the source, and
+      farther than the margin from its cut locus and focal set (`region`).
+    - `discontinuous`: (N,) bool: projected inside the local reach, but within the margin of
+      the cut locus or the focal set, where the map is discontinuous (so not `valid`).
     - `length`: scalar length of the source spine.
+    - `ends`: the source's frames at its two ends (`ends.EndFrames`, scalars), for the
+      target's first normal and for `beyond="rigid"`.
     """
 
     points: Float[Array, "*batch 3"]
@@ -313,22 +351,38 @@ class Registration(eqx.Module):
     offset: Float[Array, "*batch 2"]
     curvature: Float[Array, "*batch 2"]
     valid: Bool[Array, " *batch"]
+    discontinuous: Bool[Array, " *batch"]
     length: Float[Array, ""]
+    ends: EndFrames
 
 
-def register_point(spine: AbstractSpine, x: ArrayLike, samples: int | None = None) -> Registration:
-    """Registers one point (3,) on `spine`; see `register_points` for many."""
+def register_point(
+    spine: AbstractSpine, x: ArrayLike, samples: int | None = None, margin=0.0
+) -> Registration:
+    """Registers one point (3,) on `spine`, with the `margin` of `region`; see
+    `register_points` for many."""
     x = jnp.asarray(x)
     spine = spine._prepare()
     finite = jnp.all(jnp.isfinite(x))
     s, converged = closest_arc_length(spine, jnp.where(finite, x, 0), samples)
-    return _local_coordinates(spine, x, s, converged)
+    reg = _local_coordinates(spine, x, s, converged)
+    margin = jnp.asarray(margin, spine.length.dtype)
+    if spine._has_closed_form_foot():
+        clear = closed_form_clear(reg.offset, reg.curvature, margin)
+    else:
+        region = ValidRegion(spine, margin)
+        fixed = jax.lax.stop_gradient((x, s))
+        clear = region.certified(fixed[1], norm(jax.lax.stop_gradient(reg.offset)))
+        clear = clear | region.clear(jnp.where(finite, fixed[0], 0), fixed[1])
+    return eqx.tree_at(
+        lambda r: (r.valid, r.discontinuous), reg, (reg.valid & clear, reg.valid & ~clear)
+    )
 
 
-def register_points(spine: AbstractSpine, points: Array, samples: int | None = None):
+def register_points(spine: AbstractSpine, points: Array, samples: int | None = None, margin=0.0):
     """Registers points (N, 3) on `spine` (batched projection in chunks, see
-    `closest_arc_lengths`)."""
-    return Registrar(spine, samples).register_all(points)
+    `closest_arc_lengths`), with the `margin` of `region`."""
+    return Registrar(spine, samples, margin).register_all(points)
 
 
 def _local_coordinates(spine: AbstractSpine, x: Array, s: Array, converged: Array):
@@ -336,4 +390,5 @@ def _local_coordinates(spine: AbstractSpine, x: Array, s: Array, converged: Arra
     finite = jnp.all(jnp.isfinite(x))
     offset, curvature, slope = spine._local_terms(jnp.where(finite, x, 0), s)
     valid = finite & converged & (slope > 0)
-    return Registration(x, s, offset, curvature, valid, spine.length)
+    ends = EndFrames(spine)
+    return Registration(x, s, offset, curvature, valid, jnp.zeros_like(valid), spine.length, ends)

@@ -66,14 +66,20 @@ class LocalReach(eqx.Module):
 
     **Fields:** `lo`, `h`: the first sample and the spacing; `bounds`: (S,) the bound `ρ_i` for
     feet within `h/2` of sample `i` (`inf` on a straight spine).
+
+    With a `margin` `δ > 0`, the bounds are lowered so that the whole ball of radius `δ` around
+    a point inside them has a unique foot near `s` (`region`): the near condition becomes
+    `κ̂ (r + δ + w) < 1`, the far one `|X − C(t)| > r + 2δ`, i.e. `r < (a² − 4δ²)/(2c + 4δ)` or
+    `r < a/2 − δ`. `δ = 0` gives the bounds above.
     """
 
     lo: Array
     h: Array
     bounds: Array
 
-    def __init__(self, spine: AbstractSpine, samples: int = REACH_SAMPLES):
+    def __init__(self, spine: AbstractSpine, samples: int = REACH_SAMPLES, margin=0.0):
         spine = jax.lax.stop_gradient(spine._prepare())
+        margin = jnp.asarray(margin, spine.length.dtype)
         lo, hi = search_range(spine)
         grid = jnp.linspace(lo, hi, samples)
         h = (hi - lo) / (samples - 1)
@@ -94,7 +100,9 @@ class LocalReach(eqx.Module):
         across = jnp.sqrt(jnp.maximum(length**2 - along**2, 0))
         a = length - h
         c = across + length * kappa_hat(1)[:, None] * h + h
-        q = jnp.where(a > 0, jnp.maximum(a**2 / (2 * c), a / 2), 0)
+        # With a margin δ (`region`): far points stay farther than `r + 2δ` from X.
+        two = 2 * margin
+        q = jnp.where(a > two, jnp.maximum((a**2 - two**2) / (2 * c + 2 * two), (a - two) / 2), 0)
         # Row-wise running minima: the smallest q_ij over samples j at least n indices away
         # from i on either side is read off them (one (S, S) pass for all windows).
         upto = jax.lax.cummin(q, axis=1)
@@ -107,7 +115,7 @@ class LocalReach(eqx.Module):
             left, right = index - (m - 1), index + (m - 1)  # far: at least w − h away
             before = jnp.where(left >= 0, upto[index, jnp.maximum(left, 0)], inf)
             after = jnp.where(right <= last, onward[index, jnp.minimum(right, last)], inf)
-            near = 1 / kappa_hat(m) - m * h
+            near = 1 / kappa_hat(m) - m * h - margin
             bounds.append(jnp.minimum(near, jnp.minimum(before, after)))
         # A reduction, so that XLA materialises the bounds (their elementwise last steps would
         # otherwise be fused into every point's lookup, 2× slower `pose`).

@@ -12,7 +12,8 @@ import jax.numpy as jnp
 import numpy as np
 import trimesh
 
-from .._checks import as_points, as_twist
+from .._checks import as_margin, as_points, as_twist
+from .._fleshing.ends import check_beyond
 from .._fleshing.methods import check_method
 from .._fleshing.pipeline import pose_prepared, register
 from .._spines.spine import AbstractSpine
@@ -31,12 +32,15 @@ def flesh_chunked(
     twist: float = 0.0,
     chunk_size: int = CHUNK_SIZE,
     progress: Callable[[int, int], None] | None = None,
+    margin: float = 0.0,
+    beyond: str = "continue",
 ) -> tuple[np.ndarray, np.ndarray]:
     """`flesh` in chunks of at most `chunk_size` points (bounded memory, progress reports).
 
     Every chunk has the same shape (the last one is padded), so the work compiles once.
 
-    **Arguments:** `points`: (N, 3) array; spines, `method` and `twist` as for `flesh`;
+    **Arguments:** `points`: (N, 3) array; spines, `method`, `twist`, `margin` and `beyond` as
+    for `flesh`;
     `progress(done, total)`: called after each chunk (default: a `tqdm` progress bar on
     stderr from `PROGRESS_POINTS` points on, work of a few seconds or more).
 
@@ -44,6 +48,7 @@ def flesh_chunked(
     """
     check_method(method)
     twist = float(as_twist(twist))
+    margin = float(as_margin(margin))
     if isinstance(chunk_size, bool) or not isinstance(chunk_size, int | np.integer):
         raise TypeError(f"`chunk_size` must be a positive int, got {chunk_size!r}.")
     if chunk_size < 1:
@@ -66,10 +71,10 @@ def flesh_chunked(
             chunk = np.concatenate([chunk, np.repeat(chunk[:1], size - m, axis=0)])
         chunk = jnp.asarray(chunk)
         if poser is None:
-            options = dict(method=method, twist=twist)
+            options = dict(method=method, twist=twist, margin=margin, beyond=check_beyond(beyond))
             registration, poser = register_and_prepare(chunk, source, target, **options)
         else:
-            registration = register(chunk, source)
+            registration = register(chunk, source, margin=margin)
         out, ok = pose_prepared(registration, poser)
         deformed[start : start + m] = np.asarray(out)[:m]
         valid[start : start + m] = np.asarray(ok)[:m]
@@ -87,6 +92,8 @@ def deform_mesh(
     twist: float = 0.0,
     chunk_size: int = CHUNK_SIZE,
     progress: Callable[[int, int], None] | None = None,
+    margin: float | None = None,
+    beyond: str = "continue",
 ):
     """Bends a mesh or point cloud from around `source` to around `target`.
 
@@ -99,6 +106,12 @@ def deform_mesh(
     - `source`, `target`: spines; `method` (one of `METHODS`) and `twist` (radians) as for
       `flesh`.
     - `chunk_size`, `progress`: see `flesh_chunked` (for large inputs).
+    - `margin`: the valid region's margin (`register`). By default half the mesh's longest
+      edge, so that an edge whose two ends are valid never crosses the spines' cut locus or
+      focal set, where the map is discontinuous: valid edges are never torn. 0 for a point
+      cloud or array (no edges).
+    - `beyond`: `"continue"` or `"rigid"`: the points beyond the source's ends move rigidly
+      with its end frames (a body behind a bent tail stays still); see `flesh`.
 
     **Returns:** for a `Trimesh`, a new `Trimesh` with the input's faces, vertex order and
     visuals, its vertices fleshed, and the per-vertex validity (N,) bool in
@@ -107,7 +120,10 @@ def deform_mesh(
     (measure quad volumes with `fj.volume(deformed, faces)`). For a point cloud or array, a
     `trimesh.PointCloud`, with the validity in `result.metadata["valid"]`.
     """
-    if isinstance(mesh, trimesh.Trimesh | trimesh.PointCloud):
+    faces = None
+    if isinstance(mesh, trimesh.Trimesh):
+        points, faces = mesh.vertices, np.asarray(mesh.faces)
+    elif isinstance(mesh, trimesh.PointCloud):
         points = mesh.vertices
     elif isinstance(mesh, tuple) and len(mesh) == 2:
         points, faces = mesh
@@ -123,6 +139,8 @@ def deform_mesh(
             "`mesh` must be a trimesh.Trimesh, a (vertices, faces) pair, a trimesh.PointCloud "
             f"or an (N, 3) array, got {type(mesh)}."
         )
+    if margin is None:
+        margin = 0.5 * longest_edge(points, faces) if faces is not None else 0.0
     deformed, valid = flesh_chunked(
         points,
         source,
@@ -131,6 +149,8 @@ def deform_mesh(
         twist=twist,
         chunk_size=chunk_size,
         progress=progress,
+        margin=margin,
+        beyond=beyond,
     )
     if isinstance(mesh, trimesh.Trimesh):
         result = mesh.copy()
@@ -144,6 +164,16 @@ def deform_mesh(
         cloud.colors = mesh.colors
     cloud.metadata["valid"] = valid
     return cloud
+
+
+def longest_edge(points, faces) -> float:
+    """The longest edge of the polygons `faces` (F, k) over `points` (N, 3) (0 if none)."""
+    faces = np.asarray(faces)
+    if faces.size == 0:
+        return 0.0
+    p = np.asarray(points, dtype=np.float64)
+    edges = p[np.roll(faces, -1, axis=1)] - p[faces]
+    return float(np.sqrt(np.max(np.einsum("...i,...i->...", edges, edges))))
 
 
 def _progress_bar(total: int) -> Callable[[int, int], None]:

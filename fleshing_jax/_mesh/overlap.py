@@ -17,8 +17,10 @@ from concurrent.futures import ThreadPoolExecutor
 
 import jax
 
+from .._fleshing.ends import end_frames
 from .._fleshing.pipeline import Poser, prepare_target, register
 from .._fleshing.projection import Registration
+from .._numerics import cast_floats
 from .._spines.spine import AbstractSpine
 
 
@@ -33,6 +35,8 @@ def register_and_prepare(
     """`(register(points, source), prepare_target(target, points.dtype, **options))`, the
     second in a thread of its own when that thread sees the caller's configuration."""
     caller = _configuration()
+    # The source's end frames, from which the target's first normal is carried (`ends`).
+    options = dict(options, start=end_frames(cast_floats(source, points.dtype)._prepare()))
 
     def prepare() -> Poser | None:
         if _configuration() != caller:
@@ -41,7 +45,7 @@ def register_and_prepare(
 
     with ThreadPoolExecutor(max_workers=1) as pool:
         prepared = pool.submit(prepare)
-        registration = register(points, source)
+        registration = register(points, source, margin=options.get("margin", 0.0))
         poser = prepared.result()  # (an error in the thread is raised here)
     if poser is None:
         poser = prepare_target(target, points.dtype, **options)

@@ -1,0 +1,127 @@
+"""The spines' ends: the target's first normal carried from the source's, and the points
+beyond the ends moved rigidly (`beyond="rigid"`).
+
+**The frame rule.** A spine's twist-compensated frame starts from `initial_normal(T(0))`, a rule
+that jumps where the least aligned coordinate axis changes: two nearly equal start tangents
+can get normals 90° apart, and a pose would roll the whole shape at zero twist. So the
+target's frame is instead started from the source's first normal `I₀(0)` carried by the
+smallest rotation taking `T₀(0)` to `T₁(0)` (continuous in both spines): the target's own
+normals turned by `aligned_twist`, added to the user's twist.
+
+**Beyond the ends.** By default (`"continue"`) a point that projects before `s = 0` (or past
+the end) is fleshed against the spines continued along their osculating circles there
+(`_spines.spine`): a bend that starts at `s = 0` with another curvature then moves everything
+behind the start. With `"rigid"`, such points move rigidly with the start frame (or the end
+frame): the body behind a bent tail stays where it is — exactly, bit for bit, when the two
+start frames agree (to round-off) — and a hoof follows its leg. The rigid part joins the
+fleshed part continuously where the two spines' curvature vectors agree at that end (a bend
+that ramps up from the end); elsewhere the offsets of points on the end's normal plane jump
+by the difference of the unbend and bend there.
+
+The source's end frames are carried by the `Registration` (`EndFrames`), so that `pose` needs
+only the target.
+"""
+
+from __future__ import annotations
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+from jaxtyping import Array
+
+from .._numerics import dot
+from .._spines.frames import twist_normals
+
+BEYOND = ("continue", "rigid")
+
+
+def check_beyond(beyond: str) -> str:
+    """`beyond` if it is one of `BEYOND`, else a `ValueError` naming it."""
+    if not isinstance(beyond, str) or beyond not in BEYOND:
+        raise ValueError(f"`beyond` must be one of {BEYOND}, got {beyond!r}.")
+    return beyond
+
+
+class EndFrames(eqx.Module):
+    """A spine's frames `(C, T, I, J)` at `s = 0` and at its length, as 24 scalars: scalars,
+    so that the batching helpers share them across points as they share a registration's
+    `length` (`_batching.chunks.per_point`)."""
+
+    values: tuple[Array, ...]
+
+    def __init__(self, spine=None, values=None):
+        if values is None:
+            spine = jax.lax.stop_gradient(spine)
+            frames = [_frame(spine, s) for s in (jnp.zeros_like(spine.length), spine.length)]
+            values = tuple(v for frame in frames for vector in frame for v in vector)
+        self.values = tuple(values)
+
+    def frame(self, end: int) -> tuple[Array, Array, Array, Array]:
+        """`(C, T, I, J)`, each (3,), at the start (`end = 0`) or the end (`end = 1`)."""
+        v = self.values[12 * end : 12 * end + 12]
+        return tuple(jnp.stack(v[3 * i : 3 * i + 3]) for i in range(4))
+
+
+@eqx.filter_jit
+def end_frames(spine) -> EndFrames:
+    """`EndFrames(spine)` compiled (eagerly, a free-form spine's frames are many small
+    operations)."""
+    return EndFrames(spine)
+
+
+def _frame(spine, s: Array) -> tuple[Array, Array, Array, Array]:
+    (c, t, _), (i, j) = spine.jet_and_normals(s)
+    return c, t, i, j
+
+
+def aligned_twist(start: EndFrames, target, twist: Array) -> Array:
+    """`twist` plus the angle about `T₁(0)` from the target's own first normal to the source's
+    `I₀(0)` carried by the smallest rotation taking `T₀(0)` to `T₁(0)` (scalar; exactly
+    `twist` when the two start tangents and normals are equal, so that a spine posed on
+    itself keeps its frame to the last bit). `target`: a prepared spine."""
+    _, t0, i0, _ = start.frame(0)
+    (_, t1, _), (i1, j1) = target.jet_and_normals(jnp.zeros_like(target.length))
+    t0, i0 = jax.lax.stop_gradient((t0, i0))
+    # The smallest rotation taking t0 to t1, applied to i0: with a = t0 × t1 and c = t0·t1,
+    # R v = c v + a × v + a (a·v) / (1 + c). Undefined for opposite tangents (c = −1): there
+    # any normal is as good, and 0 is used.
+    a, c = jnp.cross(t0, t1), dot(t0, t1)
+    opposite = c <= -1 + 1e-6
+    carried = c * i0 + jnp.cross(a, i0) + a * dot(a, i0) / jnp.where(opposite, 1, 1 + c)
+    angle = jnp.arctan2(dot(carried, j1), dot(carried, i1))
+    return twist + jnp.where(_same((t0, i0), (t1, i1)) | opposite, 0, angle)
+
+
+def _same(a: tuple[Array, ...], b: tuple[Array, ...], scale: Array = 1.0) -> Array:
+    """Whether the vectors `a` and `b` agree to round-off (8 ε, times `scale`), each."""
+    eps = 8 * jnp.finfo(a[0].dtype).eps
+    return jnp.all(jnp.stack([jnp.max(jnp.abs(u - v)) for u, v in zip(a, b)]) <= eps * scale)
+
+
+def target_ends(target, twist: Array) -> EndFrames:
+    """The target's `EndFrames` with its normals turned by `twist` (a prepared spine)."""
+    frames = []
+    for s in (jnp.zeros_like(target.length), target.length):
+        c, t, i, j = _frame(target, s)
+        frames.append((c, t, *twist_normals((i, j), twist)))
+    return EndFrames(values=[v for frame in frames for vector in frame for v in vector])
+
+
+def rigid_beyond(
+    source: EndFrames, target: EndFrames, x: Array, s: Array, length: Array
+) -> tuple[Array, Array]:
+    """`(image (3,), beyond)` of one point `x` registered at `s` on a source of `length`:
+    where `beyond` (`s ≤ 0` or `s ≥ length`), `x` moved rigidly from the source's frame at that
+    end to the target's; `x` itself where the two frames agree to round-off."""
+    end = (s >= length).astype(jnp.int32)
+    c0, t0, i0, j0 = _pick(source, end)
+    c1, t1, i1, j1 = _pick(target, end)
+    d = x - c0
+    image = c1 + dot(d, t0) * t1 + dot(d, i0) * i1 + dot(d, j0) * j1
+    same = _same((c0,), (c1,), 1 + jnp.max(jnp.abs(c0))) & _same((t0, i0, j0), (t1, i1, j1))
+    return jnp.where(same, x, image), (s <= 0) | (s >= length)
+
+
+def _pick(frames: EndFrames, end: Array):
+    start, last = frames.frame(0), frames.frame(1)
+    return tuple(jnp.where(end == 1, b, a) for a, b in zip(start, last))

@@ -1,0 +1,198 @@
+"""The valid region (`_fleshing.region`): a map that tears is never reported valid.
+
+An edge whose two ends are valid, with a margin of half its length, never crosses the spines'
+cut locus or focal set, so its image is never torn: its length is at most the largest stretch
+of the map along it times its rest length. Tears show as image edges as long as the distance
+between the stretches of the spine the two ends were projected on.
+"""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import fleshing_jax as fj
+from fleshing_jax._fleshing.diagnose import diagnose
+
+STEP = 0.1  # lattice spacing: edges of this length, margin half of it
+
+
+def lattice(lo, hi, step=STEP):
+    """Points on a regular grid over the box `[lo, hi]` and its edges: `(points (n, 3),
+    edges (m, 2))`."""
+    axes = [np.arange(a, b + 1e-9, step) for a, b in zip(lo, hi)]
+    grid = np.stack(np.meshgrid(*axes, indexing="ij"))
+    index = np.arange(grid[0].size).reshape(grid.shape[1:])
+    edges = [
+        np.stack([np.take(index, range(0, n - 1), axis=a).ravel(),
+                  np.take(index, range(1, n), axis=a).ravel()], 1)
+        for a, n in enumerate(index.shape)
+    ]  # fmt: skip
+    return grid.reshape(3, -1).T, np.concatenate(edges)
+
+
+def stretches(images, valid, edges, step=STEP):
+    """The image lengths of the edges with two valid ends, over their rest length."""
+    images, valid = np.asarray(images, np.float64), np.asarray(valid)
+    both = valid[edges[:, 0]] & valid[edges[:, 1]]
+    a, b = images[edges[both, 0]], images[edges[both, 1]]
+    return np.linalg.norm(a - b, axis=1) / step
+
+
+# A hairpin: two straight stretches 0.8 apart joined by a U-turn. Its cut locus between the
+# stretches is the plane y = 0.4; the lattice's y = 0.35 and 0.45 straddle it.
+HAIRPIN = np.array([[0, 0, 0], [1, 0, 0], [2, 0, 0], [3, 0, 0], [3.5, 0.1, 0], [3.6, 0.4, 0],
+                    [3.5, 0.7, 0], [3, 0.8, 0], [2, 0.8, 0], [1, 0.8, 0],
+                    [0, 0.8, 0.0]])  # fmt: skip
+
+
+@pytest.mark.parametrize("dtype", ["float64", "float32"])
+def test_bottleneck_tears_without_margin_and_never_with_it(dtype):
+    source = fj.BSpline(HAIRPIN.astype(dtype), degree=3)
+    target = fj.Line(source.length)  # straightened: the two stretches go far apart
+    points, edges = lattice((0.0, -0.25, -0.2), (3.2, 1.05, 0.2))
+    points = points.astype(dtype)
+    # Without a margin each point is valid on its own, and edges across y = 0.4 tear.
+    images, valid = fj.flesh(points, source, target)
+    assert stretches(images, valid, edges).max() > 30
+    images, valid = fj.flesh(points, source, target, margin=STEP / 2)
+    assert images.dtype == jnp.dtype(dtype)
+    assert stretches(images, valid, edges).max() < 1.5
+    # The points flagged are those within the margin of the cut locus, counted apart.
+    registration = fj.register(points, source, margin=STEP / 2)
+    flagged = np.asarray(registration.discontinuous)
+    y = points[:, 1]
+    assert flagged[np.abs(y - 0.4) < 0.06].all()
+    assert not flagged[(np.abs(y - 0.4) > 0.3) & (points[:, 0] < 2.5)].any()
+    causes = diagnose(registration, target, margin=STEP / 2)
+    assert causes.beyond_reach == flagged.sum() > 0
+    assert causes.outside_source == np.sum(~np.asarray(registration.valid) & ~flagged)
+
+
+def _wavy(rng, dtype, amplitude=0.8, n=8):
+    x = np.linspace(0, 4, n)
+    yz = rng.uniform(-amplitude, amplitude, (n, 2))
+    yz[0] = 0
+    return fj.BSpline(np.column_stack([x, yz]).astype(dtype), degree=3)
+
+
+@pytest.mark.parametrize("seed", [1, 2])
+@pytest.mark.parametrize("method", ["radial", "normal", "binormal"])
+def test_valid_edges_are_never_torn_on_random_wavy_spines(seed, method):
+    # Property: random wavy spines (their bends come close to each other), random targets,
+    # every point of a lattice around them; no edge with two valid ends is stretched beyond
+    # what the bend itself does (measured: at most 1.4; torn edges: 15 and more).
+    rng = np.random.default_rng(seed)
+    dtype = "float32" if seed == 1 else "float64"
+    source, target = _wavy(rng, dtype), _wavy(rng, dtype)
+    points, edges = lattice((-0.3, -0.75, -0.75), (4.3, 0.75, 0.75), step=0.15)
+    points = points.astype(dtype)
+    images, valid = fj.flesh(points, source, target, method=method, margin=0.075)
+    assert np.mean(valid) > 0.05
+    assert stretches(images, valid, edges, step=0.15).max() < 3
+
+
+def test_one_point_batched_and_jit_paths_agree_on_the_region():
+    source = fj.BSpline(HAIRPIN, degree=3)
+    target = fj.Arc(2.0, float(source.length))
+    points, _ = lattice((0.0, -0.25, 0.0), (3.2, 1.05, 0.0), step=0.3)
+    fleshing = fj.Fleshing(source, target, margin=0.05)
+    one = jax.vmap(fleshing.apply)(jnp.asarray(points))
+    batched = fj.flesh(points, source, target, margin=0.05)
+    jitted = jax.jit(lambda p: fj.flesh(p, source, target, margin=0.05))(jnp.asarray(points))
+    for images, valid in (batched, jitted):
+        np.testing.assert_array_equal(np.asarray(valid), np.asarray(one[1]))
+        np.testing.assert_allclose(np.asarray(images), np.asarray(one[0]), atol=1e-9)
+    # The hairpin's middle (y = 0.35 … 0.45 is not on this lattice: y = 0.35) is flagged.
+    assert not np.asarray(one[1])[np.abs(points[:, 1] - 0.35) < 1e-9].any()
+
+
+def test_margin_and_beyond_are_checked():
+    line = fj.Line(2.0)
+    points = np.zeros((4, 3))
+    with pytest.raises(ValueError, match="margin"):
+        fj.flesh(points, line, line, margin=-1.0)
+    with pytest.raises(ValueError, match="margin"):
+        fj.register(points, line, margin=float("nan"))
+    with pytest.raises(TypeError, match="margin"):
+        fj.flesh(points, line, line, margin="a")
+    with pytest.raises(ValueError, match="beyond"):
+        fj.flesh(points, line, line, beyond="clamp")
+
+
+def _tail_case(dtype):
+    """A body (a box) behind the start of a tail spine (a line out of it), and the tail bent
+    by an arc that starts with the line's frame."""
+    rng = np.random.default_rng(0)
+    body = rng.uniform([-3, -1, -1], [0, 1, 1], (400, 3))
+    tail = np.column_stack([rng.uniform(0.05, 2, 200), rng.uniform(-0.2, 0.2, (200, 2))])
+    points = np.concatenate([body, tail]).astype(dtype)
+    source = fj.Line(np.asarray(2.0, dtype))
+    frame = np.asarray(fj.rotation_minimizing_frame(source, 0.0))
+    target = fj.Arc(
+        np.asarray(1.5, dtype), np.asarray(2.0, dtype), tangent=frame[0], normal=frame[1]
+    )
+    return points, source, target, len(body)
+
+
+@pytest.mark.parametrize("dtype", ["float64", "float32"])
+def test_rigid_beyond_keeps_the_body_still_bit_for_bit(dtype):
+    points, source, target, n_body = _tail_case(dtype)
+    images, valid = fj.flesh(points, source, target, beyond="rigid")
+    assert np.asarray(valid).all()
+    np.testing.assert_array_equal(np.asarray(images)[:n_body], points[:n_body])
+    assert np.abs(np.asarray(images)[n_body:] - points[n_body:]).max() > 0.3  # the tail bent
+    # Continued instead, the arc's continuation carries the body round with it.
+    moved, _ = fj.flesh(points, source, target)
+    assert np.abs(np.asarray(moved)[:n_body] - points[:n_body]).max() > 0.1
+    # Per frame (`pose`) and one point at a time, the same.
+    posed, _ = fj.pose(fj.register(points, source), target, beyond="rigid")
+    np.testing.assert_array_equal(np.asarray(posed)[:n_body], points[:n_body])
+    one = jax.vmap(fj.Fleshing(source, target, beyond="rigid"))(jnp.asarray(points[:50]))
+    np.testing.assert_array_equal(np.asarray(one), points[:50])
+
+
+def test_rigid_beyond_moves_with_the_end_frames_and_keeps_volume():
+    # Past the end, points follow the end frame rigidly: distances between them are kept,
+    # and the map there is a rotation (det J = 1).
+    points, source, target, _ = _tail_case("float64")
+    beyond = np.array([[2.3, 0.1, 0.0], [2.8, -0.2, 0.3], [2.5, 0.0, -0.4]])
+    images, valid = fj.flesh(beyond, source, target, beyond="rigid")
+    assert np.asarray(valid).all()
+    images = np.asarray(images)
+    for i, j in ((0, 1), (1, 2), (0, 2)):
+        np.testing.assert_allclose(np.linalg.norm(images[i] - images[j]),
+                                   np.linalg.norm(beyond[i] - beyond[j]), rtol=1e-12)  # fmt: skip
+    end = np.asarray(target(target.length))
+    np.testing.assert_allclose(np.linalg.norm(images[0] - end),
+                               np.linalg.norm(beyond[0] - [2.0, 0, 0]), rtol=1e-12)  # fmt: skip
+    fleshing = fj.Fleshing(source, target, beyond="rigid")
+    det = fj.jacobian_determinant(fleshing, jnp.asarray(beyond))
+    np.testing.assert_allclose(np.asarray(det), 1.0, atol=1e-12)
+
+
+def _tangent(z):
+    t = np.array([1.0, 0.3, z])
+    return t / np.linalg.norm(t)
+
+
+# Where `initial_normal` switches from the z axis to the y axis for tangents (1, 0.3, z):
+# |t_y| + 1e-4 = |t_z| + 2e-4 (its tie-breaking margins), to 1e-9.
+SWITCH = 0.3 - 1e-4 * np.linalg.norm([1.0, 0.3, 0.3])
+
+
+def test_no_roll_from_the_frame_rule():
+    # `initial_normal` picks the coordinate axis least aligned with the tangent: for these two
+    # nearly equal tangents, y and then z, normals 90° apart. Posing one line onto the other
+    # must not roll the shape about its axis: the target's first normal is the source's,
+    # carried by the smallest rotation between the tangents.
+    source = fj.Line(3.0, tangent=_tangent(SWITCH - 1e-6))
+    points = np.asarray(source(1.5)) + np.array([[0, 0.3, 0], [0, 0, 0.3], [0, -0.2, 0.1]])
+    rule = [np.asarray(fj.rotation_minimizing_frame(s, 0.0))[1] for s in (source, fj.Line(
+        3.0, tangent=_tangent(SWITCH + 1e-6)))]  # fmt: skip
+    assert abs(np.dot(*rule)) < 0.1  # the rule's jump, between the two tangents
+    for z in (SWITCH - 1e-6, SWITCH + 1e-6):
+        target = fj.Line(3.0, tangent=_tangent(z))
+        images, valid = fj.flesh(points, source, target)
+        assert np.asarray(valid).all()
+        assert np.abs(np.asarray(images) - points).max() < 1e-5  # a turn of 1e-6, no roll
