@@ -83,6 +83,14 @@ def _parser() -> argparse.ArgumentParser:
         "medial axis to find the rest spine on",
     )
     deform.add_argument(
+        "--beyond",
+        choices=("continue", "rigid"),
+        default="continue",
+        help="vertices that project before the rest spine's start or past its end: fleshed "
+        "along the spines' continuations (default), or moved rigidly with the end frames "
+        "(rigid: the rest of a body stays where it is when only a tail or a limb is bent)",
+    )
+    deform.add_argument(
         "--allow-invalid",
         action="store_true",
         help="write OUT even when vertices are invalid (left where they were, so that the "
@@ -209,6 +217,7 @@ def _deform(args) -> int:
         twist=args.twist,
         progress=_Progress(f"{args.method}: vertices"),
         margin=margin,
+        beyond=args.beyond,
     )
     if isinstance(bent, trimesh.Trimesh):
         valid = np.asarray(bent.vertex_attributes["valid"], dtype=bool)
@@ -219,7 +228,7 @@ def _deform(args) -> int:
     print(f"invalid vertices: {int(np.sum(~valid))} of {len(valid)}")
     if args.bend_angle is not None or not valid.all():
         registration = register(jnp.asarray(np.asarray(mesh.vertices)), source, margin=margin)
-        options = dict(method=args.method, twist=args.twist, margin=margin)
+        options = dict(method=args.method, twist=args.twist, margin=margin, beyond=args.beyond)
         if not valid.all():
             _print_causes(diagnose(registration, target, **options))
         sign = -1.0 if args.bend_angle is not None and args.bend_angle < 0 else 1.0

@@ -322,3 +322,31 @@ def test_compilation_cache_through_jax_environment_variables(monkeypatch, tmp_pa
     assert os.environ["JAX_COMPILATION_CACHE_DIR"] == str(tmp_path / "mine")
     monkeypatch.setenv(_cache.ENVIRONMENT_VARIABLE, "off")
     assert _cache.enable_compilation_cache() is None
+
+
+def test_beyond_rigid_keeps_the_body_still(tmp_path, capsys):
+    # A body (a box) and a tail (a cylinder along +x from the box's face); the rest spine runs
+    # along the tail only and the bent one curls it. Rigid beyond the start, the body's
+    # vertices are written where they were; continued, they are carried round.
+    import trimesh
+
+    body = trimesh.creation.box(extents=(2.0, 1.0, 1.0))
+    body.apply_translation((-1.0, 0, 0))
+    tail = trimesh.creation.cylinder(radius=0.15, height=2.0, sections=12)
+    tail.apply_transform(trimesh.transformations.rotation_matrix(np.pi / 2, (0, 1, 0)))
+    tail.apply_translation((1.0, 0, 0))
+    mesh = trimesh.util.concatenate([body, tail])
+    mesh.export(str(tmp_path / "in.obj"))
+    fj.save_spine(fj.Line(2.0), tmp_path / "a.json")
+    normal = np.asarray(fj.rotation_minimizing_frame(fj.Line(2.0), 0.0))[1]
+    fj.save_spine(fj.Arc(1.2, 2.0, normal=tuple(normal)), tmp_path / "b.json")
+    moved = {}
+    for beyond in ("rigid", "continue"):
+        out = tmp_path / f"{beyond}.obj"
+        code, _, err = _run(capsys, "deform", tmp_path / "in.obj", out, "--from",
+                            tmp_path / "a.json", "--to", tmp_path / "b.json", "--beyond",
+                            beyond, "--allow-invalid")  # fmt: skip
+        assert code == 0, err
+        result = trimesh.load(str(out), process=False)
+        moved[beyond] = np.abs(np.asarray(result.vertices) - mesh.vertices)[: len(body.vertices)]
+    assert moved["rigid"].max() < 1e-6 and moved["continue"].max() > 0.1
