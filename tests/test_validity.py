@@ -76,20 +76,44 @@ def _wavy(rng, dtype, amplitude=0.8, n=8):
     return fj.BSpline(np.column_stack([x, yz]).astype(dtype), degree=3)
 
 
-@pytest.mark.parametrize("seed", [1, 2])
-@pytest.mark.parametrize("method", ["radial", "normal", "binormal"])
+def continuity(points, valid, edges, map_points, pieces=8):
+    """For each edge with two valid ends, its largest piece's image length over the mean of
+    its `pieces` pieces' (1 where the map is smooth along it, about `pieces` where it jumps,
+    or where a point of it is invalid, so left in place); `map_points`: (n, 3) → (images,
+    valid), with margin 0."""
+    valid = np.asarray(valid)
+    both = edges[valid[edges[:, 0]] & valid[edges[:, 1]]]
+    t = np.linspace(0, 1, pieces + 1)[None, :, None]
+    path = points[both[:, :1]] * (1 - t) + points[both[:, 1:]] * t  # (e, pieces + 1, 3)
+    images, _ = map_points(path.reshape(-1, 3).astype(points.dtype))
+    images = np.asarray(images, np.float64).reshape(path.shape)
+    piece = np.linalg.norm(np.diff(images, axis=1), axis=2)
+    return piece.max(axis=1) / piece.mean(axis=1)
+
+
+@pytest.mark.parametrize(
+    "seed, method", [(1, "radial"), (2, "radial"), (2, "normal"), (1, "binormal")]
+)
 def test_valid_edges_are_never_torn_on_random_wavy_spines(seed, method):
     # Property: random wavy spines (their bends come close to each other), random targets,
-    # every point of a lattice around them; no edge with two valid ends is stretched beyond
-    # what the bend itself does (measured: at most 1.4; torn edges: 15 and more).
+    # every point of a lattice around them. Along each edge with two valid ends the map is
+    # continuous: mapped in 8 pieces, no piece's image is much longer than the others' (a tear
+    # puts the whole jump in one piece: ratio near 8). Without the margin, edges tear.
     rng = np.random.default_rng(seed)
     dtype = "float32" if seed == 1 else "float64"
     source, target = _wavy(rng, dtype), _wavy(rng, dtype)
     points, edges = lattice((-0.3, -0.75, -0.75), (4.3, 0.75, 0.75), step=0.15)
     points = points.astype(dtype)
+
+    def raw(p):  # the map itself, every point off the cut locus
+        return fj.flesh(p, source, target, method=method, check_projection=False)
+
     images, valid = fj.flesh(points, source, target, method=method, margin=0.075)
-    assert np.mean(valid) > 0.05
-    assert stretches(images, valid, edges, step=0.15).max() < 3
+    assert np.mean(valid) > 0.3
+    assert continuity(points, valid, edges, raw).max() < 3
+    if method == "radial":  # the test bites: without the margin, some edges tear
+        _, valid = fj.flesh(points, source, target, method=method)
+        assert continuity(points, valid, edges, raw).max() > 4.5
 
 
 def test_one_point_batched_and_jit_paths_agree_on_the_region():
