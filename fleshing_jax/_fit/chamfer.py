@@ -28,6 +28,7 @@ from .problem import (
     FitResult,
     Parameters,
     Regularizers,
+    StartFrame,
     check_cloud,
     default_solver,
     fit,
@@ -49,6 +50,7 @@ class Chamfer(AbstractPoseProblem):
     registration: Registration
     cloud: Array
     twist: Array
+    start: StartFrame
     regularizers: Regularizers
     method: str = eqx.field(static=True)
     invalid: str = eqx.field(static=True)

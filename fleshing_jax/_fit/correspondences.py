@@ -25,6 +25,7 @@ from .problem import (
     FitResult,
     Parameters,
     Regularizers,
+    StartFrame,
     check_cloud,
     default_solver,
     fit,
@@ -53,6 +54,7 @@ class Correspondence(AbstractPoseProblem):
     target: Array
     weights: Array
     twist: Array
+    start: StartFrame
     regularizers: Regularizers
     method: str = eqx.field(static=True)
     invalid: str = eqx.field(static=True)

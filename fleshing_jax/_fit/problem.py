@@ -25,12 +25,20 @@ from .._checks import as_float_array, as_points, as_twist
 from .._fleshing.methods import check_method
 from .._fleshing.pipeline import pose, pose_points, register
 from .._fleshing.projection import Registration
-from .._numerics import cast_floats
+from .._numerics import cast_floats, dot
 from .._spines.analytic import Arc, Helix, Line
-from .._spines.spine import AbstractSpine
+from .._spines.spine import AbstractSpine, initial_normal
 
 INVALID_MODES = ("penalize", "exclude")
 SMOOTHNESS_SAMPLES = 16  # midpoint samples of the bending energy ∫|k|² ds
+# A least-squares solve that optimistix reports as successful is reported as stalled when it
+# stopped without reducing the loss meaningfully (the rms not even halved: loss above a
+# quarter of its start) while its trust region had shrunk a thousandfold from its start (1):
+# its steps shrank to nothing because the local model no longer predicted the loss, so the
+# point is no minimum. A fit started at its minimum ends after a few steps, its trust region
+# intact; one that reduced its loss a lot is left to optimistix's own test.
+COLLAPSED_TRUST_REGION = 1e-3
+MEANINGFUL_LOSS_RATIO = 0.25
 
 
 @dataclasses.dataclass(frozen=True)
@@ -129,6 +137,45 @@ def make_parameters(init: AbstractSpine, params, fixed) -> Parameters:
         mask = np.broadcast_to(mask, leaf.shape)
         free.append(jnp.asarray(np.flatnonzero(~mask.reshape(-1)), dtype=jnp.int32))
     return Parameters(init, tuple(free), where)
+
+
+class StartFrame(eqx.Module):
+    """Keeps a fitted spine's frame continuous in its parameters.
+
+    A spine's first normal is `initial_normal` of its start tangent: a fixed rule that must
+    jump somewhere on the sphere of tangents (90° where two components of the tangent swap
+    sizes). A fit that moves the start tangent across such a jump sees the whole pose turn
+    about the spine: a cliff in the loss, where the solver stalls (a free B-spline bent onto
+    an arc stopped at rms 0.034 on a shape 4 long, issue 31). The fit therefore poses with
+    the twist `twist + turn(C₁) − turn(init)`, where `turn` is the angle from the spine's
+    own first normal to the source's first normal carried to its start tangent by the
+    smallest rotation: continuous in the parameters, and zero change wherever the start
+    tangent stays (an `Arc`'s default fit, a fixed root). The reported twist is that total,
+    the one that reproduces the fit through `flesh` and `pose`.
+    """
+
+    tangent: Array  # (3,) the source spine's start tangent
+    normal: Array  # (3,) its first normal
+    offset: Array  # turn(init): the fit starts from the twist it was given
+
+    def turn(self, spine: AbstractSpine) -> Array:
+        t1 = spine.tangent(jnp.zeros((), self.tangent.dtype))
+        axis, cosine = jnp.cross(self.tangent, t1), dot(self.tangent, t1)
+        # The smallest rotation taking the source's tangent to t1 (Rodrigues, with the
+        # half-angle factor 1/(1 + cos)), applied to the source's first normal.
+        carried = (self.normal + jnp.cross(axis, self.normal)
+                   + jnp.cross(axis, jnp.cross(axis, self.normal)) / (1 + cosine))  # fmt: skip
+        i1 = initial_normal(t1)
+        return jnp.arctan2(dot(carried, jnp.cross(t1, i1)), dot(carried, i1))
+
+    def twist(self, spine: AbstractSpine, twist: Array) -> Array:
+        return twist + self.turn(spine) - self.offset
+
+
+def start_frame(source_spine: AbstractSpine, init: AbstractSpine) -> StartFrame:
+    tangent = source_spine.tangent(jnp.zeros((), source_spine.length.dtype))
+    partial = StartFrame(tangent, initial_normal(tangent), jnp.zeros((), tangent.dtype))
+    return eqx.tree_at(lambda f: f.offset, partial, partial.turn(init))
 
 
 def check_spine(spine, name: str) -> None:
@@ -246,16 +293,20 @@ class AbstractFitOutcome(eqx.Module):
 
     result: eqx.AbstractVar[optx.RESULTS]
 
+    def _stall(self) -> str:
+        """Why a solve that optimistix reports as successful is no minimum ("" if none)."""
+        return ""
+
     @property
     def converged(self) -> bool:
-        """Whether the solver reported success (never trust the fitted values when this is
-        False)."""
-        return bool(self.result == optx.RESULTS.successful)
+        """Whether the solver reported success and did not stall (never trust the fitted
+        values when this is False)."""
+        return bool(self.result == optx.RESULTS.successful) and not self._stall()
 
     @property
     def message(self) -> str:
-        """The optimistix message for `result` ("" on success)."""
-        return optx.RESULTS[self.result]
+        """Why the fit did not converge, with what to try ("" on success)."""
+        return self._stall() or optx.RESULTS[self.result]
 
 
 class FitResult(AbstractFitOutcome):
@@ -264,7 +315,8 @@ class FitResult(AbstractFitOutcome):
     **Fields:**
 
     - `spine`: the fitted spine (same type and static configuration as `init`).
-    - `twist`: scalar twist (fitted, or the one given).
+    - `twist`: scalar twist to pose `source` with on `spine` (fitted, or the one given, plus
+      the turn of the start frame when the start tangent moved: see `StartFrame`).
     - `rms`: root-mean-square distance between the fleshed `source` and the target (see each
       fitting function for exactly which points count), with the full projection check.
     - `valid`: (N,) bool, which source points map validly onto the fitted spine.
@@ -272,6 +324,9 @@ class FitResult(AbstractFitOutcome):
     - `num_steps`: number of solver steps taken.
     - `loss`: the final value of the objective (sum of squared residuals, regularisers included).
     - `stats`: the solver's statistics dictionary.
+    - `stalled`: "" or, for a solve that optimistix reports as successful although its
+      steps shrank to nothing without reducing the loss meaningfully (no minimum), what
+      happened and what to try; `converged` is then False and `message` says it.
     """
 
     spine: AbstractSpine
@@ -282,6 +337,10 @@ class FitResult(AbstractFitOutcome):
     num_steps: Array
     loss: Float[Array, ""]
     stats: dict
+    stalled: str = eqx.field(static=True, default="")
+
+    def _stall(self) -> str:
+        return self.stalled
 
     @property
     def num_invalid(self) -> int:
@@ -300,10 +359,12 @@ class AbstractPoseProblem(eqx.Module):
     parameters: eqx.AbstractVar[Parameters]
     registration: eqx.AbstractVar[Registration]
     twist: eqx.AbstractVar[Array]
+    start: eqx.AbstractVar[StartFrame]
     regularizers: eqx.AbstractVar[Regularizers]
 
     def spine_and_twist(self, y) -> tuple[AbstractSpine, Array]:
-        return self.parameters.spine(y), (self.twist if y[1] is None else y[1])
+        spine = self.parameters.spine(y)
+        return spine, self.start.twist(spine, self.twist if y[1] is None else y[1])
 
     def images(self, y, check_projection: bool | None = None) -> tuple[Array, Array]:
         spine, twist = self.spine_and_twist(y)
@@ -322,6 +383,7 @@ class Setup(eqx.Module):
     parameters: Parameters
     y0: tuple
     twist: Array
+    start: StartFrame
     regularizers: Regularizers
     method: str = eqx.field(static=True)
 
@@ -331,6 +393,7 @@ class Setup(eqx.Module):
             parameters=self.parameters,
             registration=self.registration,
             twist=self.twist,
+            start=self.start,
             regularizers=self.regularizers,
             method=self.method,
             invalid=invalid,
@@ -370,28 +433,59 @@ def prepare(
         raise ValueError("no point of `source` lies in the valid space of `source_spine`.")
     extra = () if regularizers is None else tuple(regularizers)
     regs = make_regularizers(source_spine.length, length_weight, smoothness, extra, dtype)
-    return Setup(registration, parameters, y0, twist, regs, method)
+    start = start_frame(source_spine, init)
+    return Setup(registration, parameters, y0, twist, start, regs, method)
 
 
 @eqx.filter_jit
 def solve(problem: AbstractPoseProblem, solver, y0, max_steps: int, throw: bool):
     """Runs `optimistix.least_squares` on `problem`.
 
-    **Returns:** `(spine, twist, loss, result, stats)`, `loss` the final sum of squared
-    residuals. The final validity check runs outside, through the public (jitted) `pose`, whose
-    compilation is shared with ordinary fleshing of the same spine type.
+    **Returns:** `(spine, twist, losses, radius, result, stats)`: `losses` the sums of squared
+    residuals at `y0` and at the solution, `radius` the final trust-region size of a
+    trust-region solver (else 1). The final validity check runs outside, through the public
+    (jitted) `pose`, whose compilation is shared with ordinary fleshing of the same spine type.
     """
     solution = optx.least_squares(problem, solver, y0, max_steps=max_steps, throw=throw)
     y = solution.value
-    loss = sum(jnp.sum(r**2) for r in jax.tree.leaves(problem(y)))
+
+    def loss(y):
+        return sum(jnp.sum(r**2) for r in jax.tree.leaves(problem(y)))
+
     spine, twist = problem.spine_and_twist(y)
-    return spine, twist, loss, solution.result, solution.stats
+    search = getattr(solution.state, "search_state", None)
+    radius = getattr(search, "step_size", None)
+    if not isinstance(getattr(solver, "search", None), optx.ClassicalTrustRegion):
+        radius = None  # a line search's step says nothing about the model's quality
+    radius = jnp.ones((), loss(y).dtype) if radius is None else radius
+    return spine, twist, (loss(y0), loss(y)), radius, solution.result, solution.stats
+
+
+def stall_message(losses, radius, steps) -> str:
+    """Why a successful-looking solve is no minimum, with what to try ("" when it is one)."""
+    start, end = (float(v) for v in losses)
+    if float(radius) >= COLLAPSED_TRUST_REGION or end <= MEANINGFUL_LOSS_RATIO * start:
+        return ""
+    return (
+        f"stalled: after {int(steps)} steps the solver's trust region had shrunk to "
+        f"{float(radius):.1e} with the loss only down from {start:.3e} to {end:.3e}, so this is "
+        "no minimum: the loss is not smooth here (points leaving the valid space, or the "
+        "spine's start frame turning). Try a closer `init` (fit an `Arc` first and start the "
+        "free-form spine on it), `fixed=` for the root's control points, a finer "
+        "`init` (`subdivisions=`), or `smoothness=`."
+    )
 
 
 def fit(problem: AbstractPoseProblem, solver, y0, max_steps: int, throw: bool) -> FitResult:
-    """Solves `problem` and reports the fit, validity checked with the full projection test."""
-    spine, twist, loss, result, stats = solve(problem, solver, y0, int(max_steps), bool(throw))
+    """Solves `problem` and reports the fit, validity checked with the full projection test.
+
+    A solve that optimistix calls successful but that stalled (`stall_message`) is reported
+    as not converged."""
+    spine, twist, losses, radius, result, stats = solve(
+        problem, solver, y0, int(max_steps), bool(throw)
+    )
     images, valid = pose(problem.registration, spine, method=problem.method, twist=twist)
+    successful = bool(result == optx.RESULTS.successful)
     return FitResult(
         spine=spine,
         twist=twist,
@@ -399,6 +493,7 @@ def fit(problem: AbstractPoseProblem, solver, y0, max_steps: int, throw: bool) -
         valid=valid,
         result=result,
         num_steps=stats["num_steps"],
-        loss=loss,
+        loss=losses[1],
         stats=stats,
+        stalled=stall_message(losses, radius, stats["num_steps"]) if successful else "",
     )
