@@ -50,7 +50,7 @@ def plot_medial(medial: MedialMesh, surface=None, *, ax=None, elev=10.0, azim=-6
     centers, radii, edges, faces = medial.numpy()
     centers = upright(centers, up)
     if ax is None:
-        ax = plt.figure(figsize=(6, 5)).add_subplot(projection="3d")
+        ax = plt.figure(figsize=(8, 7)).add_subplot(projection="3d")
     points = centers
     if surface is not None:
         vertices = upright(surface.vertices, up)
