@@ -148,7 +148,7 @@ def _picture(folder: Path, name: str, mesh, posed, moved) -> None:
         ax.set_title(title)
     fig.suptitle(name)
     fig.tight_layout()
-    slug = "".join(ch if ch.isalnum() else "-" for ch in name.lower()).strip("-")
+    slug = "-".join("".join(ch if ch.isalnum() else " " for ch in name.lower()).split())
     fig.savefig(folder / f"medial-deform-{slug}.png", dpi=80)
     plt.close(fig)
 
@@ -167,10 +167,11 @@ def volumes(quick: bool, figures: Path | None = None):
         c = np.asarray(spot_medial.centers)
         # The head: in front of the neck (z < −0.35), above the front legs.
         head = np.flatnonzero((c[:, 2] < -0.35) & (c[:, 1] > 0.0))
-        # The rump: behind z = 0.6, with the hind legs and the tail (these cases were named
-        # "head" and "front leg" before issue 31).
+        # The rump: behind z = 0.6, with the hind legs and the tail. (Before issue 31 this
+        # case was named "head", and a "front leg" case moved the lower spheres of both
+        # right legs, z > 0.)
         rump = np.flatnonzero(c[:, 2] > 0.6)
-        hind_leg = np.flatnonzero((c[:, 1] < -0.45) & (c[:, 0] > 0) & (c[:, 2] > 0))
+        hind_leg = np.flatnonzero((c[:, 1] < -0.45) & (c[:, 0] > 0) & (c[:, 2] > 0.4))
         rows.append(_spot_case("spot: head turned 30°", spot, spot_medial, head,
                                np.array([0.0, 0.3, -0.3]), [0, 1, 0], np.radians(30),
                                figures))  # fmt: skip
@@ -178,7 +179,7 @@ def volumes(quick: bool, figures: Path | None = None):
                                np.array([0.0, 0.2, 0.55]), [0, 1, 0], np.radians(30),
                                figures))  # fmt: skip
         rows.append(_spot_case("spot: right hind leg swung 30°", spot, spot_medial, hind_leg,
-                               np.array([0.2, -0.2, 0.4]), [1, 0, 0], np.radians(-30),
+                               np.array([0.2, -0.2, 0.75]), [1, 0, 0], np.radians(-30),
                                figures))  # fmt: skip
     print("| case | medial ΔV/V | LBS ΔV/V | DQS ΔV/V | Fleshing (radial) ΔV/V "
           "| radius error medial / LBS / DQS |")
