@@ -1,6 +1,8 @@
 """The rest spine found on the medial axis (`fj.rest_spine`) and its command-line use."""
 
+import equinox as eqx
 import jax
+import jax.numpy as jnp
 import numpy as np
 import pytest
 import trimesh
@@ -121,12 +123,17 @@ def spot_medial():
     return medial_mesh(fj.data.spot(), 40, refine=0, progress=False)
 
 
+@eqx.filter_jit  # one program for the spines of one control-point bucket (not op by op)
+def _points_and_curvature(spine):
+    s = jnp.linspace(0.0, spine.length, 400)
+    curvature = jnp.linalg.norm(jax.vmap(spine.curvature_vector)(s), axis=1)
+    return jax.vmap(spine)(s), curvature
+
+
 def _tightest_turn(spine, medial):
     """max over the spine of curvature × the radius of the nearest medial sphere."""
-    s = np.linspace(0.0, float(spine.length), 400)
-    curvature = np.linalg.norm(np.asarray(jax.vmap(spine.curvature_vector)(s)), axis=1)
+    points, curvature = map(np.asarray, _points_and_curvature(spine))
     centers, radii, _, _ = medial.numpy()
-    points = _samples(spine, 400)
     nearest = np.argmin(np.linalg.norm(points[:, None] - centers[None], axis=2), axis=1)
     return float(np.max(curvature * radii[nearest]))
 
