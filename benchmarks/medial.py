@@ -12,8 +12,9 @@ Prints Markdown tables:
    construction did not fit), the envelope's volume error, the Euler
    characteristic `V − E + F` of the medial mesh, and the widest slab (smallest altitude of
    a face's triangle of centres, fraction of the diagonal). Shapes: a capsule (radius 0.5,
-   axis 4), a torus (2, 0.5), a box 3 × 2 × 1, a flat ellipsoid 2 × 1.2 × 0.3, and, when
-   `../shared/data` is present, spot (vertices merged) and the Stanford bunny (capped).
+   axis 4), a torus (2, 0.5), a box 3 × 2 × 1, a flat ellipsoid 2 × 1.2 × 0.3,
+   spot (`fleshing_jax.data.spot()`, welded) and, where `../shared/data` is present, the
+   Stanford bunny (capped).
 2. Time against mesh size (icospheres stretched into ellipsoids, 2.5k → 41k vertices) and
    sphere count.
 3. Memory of one `medial_mesh` run alone (`--memory`; the capped bunny and the 41k-vertex
@@ -33,6 +34,7 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
+from fleshing_jax import data
 from fleshing_jax._medial.construct import medial_mesh
 from fleshing_jax._medial.distance import medial_distance
 
@@ -56,12 +58,9 @@ def shapes(quick: bool):
     ellipsoid = trimesh.creation.icosphere(4)
     ellipsoid.vertices *= [2, 1.2, 0.3]
     yield "flat ellipsoid", ellipsoid
-    if quick or not DATA.is_dir():
+    if quick:
         return
-    if (DATA / "spot.obj").is_file():
-        spot = trimesh.load(str(DATA / "spot.obj"), process=False)
-        spot.merge_vertices(merge_tex=True, merge_norm=True)
-        yield "spot", spot
+    yield "spot", data.spot()  # shipped with the package
     if (DATA / "stanford-bunny.obj").is_file():
         yield "bunny (capped)", _close(trimesh.load(str(DATA / "stanford-bunny.obj"),
                                                     process=False))

@@ -8,8 +8,12 @@ Prints Markdown tables:
 1. Volumes: a capsule (radius 0.5, axis 4, medial mesh from `fj.medial_mesh`) bent 90° and
    180° by moving its spheres of the first and last quarter onto an arc of the axis' length
    (the others free), and twisted 180° by rotating its last quarter's spheres about the axis
-   (rotations prescribed, no centre moved); spot's head turned and a front leg swung by 30°
-   about a pivot, its body's core held. For each: `|ΔV/V|` of `medial` (with the implicit
+   (rotations prescribed, no centre moved); spot (`fj.data.spot()`: y up, its head towards
+   −z) with its head turned 30° about the vertical through the neck, its rump (with the hind
+   legs and tail) turned 30° the same way, and its right hind leg (+x) swung by 30°, each
+   about a pivot, its body's core held; each case's picture (`--figures DIR`: the moved
+   spheres in red, the rest pose in grey) is shown in benchmarks/README.md. For each:
+   `|ΔV/V|` of `medial` (with the implicit
    correction), LBS and DQS (without it, as baselines), and Fleshing's radial map on the
    bent capsule (rest spine: its axis through the caps; target: an arc of the same
    curvature; Fleshing's twist is a rigid rotation, so there is no twist to compare). Total
@@ -35,7 +39,6 @@ import trimesh
 
 import fleshing_jax as fj
 
-DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 METHODS = (("medial", True), ("lbs", False), ("dqs", False))
 
 
@@ -106,7 +109,7 @@ def _radius_error(vertices, degrees):
     return float(np.max(np.abs(d / 0.5 - 1)))
 
 
-def _spot_case(name, mesh, medial, moved, pivot, axis, angle):
+def _spot_case(name, mesh, medial, moved, pivot, axis, angle, figures=None):
     centers = np.asarray(medial.centers)
     core = np.flatnonzero((np.abs(centers[:, 2] + 0.1) < 0.25) & (centers[:, 1] > -0.1))
     handles = np.r_[moved, np.setdiff1d(core, moved)]
@@ -120,11 +123,37 @@ def _spot_case(name, mesh, medial, moved, pivot, axis, angle):
         out = fj.deform_medial(mesh, medial, handles, targets, method, rotations=rotations,
                                implicit=implicit)
         row[method] = (float(fj.volume(out.vertices, out.faces) / v0 - 1), None)
+        if figures is not None and method == "medial":
+            _picture(figures, name, mesh, out, centers[moved])
     row["fleshing"] = None
     return row
 
 
-def volumes(quick: bool):
+def _picture(folder: Path, name: str, mesh, posed, moved) -> None:
+    """Side and top views of the rest (grey) and posed (blue) vertices, the moved spheres'
+    centres in red: spot's y is up (side view: z across, y up; top view: z across, x up)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    rest, bent = np.asarray(mesh.vertices), np.asarray(posed.vertices)
+    fig, axes = plt.subplots(1, 2, figsize=(10, 4.2))
+    for ax, (down, title) in zip(axes, ((1, "side (y up)"), (0, "top (x up)"))):
+        ax.scatter(rest[:, 2], rest[:, down], s=0.4, c="0.75")
+        ax.scatter(bent[:, 2], bent[:, down], s=0.4, c="tab:blue")
+        ax.scatter(moved[:, 2], moved[:, down], s=12, c="tab:red")
+        ax.set_aspect("equal")
+        ax.set_xlabel("z (head at −z)")
+        ax.set_title(title)
+    fig.suptitle(name)
+    fig.tight_layout()
+    slug = "-".join("".join(ch if ch.isalnum() else " " for ch in name.lower()).split())
+    fig.savefig(folder / f"medial-deform-{slug}.png", dpi=80)
+    plt.close(fig)
+
+
+def volumes(quick: bool, figures: Path | None = None):
     tube = capsule(24, 0.2)
     medial = fj.medial_mesh(tube, 60, progress=False)
     rows = [
@@ -132,17 +161,26 @@ def volumes(quick: bool):
         _capsule_case("capsule bent 180°", tube, medial, degrees=180),
         _capsule_case("capsule twisted 180°", tube, medial, twist=np.pi),
     ]
-    if not quick and (DATA / "spot.obj").is_file():
-        spot = trimesh.load(str(DATA / "spot.obj"), process=False)
-        spot.merge_vertices(merge_tex=True, merge_norm=True)
+    if not quick:
+        spot = fj.data.spot()  # y up, head towards −z
         spot_medial = fj.medial_mesh(spot, 200, progress=False)
         c = np.asarray(spot_medial.centers)
-        head = np.flatnonzero(c[:, 2] > 0.6)
-        leg = np.flatnonzero((c[:, 1] < -0.45) & (c[:, 0] > 0) & (c[:, 2] > 0))
+        # The head: in front of the neck (z < −0.35), above the front legs.
+        head = np.flatnonzero((c[:, 2] < -0.35) & (c[:, 1] > 0.0))
+        # The rump: behind z = 0.6, with the hind legs and the tail. (Before issue 31 this
+        # case was named "head", and a "front leg" case moved the lower spheres of both
+        # right legs, z > 0.)
+        rump = np.flatnonzero(c[:, 2] > 0.6)
+        hind_leg = np.flatnonzero((c[:, 1] < -0.45) & (c[:, 0] > 0) & (c[:, 2] > 0.4))
         rows.append(_spot_case("spot: head turned 30°", spot, spot_medial, head,
-                               np.array([0.0, 0.2, 0.55]), [0, 1, 0], np.radians(30)))
-        rows.append(_spot_case("spot: front leg swung 30°", spot, spot_medial, leg,
-                               np.array([0.2, -0.2, 0.4]), [1, 0, 0], np.radians(-30)))
+                               np.array([0.0, 0.3, -0.3]), [0, 1, 0], np.radians(30),
+                               figures))  # fmt: skip
+        rows.append(_spot_case("spot: rump turned 30°", spot, spot_medial, rump,
+                               np.array([0.0, 0.2, 0.55]), [0, 1, 0], np.radians(30),
+                               figures))  # fmt: skip
+        rows.append(_spot_case("spot: right hind leg swung 30°", spot, spot_medial, hind_leg,
+                               np.array([0.2, -0.2, 0.75]), [1, 0, 0], np.radians(-30),
+                               figures))  # fmt: skip
     print("| case | medial ΔV/V | LBS ΔV/V | DQS ΔV/V | Fleshing (radial) ΔV/V "
           "| radius error medial / LBS / DQS |")
     print("| --- | ---: | ---: | ---: | ---: | ---: |")
@@ -198,9 +236,11 @@ if __name__ == "__main__":
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true")
     parser.add_argument("--speed", action="store_true", help="only the speed table")
+    parser.add_argument("--figures", type=Path, metavar="DIR", help="save spot's pictures")
     args = parser.parse_args()
     jax.config.update("jax_enable_x64", True)  # float64 for the volumes; the frame is float32
+    fj.use_compilation_cache()
     if not args.speed:
-        volumes(args.quick)
+        volumes(args.quick, args.figures)
     if not args.quick:
         speed()

@@ -9,27 +9,20 @@ import matplotlib
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-import trimesh  # noqa: E402
 
 import fleshing_jax as fj  # noqa: E402
 
-DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 OUT = Path(__file__).resolve().parent / "figures" / "medial-spot.png"
 
 
 def main() -> None:
-    spot = trimesh.load(DATA / "spot.obj", process=False)
-    spot.merge_vertices(merge_tex=True, merge_norm=True)
+    spot = fj.data.spot()
     medial = fj.medial_mesh(spot, spheres=200, progress=False)
     to_envelope, to_surface = fj.medial_distance(medial, spot)
-    up = np.array([[1.0, 0, 0], [0, 0, 1], [0, -1, 0]])  # spot's y up → the picture's z up
-    shown = fj.MedialMesh(medial.centers @ up, medial.radii, medial.edges, medial.faces)
-    surface = trimesh.Trimesh(spot.vertices @ up, spot.faces, process=False)
     fig = plt.figure(figsize=(10, 4.6))
     for i, (elev, azim) in enumerate(((15, -50), (5, 0))):
         ax = fig.add_subplot(1, 2, i + 1, projection="3d")
-        fj.plot_medial(shown, surface, ax=ax, elev=elev, azim=azim)
+        fj.plot_medial(medial, spot, ax=ax, elev=elev, azim=azim)  # an OBJ: y up
     fig.suptitle(
         f"Medial mesh of spot: {len(medial.radii)} spheres, {len(medial.edges)} cones, "
         f"{len(medial.faces)} slabs (distances {100 * to_envelope:.2f} % / "

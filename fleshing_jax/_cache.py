@@ -1,10 +1,11 @@
-"""JAX's persistent compilation cache for the command line and the demo.
+"""JAX's persistent compilation cache for the command line, the demo and library users.
 
 Compiling the batched paths takes seconds; the work on a typical mesh takes milliseconds. The
 command line therefore keeps XLA's compiled programs in the user's cache folder, so that every
-call after the first starts from them. The library never changes JAX's configuration: only
-`fleshing-jax` commands call `enable_compilation_cache`, which sets JAX's environment
-variables for the command's own process before JAX is imported.
+call after the first starts from them. The library never changes JAX's configuration on its
+own: `fleshing-jax` commands call `enable_compilation_cache`, which sets JAX's environment
+variables for the command's own process before JAX is imported, and a script or notebook asks
+for the same cache explicitly with `fleshing_jax.use_compilation_cache()`.
 
 `FLESHING_JAX_CACHE` moves the cache (a folder) or turns it off (`0`, `off`, `false`, `none` or
 empty).
@@ -14,6 +15,7 @@ from __future__ import annotations
 
 import os
 import sys
+from os import PathLike
 from pathlib import Path
 
 ENVIRONMENT_VARIABLE = "FLESHING_JAX_CACHE"
@@ -60,4 +62,56 @@ def enable_compilation_cache() -> Path | None:
     os.environ.setdefault("JAX_COMPILATION_CACHE_DIR", str(folder))
     os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "0")
     os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_ENTRY_SIZE_BYTES", "0")
+    return folder
+
+
+def use_compilation_cache(
+    path: str | PathLike | None = None, *, min_compile_seconds: float = 0.0
+) -> Path | None:
+    """Keeps JAX's compiled programs on disk, so that a new Python process or notebook kernel
+    loads them instead of compiling again (seconds to minutes for a B-spline fit or a medial
+    pose, see `benchmarks/README.md`).
+
+    An explicit request: importing `fleshing_jax` never changes JAX's configuration, this
+    function does (for the whole process, as `jax.config.update` would). Call it once, first
+    thing (notebooks call it in their first cell); it also takes effect when called after
+    some programs were compiled, for the programs compiled from then on.
+
+    **Arguments:**
+
+    - `path`: the cache folder (created if needed). `None` (default): a folder already
+      configured for JAX (`JAX_COMPILATION_CACHE_DIR`, or `jax.config`) is kept as it is, with
+      its settings; otherwise the folder `FLESHING_JAX_CACHE` names, or the command line's
+      default (`~/.cache/fleshing-jax/jax-compilation-cache` on Linux) — the command line and
+      the library then share their programs. `FLESHING_JAX_CACHE=off` leaves the cache off.
+    - `min_compile_seconds`: programs that compiled faster than this are not stored (JAX's own
+      default is 1 s; 0 stores every program: a notebook's many small programs add up).
+
+    **Returns:**
+
+    The folder in use, or `None` when the cache stays off.
+
+    The cache is trusted code: never point it at a folder that others can write to.
+    """
+    if path is not None and not isinstance(path, str | PathLike):
+        raise TypeError(f"path must be a folder (str or os.PathLike) or None, got {type(path)}")
+    seconds = float(min_compile_seconds)
+    if not seconds >= 0:  # also refuses NaN
+        raise ValueError(f"min_compile_seconds must be ≥ 0, got {min_compile_seconds!r}")
+    import jax
+    from jax.experimental.compilation_cache import compilation_cache
+
+    configured = jax.config.jax_compilation_cache_dir
+    if path is None and configured:
+        return Path(configured)
+    folder = cache_folder() if path is None else Path(path).expanduser()
+    if folder is None:
+        return None
+    folder.mkdir(parents=True, exist_ok=True)
+    jax.config.update("jax_compilation_cache_dir", str(folder))
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", seconds)
+    jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
+    # JAX opens its cache once, at the first compilation: reset, it opens this folder at the
+    # next one (a call after some programs were compiled still takes effect).
+    compilation_cache.reset_cache()
     return folder

@@ -1,7 +1,8 @@
 """The `fleshing-jax` command line.
 
-    fleshing-jax deform IN OUT [--from A.json] (--to B.json | --bend-angle DEG) [--method M]
-                               [--twist RAD] [--cap-holes]
+    fleshing-jax deform IN OUT [--from A.json | --ends X,Y,Z X,Y,Z] [--medial IN.ma]
+                               (--to B.json | --bend-angle DEG) [--method M] [--twist RAD]
+                               [--save-spine FILE] [--cap-holes]
     fleshing-jax medial IN OUT.ma [--spheres N] [--envelope ENV.obj]
     fleshing-jax medial-deform IN OUT --medial IN.ma --handles H.json [--method M]
                                       [--no-implicit]
@@ -34,7 +35,20 @@ spine files (JSON), e.g.
 types: line, arc, helix, bspline, interpolatingpolynomial, polyline (see the README).
 
 Without --from, the rest spine is found on the medial axis of IN (IN must be closed; see
---cap-holes) and printed as JSON, so that it can be saved and reused with --from."""
+--cap-holes), between the points --ends names (else along the medial axis's longest path), on
+the medial mesh --medial reads (from `fleshing-jax medial`; else computed), and printed as
+JSON; --save-spine FILE writes it, to reuse with --from."""
+
+
+def _point(text: str) -> tuple[float, float, float]:
+    """`X,Y,Z` → three finite floats (argparse reports a ValueError as a usage error)."""
+    values = tuple(float(v) for v in text.split(","))
+    if len(values) != 3 or not all(abs(v) < float("inf") for v in values):
+        raise ValueError(text)
+    return values
+
+
+_point.__name__ = "point X,Y,Z"  # argparse names the expected type after it
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -55,8 +69,26 @@ def _parser() -> argparse.ArgumentParser:
     )
     deform.add_argument("input", metavar="IN", help="input mesh or point cloud")
     deform.add_argument("output", metavar="OUT", help="output file; its extension sets the format")
-    deform.add_argument(
+    rest = deform.add_mutually_exclusive_group()
+    rest.add_argument(
         "--from", dest="source", metavar="A.json", help="rest spine (default: from the medial axis)"
+    )
+    rest.add_argument(
+        "--ends",
+        nargs=2,
+        type=_point,
+        metavar="X,Y,Z",
+        help="without --from: the rest spine runs between the medial spheres nearest to these "
+        "two points (default: the medial axis's longest path)",
+    )
+    deform.add_argument(
+        "--medial",
+        metavar="IN.ma",
+        help="without --from: find the rest spine on this medial mesh of IN (from `medial`) "
+        "instead of computing one",
+    )
+    deform.add_argument(
+        "--save-spine", metavar="FILE", help="write the rest spine used to FILE (JSON, atomically)"
     )
     bend = deform.add_mutually_exclusive_group(required=True)
     bend.add_argument("--to", dest="target", metavar="B.json", help="bent spine (JSON)")
@@ -188,7 +220,7 @@ def _deform(args) -> int:
     from ._mesh.deform import deform_mesh, longest_edge
     from ._mesh.files import check_output_path, write_mesh_atomic
     from ._mesh.volume import volume
-    from ._spines.files import load_spine, spine_json
+    from ._spines.files import load_spine, save_spine, spine_json
 
     check_output_path(args.output)
     if args.bend_angle is not None and not abs(args.bend_angle) < 360:
@@ -196,6 +228,10 @@ def _deform(args) -> int:
             f"--bend-angle {args.bend_angle:g}: an arc turning by 360 degrees or more comes "
             "back on itself, where no vertex can stay valid; give an angle in (-360, 360)"
         )
+    if args.save_spine is not None:
+        check_output_path(args.save_spine, extensions=("json",))
+    if args.source is not None and args.medial is not None:
+        raise ValueError("--medial finds the rest spine: it goes without --from")
     mesh = _load_input(args.input, args.cap_holes)
     is_mesh = isinstance(mesh, trimesh.Trimesh) and len(mesh.faces) > 0
     started = time.perf_counter()
@@ -204,6 +240,9 @@ def _deform(args) -> int:
     else:
         source = _found_rest_spine(mesh, args)
         print(f"rest spine (medial axis): {spine_json(source)}")
+    if args.save_spine is not None:
+        save_spine(source, args.save_spine)
+        print(f"wrote {args.save_spine} (rest spine)")
     if args.target is not None:
         target = load_spine(args.target)
     else:
@@ -262,7 +301,11 @@ def _found_rest_spine(mesh, args):
             f"{args.input}: finding the rest spine needs a closed mesh; pass --cap-holes to "
             "close its holes, or give the rest spine with --from"
         )
-    return rest_spine(mesh)
+    if args.medial is None:
+        return rest_spine(mesh, ends=args.ends)
+    from ._medial.files import load_medial
+
+    return rest_spine(load_medial(args.medial), ends=args.ends, surface=mesh)
 
 
 def _print_volumes(mesh, bent, volume) -> None:

@@ -107,15 +107,9 @@ def _problem(rest, init, source, target, **kwargs):
     options.update(kwargs)
     setup = prepare(rest, init, jnp.asarray(source), **options)
     problem = Correspondence(
-        parameters=setup.parameters,
-        registration=setup.registration,
         target=jnp.asarray(target),
         weights=jnp.ones(len(source)),
-        twist=setup.twist,
-        regularizers=setup.regularizers,
-        method=setup.method,
-        invalid=options["invalid"],
-        check_projection=False,
+        **setup.problem_fields(options["invalid"], check_projection=False),
     )
     return problem, setup.y0
 
@@ -242,3 +236,42 @@ def test_bad_input():
         fj.fit_spine(LINE, TRUTH, SOURCE, target, fixed=(True, True))
     with pytest.raises(ValueError, match="`weights`"):
         fj.fit_spine(LINE, TRUTH, SOURCE, target, weights=-np.ones(len(SOURCE)))
+
+
+def test_the_start_frame_turns_continuously_when_the_start_tangent_crosses_a_jump():
+    # `initial_normal` jumps by 90° where |T_y| = |T_z|: a fit moving its start tangent across
+    # that line used to see the whole pose turn and stalled there (issue 31). Every pose
+    # carries the source's first normal over instead (`_fleshing.ends.aligned_twist`, which
+    # the fit's objective goes through): continuous across the jump.
+    from fleshing_jax._fleshing.ends import EndFrames, aligned_twist
+
+    start = EndFrames(LINE._prepare())
+    normals = {}
+    jump = 0.3 - 1e-4 * np.sqrt(0.99)  # |T_y| = |T_z| + 1e-4 there (the rule's tie margin)
+    for side in (-1e-6, 1e-6):
+        tangent = np.array([0.9, 0.3, jump + side])
+        spine = fj.Line(4.0, tangent=tangent / np.linalg.norm(tangent))
+        plain = fj.rotation_minimizing_frame(spine, 0.0)[1]
+        twist = aligned_twist(start, spine._prepare(), 0.0)
+        turned = fj.rotation_minimizing_frame(spine, 0.0, twist=twist)[1]
+        normals[side] = np.asarray(plain), np.asarray(turned)
+    (plain_a, turned_a), (plain_b, turned_b) = normals.values()
+    assert abs(float(plain_a @ plain_b)) < 0.5  # the rule's jump: about 90°
+    np.testing.assert_allclose(turned_a, turned_b, atol=1e-5)  # carried over: none
+    # Where the start tangent stays, the pose uses the twist it was given, exactly.
+    assert float(aligned_twist(start, fj.Line(2.0)._prepare(), 0.3)) == 0.3
+
+
+def test_a_stalled_solve_is_not_reported_as_converged():
+    # A cliff in the loss that the Jacobian cannot see: the solver's steps shrink to nothing
+    # at its edge, far from the data, and optimistix calls that success (issue 31).
+    target, _ = fj.flesh(SOURCE, LINE, TRUTH)
+    cliff = lambda spine: 10.0 * (spine.radius < 50.0)[None]  # noqa: E731
+    fit = fj.fit_spine(LINE, NEARLY_STRAIGHT, SOURCE, target, regularizers=[cliff])
+    assert fit.result == optx.RESULTS.successful  # what optimistix says
+    assert not fit.converged and float(fit.rms) > 0.1 and float(fit.spine.radius) >= 50.0
+    assert fit.message.startswith("stalled") and "init" in fit.message
+    assert fit.stalled == fit.message
+    # The same fit without the cliff: converged, nothing to say.
+    fine = fj.fit_spine(LINE, NEARLY_STRAIGHT, SOURCE, target)
+    assert fine.converged and fine.message == "" and float(fine.rms) < 1e-6

@@ -4,12 +4,12 @@ and bad input. Meshes are small and `samples` low so that the file runs in well 
 
 import functools
 import os
-from pathlib import Path
 
 import numpy as np
 import pytest
 import trimesh
 
+import fleshing_jax as fj
 from fleshing_jax._medial import construct, primitives, simplify
 from fleshing_jax._medial.construct import medial_mesh
 from fleshing_jax._medial.distance import medial_distance
@@ -25,7 +25,6 @@ from fleshing_jax._medial.primitives import (
 from fleshing_jax._medial.refine import _centres_kept_inside, _closest, _weights
 from fleshing_jax._medial.surface import SurfaceQuery
 
-DATA = Path(__file__).parents[1].parent / "shared" / "data"
 SAMPLES = 4000
 
 
@@ -136,10 +135,8 @@ def test_box_spheres_lie_on_its_medial_axis():
     assert to_envelope < 0.08 and to_surface < 0.06
 
 
-@pytest.mark.skipif(not (DATA / "spot.obj").is_file(), reason=f"{DATA}/spot.obj is absent")
 def test_spot_medial_mesh_approximates_it():
-    spot = trimesh.load(str(DATA / "spot.obj"), process=False)
-    spot.merge_vertices(merge_tex=True, merge_norm=True)
+    spot = fj.data.spot()  # shipped with the package: runs in every checkout
     medial = medial_mesh(spot, 50, samples=SAMPLES, progress=False)
     to_envelope, to_surface = medial_distance(medial, spot, samples=3000, resolution=48)
     assert to_envelope < 0.05 and to_surface < 0.05

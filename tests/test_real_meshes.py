@@ -1,4 +1,6 @@
-"""Tests on the real meshes of ../shared/data (skipped when that folder is absent)."""
+"""Tests on real meshes: spot, shipped with the package (`fj.data.spot`), in every checkout; the
+larger meshes of ../shared/data (the bunny, spot's quad version) where that folder is present,
+each test saying which file it skipped for when it is not."""
 
 import sys
 from pathlib import Path
@@ -10,23 +12,21 @@ import trimesh
 import fleshing_jax as fj
 
 DATA = Path(__file__).parents[1].parent / "shared" / "data"
-pytestmark = pytest.mark.skipif(
-    not DATA.is_dir(), reason=f"shared data folder {DATA} is absent (real-mesh tests need it)"
-)
 sys.path.insert(0, str(Path(__file__).parents[1] / "benchmarks" / "paper"))
 
 
-def _load(name, **kwargs):
+def _shared(name) -> Path:
+    """`../shared/data/<name>`, or a skip that names the missing file (a fresh clone lacks it)."""
     path = DATA / name
     if not path.is_file():
-        pytest.skip(f"{path} is absent")
-    return trimesh.load(str(path), process=False, **kwargs)
+        pytest.skip(f"{path} is absent: the larger reference meshes live outside the package")
+    return path
 
 
 def test_bunny_capped_volume_and_bending():
     import fig1_bunny
 
-    bunny = _load("stanford-bunny.obj")
+    bunny = trimesh.load(str(_shared("stanford-bunny.obj")), process=False)
     assert not bunny.is_watertight
     closed = fj.cap_holes(bunny)
     assert closed.is_watertight and closed.is_winding_consistent
@@ -38,26 +38,50 @@ def test_bunny_capped_volume_and_bending():
     assert flesh < 3e-3 and flesh * 100 < skin  # paper: < 0.3 %
 
 
-def test_load_mesh_keeps_obj_vertex_lines():
-    for name in ("stanford-bunny.obj", "spot.obj", "spot-quad.obj"):
-        path = DATA / name
-        if not path.is_file():
-            pytest.skip(f"{path} is absent")
-        lines = [ln for ln in path.read_text().splitlines() if ln.startswith("v ")]
-        positions = np.array([ln.split()[1:4] for ln in lines], float)
-        np.testing.assert_array_equal(fj.load_mesh(path).vertices, positions)
+def _vertex_lines(path) -> np.ndarray:
+    lines = [ln for ln in Path(path).read_text().splitlines() if ln.startswith("v ")]
+    return np.array([ln.split()[1:4] for ln in lines], float)
 
 
-def test_spot_merged_is_closed_and_volume_agrees():
-    spot = _load("spot.obj")
-    spot.merge_vertices(merge_tex=True, merge_norm=True)
-    assert spot.is_watertight
+def test_load_mesh_keeps_obj_vertex_lines_of_spot():
+    path = fj.data.spot_path()
+    np.testing.assert_array_equal(fj.load_mesh(path).vertices, _vertex_lines(path))
+
+
+@pytest.mark.parametrize("name", ["stanford-bunny.obj", "spot-quad.obj"])
+def test_load_mesh_keeps_obj_vertex_lines(name):
+    path = _shared(name)
+    np.testing.assert_array_equal(fj.load_mesh(path).vertices, _vertex_lines(path))
+
+
+def test_spot_welded_is_closed_and_volume_agrees():
+    spot = fj.data.spot()
+    assert spot.is_watertight and spot.is_winding_consistent
     assert float(fj.volume(spot.vertices, spot.faces)) == pytest.approx(spot.volume, rel=1e-12)
 
 
+def test_spot_as_loaded_keeps_its_seams_and_welding_only_merges_them():
+    raw, welded = fj.data.spot(weld=False), fj.data.spot()
+    stored = np.unique(_vertex_lines(fj.data.spot_path()), axis=0)
+    # As loaded (process=False): one vertex per texture coordinate, so the seams stay open.
+    assert len(raw.vertices) > len(stored) and not raw.is_watertight
+    # Welded: each stored position once, the same triangles.
+    assert len(welded.vertices) == len(stored) and len(welded.faces) == len(raw.faces)
+    for mesh in (raw, welded):
+        np.testing.assert_array_equal(np.unique(mesh.vertices, axis=0), stored)
+    assert fj.data.spot() is not welded  # a new mesh each call: editing one spoils no other
+    with pytest.raises(TypeError, match="weld"):
+        fj.data.spot(weld="yes")
+
+
+def test_spot_ships_with_its_licence_note():
+    folder = fj.data.spot_path().parent
+    assert "CC0" in (folder / "spot.LICENSE.md").read_text()
+
+
 def test_spot_quad_mesh_deforms_in_file_order():
-    path = DATA / "spot-quad.obj"
-    quad = fj.load_mesh(path) if path.is_file() else pytest.skip(f"{path} is absent")
+    path = _shared("spot-quad.obj")
+    quad = fj.load_mesh(path)
     lines = path.read_text().splitlines()
     positions = np.array([ln.split()[1:4] for ln in lines if ln.startswith("v ")], float)
     quads = np.array(

@@ -1,6 +1,8 @@
 """The rest spine found on the medial axis (`fj.rest_spine`) and its command-line use."""
 
+import equinox as eqx
 import jax
+import jax.numpy as jnp
 import numpy as np
 import pytest
 import trimesh
@@ -111,3 +113,70 @@ def test_medial_command(tmp_path, capsys, capsule):
     # A wrong output name is refused before any work.
     code = main(["medial", str(tmp_path / "capsule.obj"), str(tmp_path / "c.txt")])
     assert code == 2 and ".ma" in capsys.readouterr().err
+
+
+@pytest.fixture(scope="module")
+def spot_medial():
+    from fleshing_jax._medial.construct import medial_mesh
+
+    # As `rest_spine` computes it, with fewer spheres (seconds).
+    return medial_mesh(fj.data.spot(), 40, refine=0, progress=False)
+
+
+@eqx.filter_jit  # one program for the spines of one control-point bucket (not op by op)
+def _points_and_curvature(spine):
+    s = jnp.linspace(0.0, spine.length, 400)
+    curvature = jnp.linalg.norm(jax.vmap(spine.curvature_vector)(s), axis=1)
+    return jax.vmap(spine)(s), curvature
+
+
+def _tightest_turn(spine, medial):
+    """max over the spine of curvature × the radius of the nearest medial sphere."""
+    points, curvature = map(np.asarray, _points_and_curvature(spine))
+    centers, radii, _, _ = medial.numpy()
+    nearest = np.argmin(np.linalg.norm(points[:, None] - centers[None], axis=2), axis=1)
+    return float(np.max(curvature * radii[nearest]))
+
+
+HEAD, TAIL = [0.0, 0.3, -0.6], [0.0, 0.2, 0.9]  # spot: y up, head towards −z
+
+
+def test_spot_rest_spine_turns_no_tighter_than_the_shape_is_thick(spot_medial):
+    spot = fj.data.spot()
+    for ends in (None, [HEAD, TAIL]):
+        spine = rest_spine(spot_medial, ends=ends, surface=spot)
+        # Curvature below the inverse of the local medial radius: no cross-section folds.
+        assert _tightest_turn(spine, spot_medial) < 1.0
+        # The least-squares fit alone (as many control points as allowed) turns tighter.
+        wavy = rest_spine(spot_medial, ends=ends, surface=spot, control_points=16)
+        assert _tightest_turn(wavy, spot_medial) > 1.0
+    # Between given ends, continued to the surface: from the nose to the tail's tip.
+    start, end = _samples(spine)[[0, -1]]
+    assert start[2] < spot.bounds[0, 2] + 0.05 and end[2] > 0.8
+    with pytest.raises(ValueError, match="surface"):
+        rest_spine(spot, surface=spot)
+
+
+def test_deform_with_medial_ends_and_saved_spine(tmp_path, capsys, spot_medial):
+    fj.save_medial(spot_medial, tmp_path / "spot.ma")
+    spine_file = tmp_path / "rest.json"
+    args = ["deform", str(fj.data.spot_path()), str(tmp_path / "bent.obj"), "--medial",
+            str(tmp_path / "spot.ma"), "--ends", ",".join(map(str, HEAD)),
+            ",".join(map(str, TAIL)), "--save-spine", str(spine_file), "--bend-angle", "20",
+            "--cap-holes", "--allow-invalid"]  # fmt: skip
+    code = main(args)
+    printed, err = capsys.readouterr()
+    assert code == 0, err
+    # The saved spine is the one found on the given medial mesh between the given ends.
+    saved = fj.load_spine(spine_file)
+    expected = rest_spine(spot_medial, ends=[HEAD, TAIL], surface=fj.data.spot())
+    np.testing.assert_allclose(saved.control_points, expected.control_points, atol=1e-12)
+    assert f"wrote {spine_file}" in printed and not list(tmp_path.glob(".rest.json.*"))
+    # --medial and --ends find the rest spine: refused with --from, before any work.
+    code = main([*args[:3], "--from", str(spine_file), "--medial", str(tmp_path / "spot.ma"),
+                 "--bend-angle", "20"])  # fmt: skip
+    assert code == 2 and "--medial" in capsys.readouterr().err
+    code = main([*args[:3], "--from", str(spine_file), "--ends", "0,0,0", "1,1,1", "--to", "x"])
+    assert code == 2 and "--ends: not allowed with argument --from" in capsys.readouterr().err
+    code = main([*args[:3], "--ends", "0,0", "1,1,1", "--bend-angle", "20"])
+    assert code == 2 and "invalid point X,Y,Z value: '0,0'" in capsys.readouterr().err

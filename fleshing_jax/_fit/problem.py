@@ -31,6 +31,14 @@ from .._spines.spine import AbstractSpine
 
 INVALID_MODES = ("penalize", "exclude")
 SMOOTHNESS_SAMPLES = 16  # midpoint samples of the bending energy ∫|k|² ds
+# A least-squares solve that optimistix reports as successful is reported as stalled when it
+# stopped without reducing the loss meaningfully (the rms not even halved: loss above a
+# quarter of its start) while its trust region had shrunk a thousandfold from its start (1):
+# its steps shrank to nothing because the local model no longer predicted the loss, so the
+# point is no minimum. A fit started at its minimum ends after a few steps, its trust region
+# intact; one that reduced its loss a lot is left to optimistix's own test.
+COLLAPSED_TRUST_REGION = 1e-3
+MEANINGFUL_LOSS_RATIO = 0.25
 
 
 @dataclasses.dataclass(frozen=True)
@@ -246,16 +254,20 @@ class AbstractFitOutcome(eqx.Module):
 
     result: eqx.AbstractVar[optx.RESULTS]
 
+    def _stall(self) -> str:
+        """Why a solve that optimistix reports as successful is no minimum ("" if none)."""
+        return ""
+
     @property
     def converged(self) -> bool:
-        """Whether the solver reported success (never trust the fitted values when this is
-        False)."""
-        return bool(self.result == optx.RESULTS.successful)
+        """Whether the solver reported success and did not stall (never trust the fitted
+        values when this is False)."""
+        return bool(self.result == optx.RESULTS.successful) and not self._stall()
 
     @property
     def message(self) -> str:
-        """The optimistix message for `result` ("" on success)."""
-        return optx.RESULTS[self.result]
+        """Why the fit did not converge, with what to try ("" on success)."""
+        return self._stall() or optx.RESULTS[self.result]
 
 
 class FitResult(AbstractFitOutcome):
@@ -264,7 +276,8 @@ class FitResult(AbstractFitOutcome):
     **Fields:**
 
     - `spine`: the fitted spine (same type and static configuration as `init`).
-    - `twist`: scalar twist (fitted, or the one given).
+    - `twist`: scalar twist (fitted, or the one given), from the source's first normal carried
+      to the fitted spine's start (`_fleshing.ends`), as `flesh` and `pose` take it.
     - `rms`: root-mean-square distance between the fleshed `source` and the target (see each
       fitting function for exactly which points count), with the full projection check.
     - `valid`: (N,) bool, which source points map validly onto the fitted spine.
@@ -272,6 +285,9 @@ class FitResult(AbstractFitOutcome):
     - `num_steps`: number of solver steps taken.
     - `loss`: the final value of the objective (sum of squared residuals, regularisers included).
     - `stats`: the solver's statistics dictionary.
+    - `stalled`: "" or, for a solve that optimistix reports as successful although its
+      steps shrank to nothing without reducing the loss meaningfully (no minimum), what
+      happened and what to try; `converged` is then False and `message` says it.
     """
 
     spine: AbstractSpine
@@ -282,6 +298,10 @@ class FitResult(AbstractFitOutcome):
     num_steps: Array
     loss: Float[Array, ""]
     stats: dict
+    stalled: str = eqx.field(static=True, default="")
+
+    def _stall(self) -> str:
+        return self.stalled
 
     @property
     def num_invalid(self) -> int:
@@ -303,7 +323,8 @@ class AbstractPoseProblem(eqx.Module):
     regularizers: eqx.AbstractVar[Regularizers]
 
     def spine_and_twist(self, y) -> tuple[AbstractSpine, Array]:
-        return self.parameters.spine(y), (self.twist if y[1] is None else y[1])
+        spine = self.parameters.spine(y)
+        return spine, self.twist if y[1] is None else y[1]
 
     def images(self, y, check_projection: bool | None = None) -> tuple[Array, Array]:
         spine, twist = self.spine_and_twist(y)
@@ -377,21 +398,51 @@ def prepare(
 def solve(problem: AbstractPoseProblem, solver, y0, max_steps: int, throw: bool):
     """Runs `optimistix.least_squares` on `problem`.
 
-    **Returns:** `(spine, twist, loss, result, stats)`, `loss` the final sum of squared
-    residuals. The final validity check runs outside, through the public (jitted) `pose`, whose
-    compilation is shared with ordinary fleshing of the same spine type.
+    **Returns:** `(spine, twist, losses, radius, result, stats)`: `losses` the sums of squared
+    residuals at `y0` and at the solution, `radius` the final trust-region size of a
+    trust-region solver (else 1). The final validity check runs outside, through the public
+    (jitted) `pose`, whose compilation is shared with ordinary fleshing of the same spine type.
     """
     solution = optx.least_squares(problem, solver, y0, max_steps=max_steps, throw=throw)
     y = solution.value
-    loss = sum(jnp.sum(r**2) for r in jax.tree.leaves(problem(y)))
+
+    def loss(y):
+        return sum(jnp.sum(r**2) for r in jax.tree.leaves(problem(y)))
+
     spine, twist = problem.spine_and_twist(y)
-    return spine, twist, loss, solution.result, solution.stats
+    search = getattr(solution.state, "search_state", None)
+    radius = getattr(search, "step_size", None)
+    if not isinstance(getattr(solver, "search", None), optx.ClassicalTrustRegion):
+        radius = None  # a line search's step says nothing about the model's quality
+    radius = jnp.ones((), loss(y).dtype) if radius is None else radius
+    return spine, twist, (loss(y0), loss(y)), radius, solution.result, solution.stats
+
+
+def stall_message(losses, radius, steps) -> str:
+    """Why a successful-looking solve is no minimum, with what to try ("" when it is one)."""
+    start, end = (float(v) for v in losses)
+    if float(radius) >= COLLAPSED_TRUST_REGION or end <= MEANINGFUL_LOSS_RATIO * start:
+        return ""
+    return (
+        f"stalled: after {int(steps)} steps the solver's trust region had shrunk to "
+        f"{float(radius):.1e} with the loss only down from {start:.3e} to {end:.3e}, so this is "
+        "no minimum: the loss is not smooth here (points leaving the valid space, or the "
+        "spine's start frame turning). Try a closer `init` (fit an `Arc` first and start the "
+        "free-form spine on it), `fixed=` for the root's control points, a finer "
+        "`init` (`subdivisions=`), or `smoothness=`."
+    )
 
 
 def fit(problem: AbstractPoseProblem, solver, y0, max_steps: int, throw: bool) -> FitResult:
-    """Solves `problem` and reports the fit, validity checked with the full projection test."""
-    spine, twist, loss, result, stats = solve(problem, solver, y0, int(max_steps), bool(throw))
+    """Solves `problem` and reports the fit, validity checked with the full projection test.
+
+    A solve that optimistix calls successful but that stalled (`stall_message`) is reported
+    as not converged."""
+    spine, twist, losses, radius, result, stats = solve(
+        problem, solver, y0, int(max_steps), bool(throw)
+    )
     images, valid = pose(problem.registration, spine, method=problem.method, twist=twist)
+    successful = bool(result == optx.RESULTS.successful)
     return FitResult(
         spine=spine,
         twist=twist,
@@ -399,6 +450,7 @@ def fit(problem: AbstractPoseProblem, solver, y0, max_steps: int, throw: bool) -
         valid=valid,
         result=result,
         num_steps=stats["num_steps"],
-        loss=loss,
+        loss=losses[1],
         stats=stats,
+        stalled=stall_message(losses, radius, stats["num_steps"]) if successful else "",
     )

@@ -6,23 +6,54 @@ import numpy as np
 
 from .medial_mesh import MedialMesh
 
+# Proper rotations (no mirror) that bring each axis to the picture's vertical z.
+_UPRIGHT = {
+    "x": np.array([[0.0, 1, 0], [0, 0, 1], [1, 0, 0]]),  # (x, y, z) → (y, z, x)
+    "y": np.array([[1.0, 0, 0], [0, 0, -1], [0, 1, 0]]),  # (x, y, z) → (x, −z, y)
+    "z": np.eye(3),
+}
 
-def plot_medial(medial: MedialMesh, surface=None, *, ax=None, elev=10.0, azim=-60.0):
+
+def default_up(surface) -> str:
+    """`"y"` for a mesh read from an OBJ file (the format's convention: y up), else `"z"`."""
+    metadata = getattr(surface, "metadata", None) or {}
+    names = (metadata.get("file_type", ""), metadata.get("file_name", ""), metadata.get("name", ""))
+    return "y" if any(str(n).lower().endswith("obj") for n in names) else "z"
+
+
+def upright(points, up: str) -> np.ndarray:
+    """(N, 3) `points` turned so that the axis `up` (`"x"`, `"y"` or `"z"`) points up (z)."""
+    if up not in _UPRIGHT:
+        raise ValueError(f"`up` must be 'x', 'y' or 'z', got {up!r}.")
+    return np.asarray(points, dtype=np.float64) @ _UPRIGHT[up].T
+
+
+def plot_medial(medial: MedialMesh, surface=None, *, ax=None, elev=10.0, azim=-60.0, up=None):
     """Draws `medial` on a matplotlib 3D axis: slabs as triangles between their sphere
     centres, cones as lines, spheres as points whose area follows their radius, and the
     `surface` (a `trimesh.Trimesh`, optional) translucent around them.
+
+    **Arguments:**
+
+    - `medial`, `surface`: as above; `ax`: the 3D axis to draw on (default: a new figure's).
+    - `elev`, `azim`: the view (matplotlib's, degrees).
+    - `up`: the model's vertical axis, `"x"`, `"y"` or `"z"`, turned to point up in the
+      picture. Default: `"y"` for a `surface` read from an OBJ file (the format's convention:
+      spot, most scanned models), else `"z"`.
 
     **Returns:** the axis (a new figure's when `ax` is `None`).
     """
     import matplotlib.pyplot as plt
     from mpl_toolkits.mplot3d.art3d import Line3DCollection, Poly3DCollection
 
+    up = default_up(surface) if up is None else up
     centers, radii, edges, faces = medial.numpy()
+    centers = upright(centers, up)
     if ax is None:
-        ax = plt.figure(figsize=(6, 5)).add_subplot(projection="3d")
+        ax = plt.figure(figsize=(8, 7)).add_subplot(projection="3d")
     points = centers
     if surface is not None:
-        vertices = np.asarray(surface.vertices)
+        vertices = upright(surface.vertices, up)
         shell = Poly3DCollection(
             vertices[np.asarray(surface.faces)], facecolor=(0.6, 0.6, 0.6, 0.06), linewidths=0
         )

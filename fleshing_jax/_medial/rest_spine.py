@@ -5,10 +5,14 @@ Our own construction (neither paper gives one): the medial graph's longest geode
 geodesic distance plus its radius: the path runs from surface to surface) or the path between two
 given points, continued to the surface at both ends along its end directions, resampled at
 a constant arc-length step and approximated by a clamped quintic B-spline in least squares
-(`scipy.interpolate.make_lsq_spline`, chord-length parameters, the knots `fj.BSpline` uses by
+(chord-length parameters, the knots `fj.BSpline` uses by
 default). Few control points (about one per two sphere radii along the path) keep it smooth
-where the medial axis zigzags between its spheres, so that its reach stays above the shape's
-thickness; `fj.BSpline` then parameterises it exactly by arc length.
+where the medial axis zigzags between its spheres, and a penalty on their second differences
+where that is not enough: the spine's curvature must stay below the inverse of the local medial
+radius (a tighter turn than the shape is thick folds the fleshing's cross-sections into each
+other: no valid bend), so the penalty's weight grows until it does (issue 31: a wavy spine on
+an animal, radius of curvature 0.010 where the radii were 0.5). `fj.BSpline` then
+parameterises it exactly by arc length.
 """
 
 from __future__ import annotations
@@ -16,7 +20,7 @@ from __future__ import annotations
 import numpy as np
 from jaxtyping import ArrayLike
 from scipy import sparse
-from scipy.interpolate import make_lsq_spline
+from scipy.interpolate import BSpline as ScipyBSpline
 from scipy.sparse import csgraph
 
 from .._spines.bspline import BSpline
@@ -25,6 +29,10 @@ from .medial_mesh import MedialMesh
 RESAMPLED = 200  # points of the path given to the least-squares fit
 MAX_CONTROL_POINTS = 16
 END_WEIGHT = 100.0  # least-squares weight of the two end points
+CURVATURE_SAMPLES = 1000  # where the curvature is checked against the local medial radius
+# The bound is κ r < CURVATURE_MARGIN: r interpolated between the path's spheres is only an
+# estimate of the radius of the sphere nearest to each point of the spine.
+CURVATURE_MARGIN = 0.8
 
 
 def rest_spine(
@@ -35,6 +43,7 @@ def rest_spine(
     degree: int = 5,
     spheres: int = 100,
     seed: int = 0,
+    surface=None,
 ) -> BSpline:
     """A smooth rest spine through the medial axis of a shape.
 
@@ -46,21 +55,30 @@ def rest_spine(
     - `ends`: optional (2, 3) points: the spine runs between the spheres nearest to them
       (default: along the longest path of the medial graph).
     - `control_points`: of the B-spline (default: about one per two radii along the path,
-      between `degree + 1` and 16); `degree`: of the B-spline (default 5, quintic).
+      between `degree + 1` and 16; given, no curvature bound is imposed);
+      `degree`: of the B-spline (default 5, quintic).
+    - `surface`: with a `MedialMesh`, optionally the mesh it was computed from
+      (`trimesh.Trimesh` or `(vertices, faces)`), to continue the spine to its surface.
 
-    Given a mesh, the spine is continued from its end spheres to the mesh's surface (the
-    farthest vertex near the end direction); given only a medial mesh, by the end spheres'
-    radii. Starts at the end nearest to the first of `ends` (or the path's first end).
+    Given a mesh (or `surface`), the spine is continued from its end spheres to the mesh's
+    surface (the farthest vertex near the end direction); given only a medial mesh, by the end
+    spheres' radii. Starts at the end nearest to the first of `ends` (or the path's first
+    end). Unless `control_points` is given, its curvature stays below the inverse of the
+    local medial radius (the radius of the path's spheres, interpolated along it).
 
     **Returns:** an `fj.BSpline` (float64). **Raises:** `ValueError` when the medial graph has
     no path of two spheres, or `ends` is not (2, 3) and finite.
     """
-    surface = None
+    from .surface import closed_mesh_arrays
+
     if isinstance(mesh_or_medial, MedialMesh):
         medial = mesh_or_medial
+        if surface is not None:
+            surface = closed_mesh_arrays(surface)[0]
     else:
+        if surface is not None:
+            raise ValueError("`surface` goes with a `MedialMesh` (a mesh is its own surface).")
         from .construct import medial_mesh
-        from .surface import closed_mesh_arrays
 
         # No fit of the spheres (`refine=0`): a least-squares spline through the path
         # smooths them anyway, and `deform` without `--from` stays as fast as before.
@@ -75,7 +93,9 @@ def rest_spine(
             f"({len(centers)} spheres, {len(edges)} edges)."
         )
     points = _extend_to_surface(centers[path], radii[path], surface)
-    return _fit_bspline(points, radii[path], control_points, degree)
+    # The local radius at the points: the path's spheres', the end ones' for the extensions.
+    local = radii[path][np.r_[0, np.arange(len(path)), len(path) - 1]]
+    return _fit_bspline(points, local, control_points, degree)
 
 
 def _check_ends(ends):
@@ -158,17 +178,39 @@ def _extend_to_surface(points: np.ndarray, radii: np.ndarray, surface) -> np.nda
 def _fit_bspline(points, radii, control_points, degree) -> BSpline:
     chord = np.r_[0, np.cumsum(np.linalg.norm(np.diff(points, axis=0), axis=1))]
     keep = np.r_[True, np.diff(chord) > 1e-12 * chord[-1]]
-    points, chord = points[keep], chord[keep]
+    points, chord, radii = points[keep], chord[keep], radii[keep]
     u = np.linspace(0, chord[-1], RESAMPLED)
     resampled = np.stack([np.interp(u, chord, points[:, k]) for k in range(3)], axis=1)
-    if control_points is None:
+    given = control_points is not None
+    if not given:
         typical = max(float(np.median(radii)), 1e-12)
         control_points = int(round(chord[-1] / (2 * typical))) + 1
     count = int(np.clip(control_points, degree + 1, MAX_CONTROL_POINTS))
-    inner = np.linspace(0.0, 1.0, count - degree + 1)
-    knots = np.r_[np.zeros(degree), inner, np.ones(degree)]  # as `clamped_uniform_knots`
     weights = np.ones(RESAMPLED)
     weights[[0, -1]] = END_WEIGHT  # the ends where the path meets the surface, nearly exactly
-    fit = make_lsq_spline(u / chord[-1], resampled, knots, k=degree, w=weights)
-    return BSpline(np.asarray(fit.c), degree=degree)
+    inner = np.linspace(0.0, 1.0, count - degree + 1)
+    knots = np.r_[np.zeros(degree), inner, np.ones(degree)]  # as `clamped_uniform_knots`
+    at = np.linspace(0.0, 1.0, CURVATURE_SAMPLES)
+    bound = CURVATURE_MARGIN / np.maximum(np.interp(at * chord[-1], chord, radii), 1e-300)
+    # Least squares with a penalty on the control points' second differences (a P-spline),
+    # its weight raised until the curvature bound holds: a straight line is the limit.
+    basis = ScipyBSpline.design_matrix(u / chord[-1], knots, degree).toarray()
+    normal = basis.T @ (weights[:, None] * basis)
+    right = basis.T @ (weights[:, None] * resampled)
+    second = np.diff(np.eye(count), 2, axis=0)
+    penalty = second.T @ second
+    scale = np.trace(normal) / np.trace(penalty)
+    for smoothing in (0.0, *(scale * 4.0 ** np.arange(-12, 12))):
+        coefficients = np.linalg.solve(normal + smoothing * penalty, right)
+        curve = ScipyBSpline(knots, coefficients, degree)
+        if given or np.all(_curvature(curve, at) < bound):
+            break
+    return BSpline(coefficients, degree=degree)
+
+
+def _curvature(curve, at: np.ndarray) -> np.ndarray:
+    """`|C′ × C″| / |C′|³` of a scipy B-spline curve at parameters `at`."""
+    first, second = curve.derivative(1)(at), curve.derivative(2)(at)
+    speed = np.maximum(np.linalg.norm(first, axis=1), 1e-300)
+    return np.linalg.norm(np.cross(first, second), axis=1) / speed**3
 

@@ -61,16 +61,17 @@ def _obj_in_file_order(path: Path, loaded: trimesh.Trimesh) -> trimesh.Trimesh:
 WRITABLE = ("obj", "ply", "stl", "off", "glb", "xyz")  # single-file formats trimesh exports
 
 
-def check_output_path(path: str | os.PathLike) -> Path:
+def check_output_path(path: str | os.PathLike, extensions: tuple[str, ...] = WRITABLE) -> Path:
     """Checks, before any work, that a mesh can be written at `path`: an extension of
-    `WRITABLE` and an existing, writable folder. Raises `ValueError` naming the problem."""
+    `extensions` (default `WRITABLE`; `("json",)` for a spine) and an existing, writable
+    folder. Raises `ValueError` naming the problem."""
     path = Path(path)
     file_type = path.suffix.lower().lstrip(".")
-    if file_type not in WRITABLE:
+    if file_type not in extensions:
         found = f"'.{file_type}'" if file_type else "no extension"
         raise ValueError(
             f"{path}: the output format is chosen by the extension, one of "
-            f"{', '.join('.' + w for w in WRITABLE)} (got {found})"
+            f"{', '.join('.' + w for w in extensions)} (got {found})"
         )
     directory = path.parent if str(path.parent) else Path(".")
     if not directory.is_dir():
