@@ -145,8 +145,10 @@ class MedialMesh(eqx.Module):
     def fingerprint(self) -> str:
         """A digest of the spheres and of the topology (edges and faces as sets of sphere
         index tuples, so their order and orientation do not matter): what a `MedialPose` and
-        a `MedialRig` compare to tell whether they belong to the same medial mesh."""
+        a `MedialRig` compare to tell whether they belong to the same medial mesh. Values are
+        hashed in float32, so that one mesh in float32 and in float64 is one mesh."""
         centers, radii, edges, faces = self.numpy()
+        centers, radii = (x.astype(np.float32) + np.float32(0) for x in (centers, radii))
         digest = hashlib.blake2b(digest_size=16)
         for array in (centers, radii, _rows(np.sort(edges, axis=1)),
                       _rows(np.sort(faces, axis=1))):

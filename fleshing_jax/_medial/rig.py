@@ -44,8 +44,8 @@ import numpy as np
 from jaxtyping import Array, ArrayLike, Bool, Float, Int
 from scipy import sparse
 
-from .._mesh.volume import triangulate
 from .._checks import check_number, is_concrete
+from .._mesh.volume import triangulate
 from .._numerics import cast_floats
 from .footprint import bind
 from .implicit import Correction, correct
@@ -53,9 +53,17 @@ from .medial_mesh import MedialMesh
 from .pose import MedialPose
 from .quaternions import matrix_from_quaternion
 from .skin import blend_quaternion, dqs_vertex, lbs_vertex, medial_vertex, sphere_motions
+from .weld import weld
 
 METHODS = ("medial", "lbs", "dqs")
 RING = 8  # neighbours per vertex in the relaxation's one-ring table
+
+
+def check_method(method) -> None:
+    """Raises `ValueError` unless `method` is one of `METHODS`."""
+    if not isinstance(method, str) or method not in METHODS:
+        raise ValueError(f"`method` must be one of {', '.join(map(repr, METHODS))}, got "
+                         f"{method!r}")
 
 
 def _check_vertices(vertices) -> np.ndarray:
@@ -72,26 +80,6 @@ def _check_vertices(vertices) -> np.ndarray:
     if v.ndim != 2 or v.shape[1] != 3 or v.shape[0] == 0:
         raise ValueError(f"`vertices` must have shape (n, 3) with n >= 1, got {v.shape}")
     return v.astype(np.float64)
-
-
-def weld(vertices: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Coincident vertices as one: `(points (m, 3), index (n,))` with `vertices[i]` at
-    `points[index[i]]`, the points in order of first occurrence (no copy: `index` is
-    `arange(n)`). Copies of a vertex at a texture or normal seam (meshes read with
-    `process=False`) are then bound and posed as one, so the seam cannot open. Rows with a
-    non-finite value share one last point, NaN (invalid)."""
-    finite = np.isfinite(vertices).all(axis=1)
-    rows = vertices[finite] + 0.0  # −0.0 → 0.0: equal coordinates, equal bytes
-    _, first, inverse = np.unique(rows, axis=0, return_index=True, return_inverse=True)
-    order = np.argsort(first)
-    rank = np.empty_like(order)
-    rank[order] = np.arange(len(order))
-    index = np.full(len(vertices), len(order), np.int64)
-    index[finite] = rank[inverse.reshape(-1)]
-    points = rows[first[order]]
-    if not finite.all():
-        points = np.concatenate([points, np.full((1, 3), np.nan)])
-    return points, index
 
 
 def _check_faces(faces, n) -> np.ndarray:
@@ -294,14 +282,16 @@ class MedialRig(eqx.Module):
             table, table_weights = _ring_table(ring[0], ring[1], m, RING)
             laplacian = rest - np.einsum("nk,nkd->nd", table_weights, rest[table])
 
+        # Converted on the host and put on the device as they are: `jnp.asarray` with a
+        # dtype compiles a conversion program per shape (half a second of a small rig).
         def f_(x):
-            return None if x is None else jnp.asarray(x)
+            return None if x is None else jax.device_put(np.asarray(x))
 
         def i_(x):
-            return None if x is None else jnp.asarray(x, jnp.int32)
+            return None if x is None else jax.device_put(np.asarray(x, np.int32))
 
         self.rest_vertices = f_(np.where(np.isfinite(v), v, 0.0))
-        self.valid = jnp.asarray(b.valid[welded] & np.isfinite(v).all(axis=1))
+        self.valid = jax.device_put(b.valid[welded] & np.isfinite(v).all(axis=1))
         self.welded, self.points = i_(welded), f_(rest)
         self.rest_centers, self.radii = f_(centers), f_(radii)
         self.spheres, self.beta, self.offset = i_(b.spheres), f_(b.beta), f_(b.offset)
@@ -349,9 +339,7 @@ class MedialRig(eqx.Module):
         **Returns:** `(vertices (n, 3), valid (n,))` in the dtype of `posed.centers`; invalid
         vertices at their rest position.
         """
-        if method not in METHODS:
-            raise ValueError(f"`method` must be one of {', '.join(map(repr, METHODS))}, got "
-                             f"{method!r}")
+        check_method(method)
         if not isinstance(posed, MedialPose):
             raise TypeError(f"`posed` must be a MedialPose, got {type(posed).__name__}")
         if posed.centers.shape[0] != self.n_spheres:
