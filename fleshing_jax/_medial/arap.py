@@ -351,12 +351,18 @@ def _check_options(iterations, solver, smoothness):
 def _check_targets(targets, h: int):
     """`targets` as a float array of shape `(h, 3)`, finite where concrete; a value finite as
     given but beyond the range of the dtype it is cast to is named as such."""
-    given = targets if isinstance(targets, jax.Array) else None
-    if given is None and targets is not None and not isinstance(targets, str | bytes):
+    given = None  # a host array of what was given (JAX arrays are cast already)
+    if not isinstance(targets, jax.Array | str | bytes | None):
         try:
             given = np.asarray(targets)
         except (TypeError, ValueError):
-            given = None
+            pass  # refused by `as_float_array` below, with the reason
+    if given is not None and given.dtype.kind == "f" and np.isfinite(given).all():
+        limit = float(jnp.finfo(jnp.result_type(float)).max)  # what a float64 array becomes
+        if given.dtype.itemsize == 8 and np.abs(given).max(initial=0) > limit:
+            raise ValueError(f"`targets` must be representable in {jnp.result_type(float)}: "
+                             f"they reach {np.abs(given).max():.3g}, beyond its range (enable "
+                             "float64 or move them closer).")
     targets = as_float_array(targets, "targets")
     if jnp.finfo(targets.dtype).bits < 32:
         raise TypeError(f"`targets` must be float32 or float64, got {targets.dtype}.")
@@ -364,10 +370,6 @@ def _check_targets(targets, h: int):
         raise ValueError(f"`targets` must have shape (h, 3) = ({h}, 3), one centre "
                          f"per handle, got shape {targets.shape}.")
     if is_concrete(targets) and not np.isfinite(np.asarray(targets)).all():
-        if given is not None and given.dtype.kind in "iuf" and np.isfinite(given).all():
-            raise ValueError(f"`targets` must be representable in {targets.dtype}: they reach "
-                             f"{np.abs(given).max():.3g}, beyond its range (enable float64 or "
-                             "move them closer).")
         raise ValueError("`targets` must be finite (found NaN or inf).")
     return targets
 
@@ -444,14 +446,8 @@ def arap_medial(
 
 
 def posed(medial, cells, targets, rotations, iterations, solver):
-    """`(pose, energies)` of checked inputs (`_prepare`). A pose that is not finite (targets
-    so far that the solve overflows) raises `ValueError` naming `targets` where concrete."""
+    """`(pose, energies)` of inputs checked by `_prepare` (the pose checks its values)."""
     centers, rots, energies = solve(cells, targets, rotations, iterations, solver)
-    if is_concrete(centers, rots) and not (np.isfinite(np.asarray(centers)).all()
-                                           and np.isfinite(np.asarray(rots)).all()):
-        scale = float(np.abs(np.asarray(targets)).max())
-        raise ValueError(f"`targets` are too far for {centers.dtype}: the pose overflows "
-                         f"(targets up to {scale:.3g}); move them closer or use float64.")
     return MedialPose(medial, centers, rots), energies
 
 

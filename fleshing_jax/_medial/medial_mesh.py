@@ -21,6 +21,13 @@ def face_edges(faces) -> np.ndarray:
     return np.sort(np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [0, 2]]]), axis=1)
 
 
+def _float32_precision(x: np.ndarray) -> np.ndarray:
+    """`x` rounded to a 24-bit significand, as (significand, exponent) integer pairs: equal for
+    a float64 array and its float32 cast, at any magnitude (a float32 cast overflows)."""
+    significand, exponent = np.frexp(x)
+    return np.stack([np.round(significand * 2.0**24).astype(np.int64), exponent], -1)
+
+
 def _rows(indices: np.ndarray) -> np.ndarray:
     """Index tuples in a canonical order (sorted rows, duplicates dropped)."""
     return np.unique(indices, axis=0) if len(indices) else indices
@@ -146,9 +153,10 @@ class MedialMesh(eqx.Module):
         """A digest of the spheres and of the topology (edges and faces as sets of sphere
         index tuples, so their order and orientation do not matter): what a `MedialPose` and
         a `MedialRig` compare to tell whether they belong to the same medial mesh. Values are
-        hashed in float32, so that one mesh in float32 and in float64 is one mesh."""
+        hashed to float32's 24-bit precision (without its range), so that one mesh in float32
+        and in float64 is one mesh."""
         centers, radii, edges, faces = self.numpy()
-        centers, radii = (x.astype(np.float32) + np.float32(0) for x in (centers, radii))
+        centers, radii = (_float32_precision(x) for x in (centers, radii))
         digest = hashlib.blake2b(digest_size=16)
         for array in (centers, radii, _rows(np.sort(edges, axis=1)),
                       _rows(np.sort(faces, axis=1))):

@@ -19,6 +19,20 @@ from scipy.spatial import cKDTree
 
 from .weld import weld_faces
 
+MAXIMUM_COORDINATE = 1e100  # volumes are cubes of coordinates: 1e103 overflows float64
+
+
+def check_coordinates(vertices: np.ndarray) -> None:
+    """Raises `ValueError` for a mesh with non-finite vertices or coordinates so large that
+    its areas and volume overflow float64."""
+    if not np.isfinite(vertices).all():
+        bad = int((~np.isfinite(vertices)).any(axis=1).sum())
+        raise ValueError(f"mesh has {bad} non-finite vertices (NaN or infinity)")
+    largest = float(np.abs(vertices).max(initial=0.0))
+    if largest > MAXIMUM_COORDINATE:
+        raise ValueError(f"mesh coordinates reach {largest:.3g}: beyond {MAXIMUM_COORDINATE:g} "
+                         "its volume overflows; scale it down")
+
 
 def _edges(faces):
     """Directed half-edges, each one's undirected edge, and the edges' counts: in a closed,
@@ -60,9 +74,7 @@ def closed_mesh_arrays(mesh) -> tuple[np.ndarray, np.ndarray]:
     if not np.issubdtype(faces.dtype, np.integer):
         raise ValueError(f"mesh faces must be integers, got dtype {faces.dtype}")
     faces = faces.astype(np.int64)
-    if not np.isfinite(vertices).all():
-        bad = int((~np.isfinite(vertices)).any(axis=1).sum())
-        raise ValueError(f"mesh has {bad} non-finite vertices (NaN or infinity)")
+    check_coordinates(vertices)
     if faces.min() < 0 or faces.max() >= len(vertices):
         raise ValueError(f"mesh face indices must lie in [0, {len(vertices)}), got "
                          f"[{faces.min()}, {faces.max()}]")
