@@ -164,3 +164,49 @@ def check_points(points: ArrayLike, name: str, minimum: int, why: str) -> Array:
             f"`{name}` has repeated consecutive points: rows {i} and {i + 1} coincide ({p[i]})."
         )
     return points
+
+
+def check_number(value, name: str, low: float, high: float, *, integer: bool = False,
+                 above: bool = False) -> float | int:
+    """A numeric option `value` as a Python float (or int when `integer`), checked before work.
+
+    Raises `TypeError` naming `name` unless `value` is a real number (an integer when
+    `integer`; booleans, strings, `None` and arrays are refused), and `ValueError` naming it
+    unless it is finite and in `[low, high]` (`(low, high]` when `above`). Bounds keep every
+    option where the algorithm means something and its cost stays bounded (unrolled loops,
+    grids).
+    """
+    kinds = (int, np.integer) if integer else (int, float, np.integer, np.floating)
+    if isinstance(value, bool | np.bool_) or not isinstance(value, kinds):
+        kind = "an integer" if integer else "a real number"
+        raise TypeError(f"`{name}` must be {kind}, got {_short(value)} "
+                        f"({type(value).__name__}).")
+    number = int(value) if integer else float(value)
+    below = number <= low if above else number < low
+    if not (integer or np.isfinite(number)) or below or number > high:
+        interval = f"{'(' if above else '['}{low:g}, {high:g}]"
+        raise ValueError(f"`{name}` must be {'an integer' if integer else 'a finite number'} in "
+                         f"{interval}, got {value!r}.")
+    return number
+
+
+def check_finite_points(points: ArrayLike, name: str) -> np.ndarray:
+    """`points` as a float64 NumPy array of shape `(k, 3)` or `(3,)`, all finite.
+
+    Raises `TypeError` naming `name` for values that are not real numbers (strings, `None`,
+    complex), `ValueError` for another shape or a non-finite value.
+    """
+    if points is None or isinstance(points, str | bytes):
+        raise TypeError(f"`{name}` must be an array of real numbers, got {_short(points)}.")
+    try:
+        array = np.asarray(points)
+    except (TypeError, ValueError) as error:
+        raise TypeError(f"`{name}` must be an array of real numbers ({error}).") from None
+    if array.dtype.kind not in "iuf":
+        raise TypeError(f"`{name}` must be real numbers, got dtype {array.dtype}.")
+    if array.shape[-1:] != (3,) or array.ndim not in (1, 2):
+        raise ValueError(f"`{name}` must have shape (k, 3) or (3,), got shape {array.shape}.")
+    array = array.astype(np.float64)
+    if not np.isfinite(array).all():
+        raise ValueError(f"`{name}` must be finite (found NaN or inf).")
+    return array

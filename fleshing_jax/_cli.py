@@ -2,8 +2,9 @@
 
     fleshing-jax deform IN OUT [--from A.json | --ends X,Y,Z X,Y,Z] [--medial IN.ma]
                                (--to B.json | --bend-angle DEG) [--method M] [--twist RAD]
-                               [--save-spine FILE] [--cap-holes]
-    fleshing-jax medial IN OUT.ma [--spheres N] [--envelope ENV.obj]
+                               [--beyond MODE] [--allow-invalid] [--save-spine FILE]
+                               [--cap-holes]
+    fleshing-jax medial IN OUT.ma [--spheres N] [--envelope ENV.obj] [--list]
     fleshing-jax medial-deform IN OUT --medial IN.ma --handles H.json [--method M]
                                       [--no-implicit]
     fleshing-jax demo [--out DIR]
@@ -144,6 +145,11 @@ def _parser() -> argparse.ArgumentParser:
         "--envelope", metavar="ENV.obj", help="also write the medial mesh's envelope (a mesh)"
     )
     medial.add_argument("--cap-holes", action="store_true", help="close IN's holes first")
+    medial.add_argument(
+        "--list",
+        action="store_true",
+        help="print every sphere: index, centre and radius (to choose handles)",
+    )
     medial_deform = commands.add_parser(
         "medial-deform",
         help="deform a mesh by moving spheres of its medial mesh (Lan et al. 2017)",
@@ -338,31 +344,37 @@ def _print_causes(causes) -> None:
 
 
 def _medial(args) -> int:
-    import numpy as np
 
     from ._medial.construct import medial_mesh
     from ._medial.distance import medial_distance
-    from ._medial.files import save_medial
+    from ._medial.files import check_medial_path, save_medial
     from ._mesh.files import check_output_path, write_mesh_atomic
 
     if not str(args.output).lower().endswith(".ma"):
         raise ValueError(f"{args.output}: the medial mesh is written in .ma format (OUT.ma)")
+    check_medial_path(args.output)
     if args.envelope is not None:
         check_output_path(args.envelope)
-    mesh = _load_input(args.input, args.cap_holes)
+    if args.spheres < 2:
+        raise ValueError(f"--spheres must be an integer >= 2, got {args.spheres}")
+    if args.seed < 0:
+        raise ValueError(f"--seed must be an integer >= 0, got {args.seed}")
+    mesh = _welded_input(args.input, args.cap_holes)
     started = time.perf_counter()
     medial = medial_mesh(mesh, spheres=args.spheres, seed=args.seed)
     elapsed = time.perf_counter() - started
     to_envelope, to_surface = medial_distance(medial, mesh)
     save_medial(medial, args.output)
-    print(
-        f"spheres: {len(np.asarray(medial.radii))}, edges: {len(np.asarray(medial.edges))}, "
-        f"faces: {len(np.asarray(medial.faces))}"
-    )
+    centers, radii, edges, faces = medial.numpy()
+    print(f"spheres: {len(radii)}, edges: {len(edges)}, faces: {len(faces)}")
     print(
         "one-sided Hausdorff distances (fraction of the diagonal): surface to envelope "
         f"{to_envelope:.4f}, envelope to surface {to_surface:.4f}"
     )
+    if args.list:
+        print(f"{'sphere':>6}  {'x':>10} {'y':>10} {'z':>10}  {'radius':>10}")
+        for i, ((x, y, z), r) in enumerate(zip(centers, radii)):
+            print(f"{i:>6}  {x:>10.5g} {y:>10.5g} {z:>10.5g}  {r:>10.5g}")
     print(f"wrote {args.output} in {elapsed:.1f} s")
     if args.envelope is not None:
         write_mesh_atomic(medial.envelope(), args.envelope)
@@ -370,6 +382,24 @@ def _medial(args) -> int:
     return 0
 
 
+def _welded_input(path, cap: bool):
+    """The input mesh of the medial commands: an unwelded mesh (copies of vertices at seams,
+    an STL's corners) is said so and welded first (its holes, if any, are closed after)."""
+    import trimesh
+
+    from ._mesh.holes import cap_holes
+
+    mesh = _load_input(path, False)
+    if not isinstance(mesh, trimesh.Trimesh) or not len(mesh.faces):
+        return mesh
+    welded = mesh.copy()
+    welded.merge_vertices(merge_tex=True, merge_norm=True)
+    copies = len(mesh.vertices) - len(welded.vertices)
+    if copies:
+        print(f"note: {path} is unwelded: {copies} vertices are copies of others (seams); "
+              "welded by position")
+        mesh = welded
+    return cap_holes(mesh) if cap else mesh
 def _handles_format() -> str:
     from ._medial.handle_files import HANDLES_FORMAT
 
@@ -388,15 +418,31 @@ def _medial_deform(args) -> int:
 
     check_output_path(args.output)
     medial = load_medial(args.medial)
-    handles, targets, rotations = load_handles(args.handles)
-    mesh = _load_input(args.input, args.cap_holes)
+    handles, targets, rotations = load_handles(args.handles, medial)
+    mesh = _load_input(args.input, False)
     if not (isinstance(mesh, trimesh.Trimesh) and len(mesh.faces)):
         raise ValueError(f"{args.input}: medial-deform needs a mesh with faces")
+    # The output keeps IN's vertices (seams included: the rig poses copies as one); the
+    # volumes are measured on the welded mesh, closed when only the welding was missing.
+    welded = mesh.copy()
+    welded.merge_vertices(merge_tex=True, merge_norm=True)
+    if len(welded.vertices) < len(mesh.vertices):
+        print(f"note: {args.input} is unwelded: {len(mesh.vertices) - len(welded.vertices)} "
+              "vertices are copies of others (seams); they move as one")
+    if args.cap_holes and not welded.is_watertight:
+        from ._mesh.holes import cap_holes
+
+        mesh = welded = cap_holes(welded)  # welded first: its seams are no holes
     started = time.perf_counter()
-    bent = deform_medial(mesh, medial, handles, targets, args.method, rotations=rotations,
-                         implicit=not args.no_implicit)
+    try:
+        bent = deform_medial(mesh, medial, handles, targets, args.method, rotations=rotations,
+                             implicit=not args.no_implicit)
+    except ValueError as error:
+        raise ValueError(f"{args.handles} with {args.medial}: {error}") from None
     valid = np.asarray(bent.vertex_attributes["valid"], dtype=bool)
-    _print_volumes(mesh, bent, volume)
+    if not np.isfinite(np.asarray(bent.vertices)).all():  # never written, whatever happened
+        raise ValueError(f"{args.input}: the deformed mesh is not finite; nothing written")
+    _print_volumes(welded if welded.is_watertight else mesh, bent, volume)
     print(f"invalid vertices: {int(np.sum(~valid))} of {len(valid)}")
     write_mesh_atomic(bent, args.output)
     print(f"wrote {args.output} ({args.method}, {time.perf_counter() - started:.1f} s)")
@@ -436,6 +482,14 @@ def main(argv: list[str] | None = None) -> int:
     except (FileNotFoundError, ValueError, TypeError, OSError) as error:
         message = " ".join(str(error).split()) or type(error).__name__
         print(f"{PROG}: error: {message}", file=sys.stderr)
+        return 2
+    except (ArithmeticError, RecursionError, MemoryError) as error:
+        # Unexpected, but still one line and status 2, never a traceback: inputs so large
+        # that a computation overflows, or that do not fit in memory.
+        what = {MemoryError: "out of memory"}.get(type(error), type(error).__name__)
+        message = " ".join(str(error).split())
+        print(f"{PROG}: error: {args.command} {getattr(args, 'input', '')}: {what}"
+              + (f" ({message})" if message else "") + "; inputs too large?", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print(f"{PROG}: interrupted", file=sys.stderr)

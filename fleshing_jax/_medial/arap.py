@@ -49,18 +49,17 @@ import numpy as np
 from jax.scipy.linalg import cho_solve
 from jaxtyping import Array, ArrayLike, Float
 
-from .._checks import as_float_array, is_concrete
+from .._checks import as_float_array, check_number, is_concrete
 from .._numerics import safe_divide, safe_sqrt
 from .cells import ArapCells, arap_cells
 from .medial_mesh import MedialMesh
-from .pose import MedialPose
+from .pose import ROTATION_TOLERANCE, MedialPose, not_rotations
 from .quaternions import matrix_from_quaternion, quaternion_from_matrix
 
 SOLVERS = ("global", "local")
 ITERATIONS = 20
 SMOOTHNESS = 0.1
 POLAR_STEPS = 10  # scaled Newton: quadratic once close; 10 steps reach κ(M) ≈ 1e12
-ROTATION_TOLERANCE = 1e-4
 LINEAR_WEIGHT = 0.03  # of the linear deformation in the handles' first-guess rotations
 
 
@@ -327,11 +326,9 @@ def _check_rotations(rotations, h: int, dtype):
         raise ValueError(f"`rotations` must have shape (h, 3, 3) = ({h}, 3, 3), one per handle, "
                          f"got shape {rotations.shape}.")
     if is_concrete(rotations):
-        r = np.asarray(rotations, np.float64)
-        if not np.isfinite(r).all():
+        if not np.isfinite(np.asarray(rotations)).all():
             raise ValueError("`rotations` must be finite (found NaN or inf).")
-        error = np.abs(np.einsum("hba,hbc->hac", r, r) - np.eye(3)).max(axis=(1, 2))
-        bad = np.flatnonzero((error > ROTATION_TOLERANCE) | (np.linalg.det(r) <= 0))
+        bad = not_rotations(rotations)
         if bad.size:
             raise ValueError(f"`rotations` must be rotation matrices (orthonormal, det +1, to "
                              f"{ROTATION_TOLERANCE}); handles at positions {bad.tolist()[:10]} "
@@ -339,16 +336,42 @@ def _check_rotations(rotations, h: int, dtype):
     return rotations.astype(dtype)
 
 
+MAXIMUM_ITERATIONS = 100_000  # a scan: time grows linearly, memory does not
+MAXIMUM_SMOOTHNESS = 1e6
+
+
 def _check_options(iterations, solver, smoothness):
     if solver not in SOLVERS:
         raise ValueError(f"`solver` must be one of {SOLVERS}, got {solver!r}.")
-    if isinstance(iterations, bool) or not isinstance(iterations, int | np.integer) \
-            or iterations < 1:
-        raise ValueError(f"`iterations` must be an integer ≥ 1, got {iterations!r}.")
-    smoothness = float(smoothness)
-    if not np.isfinite(smoothness) or smoothness <= 0:
-        raise ValueError(f"`smoothness` must be a finite weight > 0, got {smoothness!r}.")
-    return int(iterations), smoothness
+    iterations = check_number(iterations, "iterations", 1, MAXIMUM_ITERATIONS, integer=True)
+    smoothness = check_number(smoothness, "smoothness", 0, MAXIMUM_SMOOTHNESS, above=True)
+    return iterations, smoothness
+
+
+def _check_targets(targets, h: int):
+    """`targets` as a float array of shape `(h, 3)`, finite where concrete; a value finite as
+    given but beyond the range of the dtype it is cast to is named as such."""
+    given = None  # a host array of what was given (JAX arrays are cast already)
+    if not isinstance(targets, jax.Array | str | bytes | None):
+        try:
+            given = np.asarray(targets)
+        except (TypeError, ValueError):
+            pass  # refused by `as_float_array` below, with the reason
+    if given is not None and given.dtype.kind == "f" and np.isfinite(given).all():
+        limit = float(jnp.finfo(jnp.result_type(float)).max)  # what a float64 array becomes
+        if given.dtype.itemsize == 8 and np.abs(given).max(initial=0) > limit:
+            raise ValueError(f"`targets` must be representable in {jnp.result_type(float)}: "
+                             f"they reach {np.abs(given).max():.3g}, beyond its range (enable "
+                             "float64 or move them closer).")
+    targets = as_float_array(targets, "targets")
+    if jnp.finfo(targets.dtype).bits < 32:
+        raise TypeError(f"`targets` must be float32 or float64, got {targets.dtype}.")
+    if targets.shape != (h, 3):
+        raise ValueError(f"`targets` must have shape (h, 3) = ({h}, 3), one centre "
+                         f"per handle, got shape {targets.shape}.")
+    if is_concrete(targets) and not np.isfinite(np.asarray(targets)).all():
+        raise ValueError("`targets` must be finite (found NaN or inf).")
+    return targets
 
 
 def _prepare(medial, handles, targets, rotations, iterations, solver, smoothness):
@@ -360,14 +383,7 @@ def _prepare(medial, handles, targets, rotations, iterations, solver, smoothness
     iterations, smoothness = _check_options(iterations, solver, smoothness)
     n = medial.centers.shape[0]
     handles = check_handles(handles, n)
-    targets = as_float_array(targets, "targets")
-    if jnp.finfo(targets.dtype).bits < 32:
-        raise TypeError(f"`targets` must be float32 or float64, got {targets.dtype}.")
-    if targets.shape != (len(handles), 3):
-        raise ValueError(f"`targets` must have shape (h, 3) = ({len(handles)}, 3), one centre "
-                         f"per handle, got shape {targets.shape}.")
-    if is_concrete(targets) and not np.isfinite(np.asarray(targets)).all():
-        raise ValueError("`targets` must be finite (found NaN or inf).")
+    targets = _check_targets(targets, len(handles))
     dtype = targets.dtype
     rotations = _check_rotations(rotations, len(handles), dtype)
     cells = _cells(medial, handles, smoothness, dtype)
@@ -425,17 +441,19 @@ def arap_medial(
     rotations when concrete, an unknown `solver`, and a medial mesh with isolated spheres or
     a component without a handle (naming the spheres).
     """
-    cells, targets, rotations, iterations = _prepare(medial, handles, targets, rotations,
-                                                     iterations, solver, smoothness)
-    centers, rots, _ = solve(cells, targets, rotations, iterations, solver)
-    return MedialPose(medial, centers, rots)
+    prepared = _prepare(medial, handles, targets, rotations, iterations, solver, smoothness)
+    return posed(medial, *prepared, solver)[0]
+
+
+def posed(medial, cells, targets, rotations, iterations, solver):
+    """`(pose, energies)` of inputs checked by `_prepare` (the pose checks its values)."""
+    centers, rots, energies = solve(cells, targets, rotations, iterations, solver)
+    return MedialPose(medial, centers, rots), energies
 
 
 def arap_energies(medial, handles, targets, *, rotations=None, iterations=ITERATIONS,
                   solver="global", smoothness=SMOOTHNESS):
     """`arap_medial`'s pose and the energy after each iteration `(iterations,)` (for
     convergence measurements and tests)."""
-    cells, targets, rotations, iterations = _prepare(medial, handles, targets, rotations,
-                                                     iterations, solver, smoothness)
-    centers, rots, energies = solve(cells, targets, rotations, iterations, solver)
-    return MedialPose(medial, centers, rots), energies
+    prepared = _prepare(medial, handles, targets, rotations, iterations, solver, smoothness)
+    return posed(medial, *prepared, solver)

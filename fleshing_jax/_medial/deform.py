@@ -6,9 +6,9 @@ import numpy as np
 import trimesh
 from jaxtyping import ArrayLike
 
-from .arap import ITERATIONS, arap_medial
+from .arap import ITERATIONS, SMOOTHNESS, _prepare, posed
 from .medial_mesh import MedialMesh
-from .rig import MedialRig
+from .rig import MedialRig, check_method
 
 
 def deform_medial(
@@ -46,7 +46,11 @@ def deform_medial(
     vertex count and order, and the per-vertex validity (N,) bool in
     `result.vertex_attributes["valid"]`; for a `(vertices, faces)` pair,
     `(deformed vertices (N, 3), faces, valid (N,))`; for an array, `(deformed, valid)`.
-    Invalid vertices are left where they were.
+    Invalid vertices (and any whose image is not finite) are left where they were. Copies of
+    a vertex (seams of a mesh read with `process=False`) are posed as one (see `MedialRig`).
+
+    Raises `TypeError`/`ValueError` naming the argument, before any work, for a bad `mesh`,
+    `medial`, `handles`, `targets`, `rotations`, `method`, `iterations` or `solver`.
     """
     if not isinstance(medial, MedialMesh):
         raise TypeError(f"`medial` must be a MedialMesh, got {type(medial).__name__}.")
@@ -62,10 +66,12 @@ def deform_medial(
             "`mesh` must be a trimesh.Trimesh, a (vertices, faces) pair or an (N, 3) array, "
             f"got {type(mesh).__name__}."
         )
+    check_method(method)
+    # Every argument is checked before the binding, the costly step (seconds on 100k
+    # vertices).
+    prepared = _prepare(medial, handles, targets, rotations, iterations, solver, SMOOTHNESS)
     rig = MedialRig(vertices, medial, faces=faces)
-    posed = arap_medial(medial, handles, targets, rotations=rotations, iterations=iterations,
-                        solver=solver)
-    deformed, valid = rig.pose(posed, method, implicit=implicit)
+    deformed, valid = rig.pose(posed(medial, *prepared, solver)[0], method, implicit=implicit)
     if isinstance(mesh, trimesh.Trimesh):
         result = mesh.copy()
         result.vertices = np.asarray(deformed, dtype=np.float64)

@@ -7,7 +7,7 @@ import numpy as np
 from .envelope import envelope_arrays
 from .medial_mesh import MedialMesh
 from .primitives import union_distance
-from .surface import SurfaceQuery, sample_surface
+from .surface import SurfaceQuery, check_coordinates, sample_surface
 
 
 def _mesh_arrays(mesh):
@@ -16,8 +16,7 @@ def _mesh_arrays(mesh):
     if vertices.ndim != 2 or vertices.shape[1] != 3 or faces.ndim != 2 or faces.shape[1] != 3:
         raise ValueError(f"mesh must have vertices (V, 3) and faces (F, 3), got "
                          f"{vertices.shape} and {faces.shape}")
-    if not np.isfinite(vertices).all():
-        raise ValueError("mesh has non-finite vertices (NaN or infinity)")
+    check_coordinates(vertices)
     return vertices, faces
 
 
@@ -38,6 +37,8 @@ def medial_distance(medial: MedialMesh, mesh, *, samples: int = 20_000, resoluti
 
     **Returns:** `(surface_to_envelope, envelope_to_surface)`, floats.
     """
+    if not isinstance(medial, MedialMesh):
+        raise TypeError(f"`medial` must be a MedialMesh, got {type(medial).__name__}")
     vertices, faces = _mesh_arrays(mesh)
     diagonal = float(np.linalg.norm(np.ptp(vertices, axis=0)))
     centers, radii, edges, tris = medial.numpy()

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .._checks import check_number
 from .primitives import union_closest, union_distance
 
 _BLOCK = 4
@@ -34,13 +35,19 @@ def _block_points(blocks, counts, lo, h):
     return np.stack(np.unravel_index(linear, counts), -1), linear
 
 
+# The grid's field is dense: 512³ float64 values are 1 GiB (3000 took 5 GB).
+MAXIMUM_RESOLUTION = 512
+
+
 def envelope_arrays(centers, radii, edges, faces, *, resolution: int = 128,
                     newton_steps: int = 1):
     """Vertices `(V, 3)` and outward faces `(F, 3)` of the envelope of a medial mesh.
 
     **Arguments:** the medial mesh's arrays; `resolution`: grid cells along the longest side
-    of the union's bounding box (the mesh's error is second order in the cell size).
+    of the union's bounding box (the mesh's error is second order in the cell size), an
+    integer in `[4, MAXIMUM_RESOLUTION]`.
     """
+    resolution = check_number(resolution, "resolution", 4, MAXIMUM_RESOLUTION, integer=True)
     centers, radii = np.asarray(centers, float), np.asarray(radii, float)
     lo = (centers - radii[:, None]).min(axis=0)
     hi = (centers + radii[:, None]).max(axis=0)

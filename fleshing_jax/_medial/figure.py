@@ -43,6 +43,8 @@ def plot_medial(medial: MedialMesh, surface=None, *, ax=None, elev=10.0, azim=-6
 
     **Returns:** the axis (a new figure's when `ax` is `None`).
     """
+    if not isinstance(medial, MedialMesh):
+        raise TypeError(f"`medial` must be a MedialMesh, got {type(medial).__name__}")
     import matplotlib.pyplot as plt
     from mpl_toolkits.mplot3d.art3d import Line3DCollection, Poly3DCollection
 

@@ -17,6 +17,7 @@ import numpy as np
 import optimistix as optx
 from jaxtyping import Array, ArrayLike, Float
 
+from .._checks import check_number
 from .._fit.correspondences import weighted_rms
 from .._fit.problem import AbstractFitOutcome, check_cloud, default_solver
 from .arap import (
@@ -31,7 +32,9 @@ from .arap import (
 from .cells import ArapCells
 from .medial_mesh import MedialMesh
 from .pose import MedialPose
-from .rig import METHODS, MedialRig
+from .rig import MedialRig, check_method
+
+MAXIMUM_STEPS = 100_000
 
 
 class HandleFitResult(AbstractFitOutcome):
@@ -178,18 +181,24 @@ def fit_handles(
     - `iterations`, `solver`, `smoothness`: passed to the ARAP solve (as `arap_medial`).
     - `optimiser`: any optimistix least-squares solver; default Levenberg–Marquardt with
       tolerances from the dtype (1e-10 in float64, 1e-5 in float32), as `fit_spine`.
-    - `max_steps`, `throw`: passed to `optimistix.least_squares`.
+    - `rtol`, `atol`: the default optimiser's tolerances (in (0, 1]; default from the dtype).
+    - `max_steps` (in [1, 100000]), `throw`: passed to `optimistix.least_squares`.
 
     **Returns:** a `HandleFitResult`.
     """
     if not isinstance(rig, MedialRig):
         raise TypeError(f"`rig` must be a MedialRig, got {type(rig)}.")
-    if method not in METHODS:
-        raise ValueError(f"`method` must be one of {METHODS}, got {method!r}.")
+    check_method(method)
     medial = _rig_medial(rig) if medial is None else medial
-    if not isinstance(medial, MedialMesh) or medial.centers.shape[0] != rig.n_spheres:
-        raise ValueError(f"`medial` must be the rig's MedialMesh ({rig.n_spheres} spheres).")
+    if not isinstance(medial, MedialMesh):
+        raise TypeError(f"`medial` must be a MedialMesh, got {type(medial).__name__}.")
+    if medial.fingerprint() != rig.fingerprint():
+        raise ValueError(f"`medial` must be the rig's MedialMesh ({rig.n_spheres} spheres); "
+                         "it is another one (other spheres or topology).")
     iterations, smoothness = _check_options(iterations, solver, smoothness)
+    max_steps = check_number(max_steps, "max_steps", 1, MAXIMUM_STEPS, integer=True)
+    rtol, atol = (None if t is None else check_number(t, name, 0, 1, above=True)
+                  for t, name in ((rtol, "rtol"), (atol, "atol")))
     handles = check_handles(handles, rig.n_spheres)
     ids = _check_ids(vertex_ids, rig.rest_vertices.shape[0])
     invalid = ids[~np.asarray(rig.valid)[ids]]
@@ -218,7 +227,7 @@ def fit_handles(
     )
     if optimiser is None:
         optimiser = default_solver("least_squares", dtype, rtol, atol)
-    y, pose, images, rms, loss, result, stats = _solve(problem, optimiser, y0,
-                                                       int(max_steps), bool(throw))
+    y, pose, images, rms, loss, result, stats = _solve(problem, optimiser, y0, max_steps,
+                                                       bool(throw))
     return HandleFitResult(targets=y, pose=pose, vertices=images, rms=rms, loss=loss,
                            result=result, num_steps=stats["num_steps"], stats=stats)

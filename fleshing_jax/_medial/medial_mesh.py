@@ -2,12 +2,16 @@
 
 from __future__ import annotations
 
+import hashlib
+
 import equinox as eqx
 import jax
 import numpy as np
 import trimesh
+from jaxtyping import ArrayLike
+from scipy.spatial import cKDTree
 
-from .._checks import is_concrete
+from .._checks import check_finite_points, is_concrete
 from .envelope import envelope_arrays, mesh_volume
 
 
@@ -15,6 +19,18 @@ def face_edges(faces) -> np.ndarray:
     """The three edges of every face, sorted within each row: `(3F, 2)` int array."""
     faces = np.asarray(faces).reshape(-1, 3)
     return np.sort(np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [0, 2]]]), axis=1)
+
+
+def _float32_precision(x: np.ndarray) -> np.ndarray:
+    """`x` rounded to a 24-bit significand, as (significand, exponent) integer pairs: equal for
+    a float64 array and its float32 cast, at any magnitude (a float32 cast overflows)."""
+    significand, exponent = np.frexp(x)
+    return np.stack([np.round(significand * 2.0**24).astype(np.int64), exponent], -1)
+
+
+def _rows(indices: np.ndarray) -> np.ndarray:
+    """Index tuples in a canonical order (sorted rows, duplicates dropped)."""
+    return np.unique(indices, axis=0) if len(indices) else indices
 
 
 def _check(centers, radii, edges, faces):
@@ -71,7 +87,13 @@ class MedialMesh(eqx.Module):
         def arr(x, kind):
             if isinstance(x, jax.Array):
                 return x
-            x = np.asarray(x)
+            try:
+                x = np.asarray(x)
+            except (TypeError, ValueError) as error:
+                raise TypeError(f"MedialMesh arrays must be numbers, got {error}") from None
+            if x.dtype.kind not in "iuf" and not (kind == "int" and x.size == 0):
+                # Complex numbers would lose their imaginary part, strings be parsed.
+                raise TypeError(f"MedialMesh arrays must be real numbers, got dtype {x.dtype}")
             if kind == "int":
                 if x.size == 0:
                     return x.astype(np.int64)
@@ -126,6 +148,39 @@ class MedialMesh(eqx.Module):
         at `resolution` (within 0.2 % at the default; see `envelope`)."""
         vertices, faces = envelope_arrays(*self.numpy(), resolution=resolution)
         return mesh_volume(vertices, faces)
+
+    def fingerprint(self) -> str:
+        """A digest of the spheres and of the topology (edges and faces as sets of sphere
+        index tuples, so their order and orientation do not matter): what a `MedialPose` and
+        a `MedialRig` compare to tell whether they belong to the same medial mesh. Values are
+        hashed to float32's 24-bit precision (without its range), so that one mesh in float32
+        and in float64 is one mesh."""
+        centers, radii, edges, faces = self.numpy()
+        centers, radii = (_float32_precision(x) for x in (centers, radii))
+        digest = hashlib.blake2b(digest_size=16)
+        for array in (centers, radii, _rows(np.sort(edges, axis=1)),
+                      _rows(np.sort(faces, axis=1))):
+            digest.update(str(array.shape).encode())
+            digest.update(np.ascontiguousarray(array).tobytes())
+        return digest.hexdigest()
+
+    def nearest(self, points: ArrayLike) -> np.ndarray:
+        """The index of the sphere whose centre is nearest to each point (e.g. to choose
+        handles by position).
+
+        **Arguments:** `points`: `(k, 3)` points, or one point `(3,)`; finite real numbers.
+
+        **Returns:** `(k,)` int64 sphere indices (a 0-d array for one point); ties go to the
+        lowest index.
+        """
+        p = np.asarray(check_finite_points(points, "points"))
+        centers = np.asarray(self.centers, np.float64)
+        if len(centers) == 0:
+            raise ValueError("the medial mesh has no sphere to be nearest to")
+        single = p.ndim == 1
+        _, index = cKDTree(centers).query(p.reshape(-1, 3))
+        index = np.asarray(index, np.int64)
+        return index.reshape(()) if single else index
 
     def __repr__(self):
         return (f"MedialMesh(spheres={self.centers.shape[0]}, edges={self.edges.shape[0]}, "

@@ -9,9 +9,24 @@ from __future__ import annotations
 
 import equinox as eqx
 import jax.numpy as jnp
-from jaxtyping import Array, Float
+import numpy as np
+from jaxtyping import Array, ArrayLike, Float
 
+from .._checks import as_float_array, is_concrete
 from .medial_mesh import MedialMesh
+
+ROTATION_TOLERANCE = 1e-4  # of |RᵀR − I| (max entry), so that float32 rotations pass
+
+
+def not_rotations(rotations) -> np.ndarray:
+    """Positions of the concrete `(h, 3, 3)` matrices that are not rotations: not finite, not
+    orthonormal to `ROTATION_TOLERANCE`, or of determinant ≤ 0 (reflections)."""
+    r = np.asarray(rotations, np.float64)
+    with np.errstate(invalid="ignore", over="ignore"):
+        error = np.abs(np.einsum("hba,hbc->hac", r, r) - np.eye(3)).max(axis=(1, 2))
+        det = np.linalg.det(np.where(np.isfinite(r), r, 0.0))
+    good = np.isfinite(r).all(axis=(1, 2)) & (error <= ROTATION_TOLERANCE) & (det > 0)
+    return np.flatnonzero(~good)
 
 
 class MedialPose(eqx.Module):
@@ -28,6 +43,14 @@ class MedialPose(eqx.Module):
     centers: Float[Array, "n 3"]
     rotations: Float[Array, "n 3 3"]
 
+    def __init__(self, medial: MedialMesh, centers: ArrayLike, rotations: ArrayLike):
+        if not isinstance(medial, MedialMesh):
+            raise TypeError(f"MedialPose `medial` must be a MedialMesh, got "
+                            f"{type(medial).__name__}")
+        self.medial = medial
+        self.centers = as_float_array(centers, "centers")
+        self.rotations = as_float_array(rotations, "rotations")
+
     def __check_init__(self):
         n = self.medial.centers.shape[0]
         if self.centers.shape != (n, 3):
@@ -36,6 +59,18 @@ class MedialPose(eqx.Module):
         if self.rotations.shape != (n, 3, 3):
             raise ValueError(f"MedialPose rotations must have shape ({n}, 3, 3), got "
                              f"{self.rotations.shape}")
+        # Values are checked where known (outside `jit`): a pose with a NaN centre or a
+        # matrix that is not a rotation skins to silently wrong vertices.
+        if is_concrete(self.centers) and not np.isfinite(np.asarray(self.centers)).all():
+            bad = np.flatnonzero(~np.isfinite(np.asarray(self.centers)).all(axis=1))
+            raise ValueError(f"MedialPose centers must be finite; spheres {bad.tolist()[:10]} "
+                             "are not")
+        if is_concrete(self.rotations):
+            bad = not_rotations(self.rotations)
+            if bad.size:
+                raise ValueError(f"MedialPose rotations must be rotation matrices (finite, "
+                                 f"orthonormal to {ROTATION_TOLERANCE}, det +1); spheres "
+                                 f"{bad.tolist()[:10]} are not")
 
     @classmethod
     def rest(cls, medial: MedialMesh) -> MedialPose:

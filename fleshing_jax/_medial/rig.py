@@ -15,6 +15,11 @@ footprint sphere of its nearest primitive (`footprint.py`). Our own choices:
   the envelope (default: the diagonal of the envelope's bounding box), are flagged invalid
   (`valid=False`, not an error); `pose` returns them at their rest position (non-finite
   coordinates as 0), so outputs are always finite.
+- **Seams.** Coincident vertices (the copies a mesh read with `process=False` keeps at
+  texture and normal seams, or an unwelded STL-like mesh) are welded by position (`weld`):
+  bound, corrected and posed as one point, whose image every copy gets. The caller's vertex
+  count and order are kept (`rest_vertices`, `valid` and the pose's output are per vertex as
+  given); the arrays of the binding are per welded point.
 - **Implicit correction** (`implicit.py`) works for every method (Vaillant et al. 2013 ran it
   on top of dual-quaternion skinning); the baselines' comparisons use `implicit=False`. Its
   contact test only sees each vertex's candidate primitives (the nearest at rest), so two
@@ -39,6 +44,7 @@ import numpy as np
 from jaxtyping import Array, ArrayLike, Bool, Float, Int
 from scipy import sparse
 
+from .._checks import check_number, is_concrete
 from .._mesh.volume import triangulate
 from .._numerics import cast_floats
 from .footprint import bind
@@ -47,20 +53,30 @@ from .medial_mesh import MedialMesh
 from .pose import MedialPose
 from .quaternions import matrix_from_quaternion
 from .skin import blend_quaternion, dqs_vertex, lbs_vertex, medial_vertex, sphere_motions
+from .weld import weld
 
 METHODS = ("medial", "lbs", "dqs")
 RING = 8  # neighbours per vertex in the relaxation's one-ring table
 
 
+def check_method(method) -> None:
+    """Raises `ValueError` unless `method` is one of `METHODS`."""
+    if not isinstance(method, str) or method not in METHODS:
+        raise ValueError(f"`method` must be one of {', '.join(map(repr, METHODS))}, got "
+                         f"{method!r}")
+
+
 def _check_vertices(vertices) -> np.ndarray:
+    if vertices is None or isinstance(vertices, str | bytes):
+        raise TypeError(f"`vertices` must be an (n, 3) array of real numbers, got {vertices!r}")
     try:
         v = np.asarray(vertices)
     except (TypeError, ValueError) as error:
-        raise ValueError(f"`vertices` must be an (n, 3) array of floats ({error})") from None
-    if v.dtype == object or not (np.issubdtype(v.dtype, np.floating)
-                                 or np.issubdtype(v.dtype, np.integer)):
-        raise ValueError(f"`vertices` must be an (n, 3) array of real numbers, got dtype "
-                         f"{v.dtype}")
+        raise TypeError(f"`vertices` must be an (n, 3) array of real numbers ({error})") from None
+    if v.dtype.kind not in "iuf":
+        # Complex numbers would lose their imaginary part, strings be parsed.
+        raise TypeError(f"`vertices` must be an (n, 3) array of real numbers, got dtype "
+                        f"{v.dtype}")
     if v.ndim != 2 or v.shape[1] != 3 or v.shape[0] == 0:
         raise ValueError(f"`vertices` must have shape (n, 3) with n >= 1, got {v.shape}")
     return v.astype(np.float64)
@@ -77,6 +93,24 @@ def _check_faces(faces, n) -> np.ndarray:
         raise ValueError(f"`faces` must index vertices in [0, {n}), got [{f.min()}, "
                          f"{f.max()}]")
     return f
+
+
+# Bounds of the rig's options: where they mean something, and the Newton steps and
+# relaxation rounds are unrolled when the pose is traced (200 Newton steps took 56 s and
+# 2.3 GB to compile).
+INTEGER_OPTIONS = {"smoothing": (0, 1000), "slots": (1, 16), "field_cones": (1, 16),
+                   "field_slabs": (0, 8), "newton_steps": (0, 8), "relax_iterations": (0, 8)}
+REAL_OPTIONS = {"blend": 1.0, "relax_step": 1.0, "contact_angle": 180.0}  # (0, bound]
+
+
+def _check_options(max_distance, **options) -> dict:
+    checked = {name: check_number(options[name], name, low, high, integer=True)
+               for name, (low, high) in INTEGER_OPTIONS.items()}
+    checked |= {name: check_number(options[name], name, 0, high, above=True)
+                for name, high in REAL_OPTIONS.items()}
+    checked["max_distance"] = None if max_distance is None else check_number(
+        max_distance, "max_distance", 0, float(np.finfo(np.float64).max), above=True)
+    return checked
 
 
 def _one_ring(faces, n, valid):
@@ -158,14 +192,18 @@ class MedialRig(eqx.Module):
       to the exact posed envelope (99th percentile 0.85e-3 / 1.4e-3 of the diagonal with one,
       0.91e-3 / 1.5e-3 with two), for a sixth of a frame's time.
     - `max_distance`: vertices farther than this from the envelope are invalid (default: the
-      envelope's bounding-box diagonal).
+      envelope's bounding-box diagonal; finite, > 0).
     - `blend`: width of the implicit field's smooth union, relative to each vertex's footprint
-      radius (default 0.1).
+      radius (default 0.1, in (0, 1]).
     - `newton_steps` (1), `relax_iterations` (1), `relax_step` (0.5), `contact_angle` (55°):
       the implicit correction's fixed iteration counts and thresholds. One Newton step, then
       the relaxation's projection: a second step changed none of the volumes of
       `benchmarks/medial_deform.py` in the digits shown and moved the 100k-vertex frame's
-      vertices by at most 2.4e-7 (float32), for a third of the correction's time.
+      vertices by at most 2.4e-7 (float32), for a third of the correction's time. Bounds
+      (checked before binding, `TypeError`/`ValueError` naming the option): `newton_steps`
+      and `relax_iterations` in [0, 8] (unrolled in the compiled pose), `relax_step` in
+      (0, 1], `contact_angle` in (0, 180], `smoothing` in [0, 1000], `slots`, `field_cones`
+      in [1, 16], `field_slabs` in [0, 8].
 
     Binding is NumPy/SciPy, in blocks of points (`footprint.bind`; 30,722 capsule vertices
     on medial meshes fitted by `medial_mesh`'s `refine`, idle 2-core machine: 1.7 s on 200
@@ -177,6 +215,9 @@ class MedialRig(eqx.Module):
     """
 
     rest_vertices: Float[Array, "n 3"]
+    valid: Bool[Array, " n"]
+    welded: Int[Array, " n"]
+    points: Float[Array, "m 3"]
     rest_centers: Float[Array, "s 3"]
     radii: Float[Array, " s"]
     spheres: Int[Array, "n 3"]
@@ -184,11 +225,11 @@ class MedialRig(eqx.Module):
     offset: Float[Array, "n 3"]
     rotation_spheres: Int[Array, "n k"]
     rotation_weights: Float[Array, "n k"]
-    valid: Bool[Array, " n"]
     cones: Int[Array, "c 2"]
     medial_faces: Int[Array, "f 3"]
     correction: Correction
     faces: Int[Array, "F 3"] | None
+    medial_key: np.ndarray
     n_spheres: int = eqx.field(static=True)
     newton_steps: int = eqx.field(static=True)
     relax_iterations: int = eqx.field(static=True)
@@ -213,54 +254,62 @@ class MedialRig(eqx.Module):
         contact_angle: float = 55.0,
     ):
         if not isinstance(medial, MedialMesh):
-            raise ValueError(f"`medial` must be a MedialMesh, got {type(medial).__name__}")
+            raise TypeError(f"`medial` must be a MedialMesh, got {type(medial).__name__}")
         centers, radii, edges, mfaces = medial.numpy()
         if len(centers) == 0:
             raise ValueError("`medial` must have at least one sphere, got none")
         v = _check_vertices(vertices)
         n = len(v)
         f = None if faces is None else _check_faces(faces, n)
-        for name, value, low in (("smoothing", smoothing, 0), ("slots", slots, 1),
-                                 ("field_cones", field_cones, 1), ("field_slabs", field_slabs, 0),
-                                 ("newton_steps", newton_steps, 0),
-                                 ("relax_iterations", relax_iterations, 0)):
-            if not isinstance(value, int | np.integer) or value < low:
-                raise ValueError(f"`{name}` must be an integer >= {low}, got {value!r}")
-        if not blend > 0:
-            raise ValueError(f"`blend` must be > 0, got {blend!r}")
-        if max_distance is not None and not max_distance > 0:
-            raise ValueError(f"`max_distance` must be > 0, got {max_distance!r}")
+        options = _check_options(smoothing=smoothing, slots=slots, field_cones=field_cones,
+                                 field_slabs=field_slabs, newton_steps=newton_steps,
+                                 relax_iterations=relax_iterations, blend=blend,
+                                 relax_step=relax_step, contact_angle=contact_angle,
+                                 max_distance=max_distance)
 
-        b = bind(v, centers, radii, edges, mfaces, field_cones=field_cones,
-                 field_slabs=field_slabs, max_distance=max_distance, blend=blend)
-        ring = None if f is None or len(f) == 0 else _one_ring(f, n, b.valid)
-        idx, weights = _rotation_weights(b.spheres, b.beta, len(centers), ring, smoothing,
-                                         slots)
-        rest = np.where(np.isfinite(v), v, 0.0)
+        points, welded = weld(v)
+        m = len(points)
+        b = bind(points, centers, radii, edges, mfaces, field_cones=options["field_cones"],
+                 field_slabs=options["field_slabs"], max_distance=options["max_distance"],
+                 blend=options["blend"])
+        ring = None if f is None or len(f) == 0 else _one_ring(welded[f], m, b.valid)
+        idx, weights = _rotation_weights(b.spheres, b.beta, len(centers), ring,
+                                         options["smoothing"], options["slots"])
+        rest = np.where(np.isfinite(points), points, 0.0)
         if ring is None:
             table = table_weights = laplacian = None
         else:
-            table, table_weights = _ring_table(ring[0], ring[1], n, RING)
+            table, table_weights = _ring_table(ring[0], ring[1], m, RING)
             laplacian = rest - np.einsum("nk,nkd->nd", table_weights, rest[table])
 
+        # Converted on the host and put on the device as they are: `jnp.asarray` with a
+        # dtype compiles a conversion program per shape (half a second of a small rig).
         def f_(x):
-            return None if x is None else jnp.asarray(x)
+            return None if x is None else jax.device_put(np.asarray(x))
 
         def i_(x):
-            return None if x is None else jnp.asarray(x, jnp.int32)
+            return None if x is None else jax.device_put(np.asarray(x, np.int32))
 
-        self.rest_vertices, self.rest_centers, self.radii = f_(rest), f_(centers), f_(radii)
+        self.rest_vertices = f_(np.where(np.isfinite(v), v, 0.0))
+        self.valid = jax.device_put(b.valid[welded] & np.isfinite(v).all(axis=1))
+        self.welded, self.points = i_(welded), f_(rest)
+        self.rest_centers, self.radii = f_(centers), f_(radii)
         self.spheres, self.beta, self.offset = i_(b.spheres), f_(b.beta), f_(b.offset)
         self.rotation_spheres, self.rotation_weights = i_(idx), f_(weights)
-        self.valid = jnp.asarray(b.valid)
         self.cones, self.medial_faces = i_(b.cones), i_(mfaces)
         self.correction = Correction(i_(b.field_cones), i_(b.edge_cones), i_(b.field_slabs),
                                      i_(b.edge_slots), f_(b.iso), f_(b.width), i_(table),
                                      f_(table_weights), f_(laplacian))
         self.faces = i_(f)
+        self.medial_key = np.frombuffer(bytes.fromhex(medial.fingerprint()), np.uint8).copy()
         self.n_spheres = len(centers)
-        self.newton_steps, self.relax_iterations = int(newton_steps), int(relax_iterations)
-        self.relax_step, self.contact_angle = float(relax_step), float(contact_angle)
+        self.newton_steps = options["newton_steps"]
+        self.relax_iterations = options["relax_iterations"]
+        self.relax_step, self.contact_angle = options["relax_step"], options["contact_angle"]
+
+    def fingerprint(self) -> str:
+        """The `MedialMesh.fingerprint` of the medial mesh the rig was bound to."""
+        return bytes(np.asarray(self.medial_key)).hex()
 
     # Identity hash and equality (not equinox's, over the array leaves, which cannot be
     # hashed): so that `jax.jit(rig.pose)` works, with the rig's arrays as constants.
@@ -290,16 +339,15 @@ class MedialRig(eqx.Module):
         **Returns:** `(vertices (n, 3), valid (n,))` in the dtype of `posed.centers`; invalid
         vertices at their rest position.
         """
-        if method not in METHODS:
-            raise ValueError(f"`method` must be one of {', '.join(map(repr, METHODS))}, got "
-                             f"{method!r}")
+        check_method(method)
         if not isinstance(posed, MedialPose):
-            raise ValueError(f"`posed` must be a MedialPose, got {type(posed).__name__}")
+            raise TypeError(f"`posed` must be a MedialPose, got {type(posed).__name__}")
         if posed.centers.shape[0] != self.n_spheres:
             raise ValueError(f"`posed` must be a pose of the rig's medial mesh "
                              f"({self.n_spheres} spheres), got {posed.centers.shape[0]}")
-        if not jnp.issubdtype(posed.centers.dtype, jnp.floating):
-            raise ValueError(f"`posed.centers` must be floating, got {posed.centers.dtype}")
+        if is_concrete(posed.medial) and posed.medial.fingerprint() != self.fingerprint():
+            raise ValueError("`posed` must be a pose of the rig's medial mesh; it is a pose of "
+                             "another one (other spheres or topology)")
         return _pose(self, posed.centers, posed.rotations, method, bool(implicit))
 
 
@@ -308,6 +356,7 @@ def _pose(rig: MedialRig, centers, rotations, method, implicit):
     dtype = centers.dtype
     rig = cast_floats(rig, dtype)
     rotations = rotations.astype(dtype)
+    # The arrays of the welded points (`weld`), then each caller vertex reads its point's.
     quats, translations, dual = sphere_motions(rig.rest_centers, centers, rotations)
     q, w = quats[rig.rotation_spheres], rig.rotation_weights
     if method == "medial":
@@ -315,12 +364,16 @@ def _pose(rig: MedialRig, centers, rotations, method, implicit):
     else:
         k = rig.rotation_spheres
         if method == "lbs":
-            x = jax.vmap(lbs_vertex)(rotations[k], translations[k], w, rig.rest_vertices)
+            x = jax.vmap(lbs_vertex)(rotations[k], translations[k], w, rig.points)
         else:
-            x = jax.vmap(dqs_vertex)(dual[k], w, rig.rest_vertices)
+            x = jax.vmap(dqs_vertex)(dual[k], w, rig.points)
         r = jax.vmap(lambda a, b: matrix_from_quaternion(blend_quaternion(a, b)))(q, w)
     if implicit:
         x, _ = correct(x, r, centers, rig.radii, rig.cones, rig.medial_faces, rig.correction,
                        newton_steps=rig.newton_steps, relax_iterations=rig.relax_iterations,
                        relax_step=rig.relax_step, contact_angle=rig.contact_angle)
-    return jnp.where(rig.valid[:, None], x, rig.rest_vertices), rig.valid
+    # A vertex whose image is not finite (a pose far beyond the dtype's range, a traced pose
+    # that was not checked) is invalid and stays at rest: never a NaN flagged valid.
+    x = x[rig.welded]
+    valid = rig.valid & jnp.all(jnp.isfinite(x), axis=-1)
+    return jnp.where(valid[:, None], x, rig.rest_vertices), valid

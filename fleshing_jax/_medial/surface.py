@@ -11,9 +11,37 @@ faces) without a hierarchy, and trimesh's `contains` needs an optional ray backe
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 import trimesh
 from scipy.spatial import cKDTree
+
+from .weld import weld_faces
+
+MAXIMUM_COORDINATE = 1e100  # volumes are cubes of coordinates: 1e103 overflows float64
+
+
+def check_coordinates(vertices: np.ndarray) -> None:
+    """Raises `ValueError` for a mesh with non-finite vertices or coordinates so large that
+    its areas and volume overflow float64."""
+    if not np.isfinite(vertices).all():
+        bad = int((~np.isfinite(vertices)).any(axis=1).sum())
+        raise ValueError(f"mesh has {bad} non-finite vertices (NaN or infinity)")
+    largest = float(np.abs(vertices).max(initial=0.0))
+    if largest > MAXIMUM_COORDINATE:
+        raise ValueError(f"mesh coordinates reach {largest:.3g}: beyond {MAXIMUM_COORDINATE:g} "
+                         "its volume overflows; scale it down")
+
+
+def _edges(faces):
+    """Directed half-edges, each one's undirected edge, and the edges' counts: in a closed,
+    consistently oriented 2-manifold each undirected edge appears exactly twice, once in each
+    direction."""
+    half = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
+    _, inverse, counts = np.unique(np.sort(half, axis=1), axis=0, return_inverse=True,
+                                   return_counts=True)
+    return half, inverse, counts
 
 
 def closed_mesh_arrays(mesh) -> tuple[np.ndarray, np.ndarray]:
@@ -26,7 +54,8 @@ def closed_mesh_arrays(mesh) -> tuple[np.ndarray, np.ndarray]:
     **Returns:** `(vertices (V, 3) float64, faces (F, 3) int64)`, faces oriented outwards.
 
     **Raises:** `ValueError` naming the problem: non-finite or badly shaped vertices, face
-    indices out of range, boundary edges (open mesh: close it with `fj.cap_holes`),
+    indices out of range, boundary edges (open mesh: close it with `fj.cap_holes`; an
+    unwelded mesh, closed once its coincident vertices are one, is welded with a warning),
     non-manifold edges, inconsistent orientation, no enclosed volume (a flat sheet).
     """
     if isinstance(mesh, trimesh.Trimesh):
@@ -45,22 +74,31 @@ def closed_mesh_arrays(mesh) -> tuple[np.ndarray, np.ndarray]:
     if not np.issubdtype(faces.dtype, np.integer):
         raise ValueError(f"mesh faces must be integers, got dtype {faces.dtype}")
     faces = faces.astype(np.int64)
-    if not np.isfinite(vertices).all():
-        bad = int((~np.isfinite(vertices)).any(axis=1).sum())
-        raise ValueError(f"mesh has {bad} non-finite vertices (NaN or infinity)")
+    check_coordinates(vertices)
     if faces.min() < 0 or faces.max() >= len(vertices):
         raise ValueError(f"mesh face indices must lie in [0, {len(vertices)}), got "
                          f"[{faces.min()}, {faces.max()}]")
-    # Directed half-edges: in a closed, consistently oriented 2-manifold each undirected edge
-    # appears exactly twice, once in each direction.
-    half = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
-    key = np.sort(half, axis=1)
-    _, inverse, counts = np.unique(key, axis=0, return_inverse=True, return_counts=True)
+    half, inverse, counts = _edges(faces)
+    copies = 0
     if (counts == 1).any():
+        # An unwelded mesh (STL, seams kept by `process=False`) looks open: its copies of a
+        # vertex are one point of the surface. Welded, it may be closed: cap_holes would
+        # then add faces over cracks that are not there.
+        points, welded, copies = weld_faces(vertices, faces)
+        if copies:
+            vertices, faces = points, welded
+            half, inverse, counts = _edges(faces)
+    if (counts == 1).any():
+        unwelded = (f" (after welding its {copies} copies of vertices: the mesh is unwelded)"
+                    if copies else "")
         raise ValueError(
-            f"mesh is not closed: {(counts == 1).sum()} boundary edges. Close its holes first, "
-            "e.g. with fj.cap_holes(mesh) (or trimesh's fill_holes)"
+            f"mesh is not closed: {(counts == 1).sum()} boundary edges{unwelded}. Close its "
+            "holes first, e.g. with fj.cap_holes(mesh) (or trimesh's fill_holes)"
+            + (" on the welded mesh (mesh.merge_vertices())" if copies else "")
         )
+    if copies:
+        warnings.warn(f"mesh is unwelded: {copies} vertices are copies of others (seams); "
+                      "welded by position, it is closed", stacklevel=3)
     if (counts > 2).any():
         raise ValueError(f"mesh has {(counts > 2).sum()} non-manifold edges (shared by more "
                          "than two faces)")

@@ -20,6 +20,8 @@ def load_mesh(path: str | os.PathLike):
     when `path` does not exist, `ValueError` when it holds no mesh or points.
     """
     path = Path(path)
+    if path.is_dir():
+        raise ValueError(f"{path}: is a folder, not a mesh file")
     if not path.is_file():
         raise FileNotFoundError(f"{path}: no such file")
     obj = path.suffix.lower() == ".obj"
@@ -28,7 +30,10 @@ def load_mesh(path: str | os.PathLike):
         if obj and isinstance(loaded, trimesh.Trimesh):
             loaded = _obj_in_file_order(path, loaded)
     except Exception as error:  # trimesh raises many kinds for unreadable files
-        raise ValueError(f"{path}: not a mesh trimesh can read ({error})") from error
+        # An optional module trimesh reaches for on unreadable bytes (e.g. its text-encoding
+        # guess) says nothing about the file: name the file's content instead.
+        why = "unrecognised content" if isinstance(error, ImportError) else error
+        raise ValueError(f"{path}: not a mesh trimesh can read ({why})") from error
     if isinstance(loaded, trimesh.Scene):
         geometries = [g for g in loaded.geometry.values() if isinstance(g, trimesh.Trimesh)]
         if not geometries:
