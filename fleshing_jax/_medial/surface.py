@@ -11,9 +11,13 @@ faces) without a hierarchy, and trimesh's `contains` needs an optional ray backe
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 import trimesh
 from scipy.spatial import cKDTree
+
+from .shells import orient_shells
 
 
 def closed_mesh_arrays(mesh) -> tuple[np.ndarray, np.ndarray]:
@@ -23,11 +27,15 @@ def closed_mesh_arrays(mesh) -> tuple[np.ndarray, np.ndarray]:
 
     - `mesh`: a `trimesh.Trimesh` or a pair `(vertices (V, 3), faces (F, 3) int)`.
 
-    **Returns:** `(vertices (V, 3) float64, faces (F, 3) int64)`, faces oriented outwards.
+    **Returns:** `(vertices (V, 3) float64, faces (F, 3) int64)`, faces oriented outwards:
+    vertices in no face dropped (with a warning giving their count), and shells (face-connected
+    components) that face into their volume flipped (with a warning naming them; see
+    `shells.orient_shells`).
 
     **Raises:** `ValueError` naming the problem: non-finite or badly shaped vertices, face
     indices out of range, boundary edges (open mesh: close it with `fj.cap_holes`),
-    non-manifold edges, inconsistent orientation, no enclosed volume (a flat sheet).
+    non-manifold edges, inconsistent orientation, shells that cross each other (a
+    self-intersecting mesh), no enclosed volume (a flat sheet).
     """
     if isinstance(mesh, trimesh.Trimesh):
         vertices, faces = mesh.vertices, mesh.faces
@@ -51,6 +59,16 @@ def closed_mesh_arrays(mesh) -> tuple[np.ndarray, np.ndarray]:
     if faces.min() < 0 or faces.max() >= len(vertices):
         raise ValueError(f"mesh face indices must lie in [0, {len(vertices)}), got "
                          f"[{faces.min()}, {faces.max()}]")
+    used = np.zeros(len(vertices), bool)
+    used[faces.reshape(-1)] = True
+    if not used.all():
+        # An unused vertex is no part of the surface, but it would stretch the bounding box
+        # that scales everything (a far one took the centres out of the shape, radii × 5).
+        warnings.warn(f"mesh has {(~used).sum()} vertices in no face: dropped", stacklevel=3)
+        faces = (np.cumsum(used) - 1)[faces]
+        vertices = vertices[used]
+        if len(vertices) < 4:
+            raise ValueError(f"mesh faces must use at least 4 vertices, got {len(vertices)}")
     # Directed half-edges: in a closed, consistently oriented 2-manifold each undirected edge
     # appears exactly twice, once in each direction.
     half = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
@@ -68,6 +86,10 @@ def closed_mesh_arrays(mesh) -> tuple[np.ndarray, np.ndarray]:
     if (np.bincount(inverse.reshape(-1), weights=forward) != 1).any():
         raise ValueError("mesh faces are not consistently oriented (fix its winding, e.g. "
                          "with trimesh.repair.fix_winding)")
+    faces, flipped = orient_shells(vertices, faces)
+    if flipped:
+        warnings.warn(f"mesh shells (face-connected components) {flipped} were inside out "
+                      "(facing into their volume): flipped", stacklevel=3)
     diagonal = float(np.linalg.norm(np.ptp(vertices, axis=0)))
     a, b, c = (vertices[faces[:, k]] for k in range(3))
     volume = float(np.einsum("ij,ij->i", a, np.cross(b, c)).sum() / 6)
