@@ -51,13 +51,17 @@ def join_pieces(centers, edges, volume) -> np.ndarray:
     tree = cKDTree(centers)
     while True:
         count, piece = components(n, edges)
-        # Pieces of one volume that must still be joined.
-        per_volume = np.unique(np.stack([volume, piece], 1), axis=0)[:, 0]
-        if not (np.bincount(per_volume) > 1).any():
+        size = np.bincount(piece, minlength=count)
+        # The largest piece of each volume stays; every other piece links to its nearest
+        # piece of the same volume.
+        order = np.lexsort((-size[piece], volume))
+        main = np.zeros(count, bool)
+        main[piece[order[np.r_[True, volume[order][1:] != volume[order][:-1]]]]] = True
+        todo = np.flatnonzero(~main[piece])
+        if not len(todo):
             return edges
         k = 8
         nearest = np.full(n, -1)
-        todo = np.arange(n)
         while len(todo):
             kk = min(k, n)
             _, idx = tree.query(centers[todo], k=kk)
@@ -65,13 +69,15 @@ def join_pieces(centers, edges, volume) -> np.ndarray:
             other = (piece[idx] != piece[todo, None]) & (volume[idx] == volume[todo, None])
             hit = other.any(axis=1)
             nearest[todo[hit]] = idx[hit, np.argmax(other[hit], axis=1)]
-            # A sphere whose k nearest are all in its piece (or another volume) looks further,
-            # unless k already spans every sphere.
-            todo = todo[~hit] if kk < n else todo[:0]
+            # The spheres of pieces with no link yet look further (a piece deep inside others
+            # of its volume: few), unless k already spans every sphere.
+            linked = np.zeros(count, bool)
+            linked[piece[todo[hit]]] = True
+            todo = todo[~linked[piece[todo]]] if kk < n else todo[:0]
             k *= 4
         ok = np.flatnonzero(nearest >= 0)
         gap = np.linalg.norm(centers[ok] - centers[nearest[ok]], axis=1)
-        # Each piece's closest link to another piece of its volume.
+        # Each piece's closest link found.
         order = np.lexsort((gap, piece[ok]))
         first = order[np.r_[True, piece[ok][order][1:] != piece[ok][order][:-1]]]
         new = np.sort(np.stack([ok[first], nearest[ok[first]]], 1), axis=1)
