@@ -92,6 +92,21 @@ def test_join_pieces_links_the_nearest_pieces_of_one_volume_only():
     assert components(3, lone)[0] == 1 and len(lone) == 2
 
 
+def test_join_pieces_links_inside_the_shape_only():
+    """Two legs side by side (x = 0 and 0.3) hanging from a body (y = 1): a leg's piece
+    joins the body, not the nearer other leg across the gap outside."""
+    centers = np.array([[0, 0, 0], [0, 0.4, 0], [0.3, 0, 0], [0.3, 0.4, 0], [0, 1, 0],
+                        [0.3, 1, 0]], float)
+    edges = np.array([[0, 1], [2, 3], [4, 5]])
+    def legs_and_body(p):
+        return (np.abs(p[:, 0]) < 0.05) | (np.abs(p[:, 0] - 0.3) < 0.05) | (p[:, 1] > 0.8)
+
+    joined = join_pieces(centers, edges, np.zeros(6, int), inside=legs_and_body)
+    assert {tuple(e) for e in joined.tolist()} == {(0, 1), (2, 3), (4, 5), (1, 4), (3, 5)}
+    free = join_pieces(centers, edges, np.zeros(6, int))  # without `inside`: across the gap
+    assert any(a in (0, 1) and b in (2, 3) for a, b in free.tolist())
+
+
 def test_collapses_never_leave_a_sphere_in_no_edge():
     """Two pieces of three spheres asked down to 2 spheres: each keeps two."""
     centers = np.array([[0, 0, 0], [1, 0, 0], [2, 0, 0], [5, 0, 0], [6, 0, 0], [7, 0, 0]],

@@ -42,9 +42,11 @@ def volumes(face_shell, shell_count: int, contact_faces) -> tuple[int, np.ndarra
     return count, shell_volume[touched[:, 0]]
 
 
-def join_pieces(centers, edges, volume) -> np.ndarray:
+def join_pieces(centers, edges, volume, inside=None) -> np.ndarray:
     """Edges `(e', 2)`: `edges` plus one edge per join, so that the spheres of each volume
-    (`volume (n,)` labels) form one connected graph (see the module's notes)."""
+    (`volume (n,)` labels) form one connected graph (see the module's notes). `inside`:
+    `points (m, 3) → (m,) bool`; when given, a link is made only where its points at a
+    quarter, half and three quarters lie inside (unless no sphere has one)."""
     centers = np.asarray(centers, np.float64)
     n = len(centers)
     edges = np.asarray(edges, np.int64).reshape(-1, 2)
@@ -60,20 +62,31 @@ def join_pieces(centers, edges, volume) -> np.ndarray:
         todo = np.flatnonzero(~main[piece])
         if not len(todo):
             return edges
-        k = 8
+        k, strict = 8, inside is not None
         nearest = np.full(n, -1)
         while len(todo):
             kk = min(k, n)
             _, idx = tree.query(centers[todo], k=kk)
             idx = idx.reshape(len(todo), kk)
             other = (piece[idx] != piece[todo, None]) & (volume[idx] == volume[todo, None])
+            if strict:
+                # Only links inside the shape: the nearest piece may lie in the next leg,
+                # and a cone across the gap would stand outside the surface.
+                row, col = np.nonzero(other)
+                a, b = centers[todo[row]], centers[idx[row, col]]
+                ok = np.ones(len(row), bool)
+                for t in (0.25, 0.5, 0.75):
+                    ok &= inside(a + t * (b - a))
+                other[row[~ok], col[~ok]] = False
             hit = other.any(axis=1)
             nearest[todo[hit]] = idx[hit, np.argmax(other[hit], axis=1)]
             # The spheres of pieces with no link yet look further (a piece deep inside others
             # of its volume: few), unless k already spans every sphere.
             linked = np.zeros(count, bool)
             linked[piece[todo[hit]]] = True
-            todo = todo[~linked[piece[todo]]] if kk < n else todo[:0]
+            todo = todo[~linked[piece[todo]]]
+            if kk == n:  # every sphere seen: the rest link outside the shape, or not at all
+                todo, strict = (todo, False) if strict else (todo[:0], False)
             k *= 4
         ok = np.flatnonzero(nearest >= 0)
         gap = np.linalg.norm(centers[ok] - centers[nearest[ok]], axis=1)

@@ -146,6 +146,7 @@ def initial_medial_axis(query: SurfaceQuery, points, normals, weights, sample_fa
     new = np.full(len(tets), -1, dtype=np.int64)
     new[used] = np.arange(len(used))
     count, volume = volumes(*shells(query.faces)[::-1], sample_faces[tets[used], 0])
-    edges = join_pieces(centre[used], new[edges], volume)
+    edges = join_pieces(centre[used], new[edges], volume,
+                        inside=lambda p: query.query(p, exact=False)[2])
     return InitialAxis(centre[used], radius[used], edges, new[faces], tets[used],
                        points, normals, weights, volume, count)
