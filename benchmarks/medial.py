@@ -3,6 +3,7 @@
     python benchmarks/medial.py               # both tables
     python benchmarks/medial.py --quick       # procedural shapes only, no scaling table
     python benchmarks/medial.py --scaling     # only the scaling table
+    python benchmarks/medial.py --compare OTHER.ma --mesh MESH.obj   # any tool's .ma, our ruler
 
 Prints Markdown tables:
 
@@ -37,6 +38,7 @@ import trimesh
 from fleshing_jax import data
 from fleshing_jax._medial.construct import medial_mesh
 from fleshing_jax._medial.distance import medial_distance
+from fleshing_jax._medial.files import load_medial
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 
@@ -142,14 +144,49 @@ def memory():
         print(f"| {name} | {vertices} | 200 | {elapsed} | {peak} |", flush=True)
 
 
+def compare(path: str, mesh_path: str, seed: int) -> None:
+    """One row of the accuracy table for a `.ma` file made by any tool (Q-MAT, Coverage
+    Axis, ...) of the mesh at `mesh_path`, measured as ours are: `medial_distance(...,
+    seed=1)` both ways, the volume error, `V − E + F`, the widest slab; and the spheres in
+    no edge and the graph's connected components (ours: none, and one per volume)."""
+    from fleshing_jax._medial.connect import components
+
+    mesh = trimesh.load(mesh_path, process=False)
+    if mesh_path.endswith(".obj"):  # seams split vertices in OBJ files: weld them
+        mesh.merge_vertices(merge_tex=True, merge_norm=True)
+    medial = load_medial(path)
+    diagonal = float(np.linalg.norm(np.ptp(mesh.vertices, axis=0)))
+    to_envelope, to_surface = medial_distance(medial, mesh, seed=seed)
+    centers, _, edges, faces = medial.numpy()
+    lone = int((np.bincount(edges.reshape(-1), minlength=len(centers)) == 0).sum())
+    volume = medial.volume() / mesh.volume - 1
+    print("| file | spheres | surface → envelope | envelope → surface | volume error "
+          "| V − E + F | widest slab | spheres in no edge | components |")
+    print("| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |")
+    print(f"| {Path(path).name} | {len(centers)} | {100 * to_envelope:.2f} % | "
+          f"{100 * to_surface:.2f} % | {100 * volume:+.2f} % | "
+          f"{len(centers) - len(edges) + len(faces)} | "
+          f"{100 * _widest_slab(centers, faces, diagonal):.2f} % | {lone} | "
+          f"{components(len(centers), edges)[0]} |")
+
+
 if __name__ == "__main__":
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true")
     parser.add_argument("--memory", action="store_true", help="only the memory table")
     parser.add_argument("--scaling", action="store_true", help="only the scaling table")
+    parser.add_argument("--compare", metavar="FILE.ma",
+                        help="measure a .ma file of --mesh with the same ruler as ours")
+    parser.add_argument("--mesh", help="the mesh the --compare file was made from")
+    parser.add_argument("--seed", type=int, default=1,
+                        help="seed of --compare's surface samples (default 1, as ours)")
     parser.add_argument("--_probe", help=argparse.SUPPRESS)
     args = parser.parse_args()
-    if args._probe:
+    if args.compare:
+        if not args.mesh:
+            parser.error("--compare needs --mesh (the mesh the .ma file was made from)")
+        compare(args.compare, args.mesh, args.seed)
+    elif args._probe:
         _probe(args._probe)
     elif args.memory:
         memory()

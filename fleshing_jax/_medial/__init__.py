@@ -10,9 +10,11 @@ Modules, one concept each. The medial mesh (NumPy/SciPy preprocessing): `surface
 axis: inner Voronoi complex of the samples), `simplify` (Q-MAT's sphere-quadric edge
 collapses), `refine` (the spheres fitted to the surface after the collapses: our own
 addition), `construct` (`medial_mesh`), `medial_mesh` (`MedialMesh`), `primitives`
-(closed-form distances to spheres, cones, slabs and their union), `envelope` (surface nets of
-the union), `distance` (`medial_distance`), `files` (`.ma` files), `figure` (`plot_medial`),
-`rest_spine` (a Fleshing rest spine along the medial graph's longest path).
+(closed-form distances to spheres, cones, slabs and their union), `envelope` (marching
+tetrahedra of the union), `connect` (the pieces of an initial axis joined), `shells` (a
+mesh's shells: nesting, orientation, crossings), `distance` (`medial_distance`), `files`
+(`.ma` files), `figure` (`plot_medial`), `rest_spine` (a Fleshing rest spine along the
+medial graph's longest path).
 The deformation (binding in NumPy, posing in JAX): `footprint` (binding vertices to footprint
 spheres), `pose` (`MedialPose`), `quaternions` (rotations as quaternions and back), `cells`
 and `arap` (`arap_medial`), `skin` (medial / LBS / DQS skins), `implicit` (the

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 from tqdm.auto import tqdm
 
@@ -86,6 +88,15 @@ def medial_mesh(mesh, spheres: int = 200, *, seed: int = 0, samples: int = 20_00
     if len(axis.centers) < spheres:
         raise ValueError(f"the initial medial axis has only {len(axis.centers)} spheres, fewer "
                          f"than the {spheres} asked for: ask for fewer or raise `samples`")
+    present = len(np.unique(axis.volume))
+    if present < axis.volumes:
+        warnings.warn(f"{axis.volumes - present} of the shape's {axis.volumes} volumes hold no "
+                      f"inner Voronoi vertex (too thin for {samples} samples) and get no "
+                      f"sphere: raise `samples`", stacklevel=2)
+    if spheres < 2 * present:
+        raise ValueError(f"spheres must be at least 2 per volume of the shape, so that every "
+                         f"sphere lies in an edge: the mesh bounds {present} volumes, so at "
+                         f"least {2 * present}, got {spheres}")
     quadrics = contact_quadrics(axis)
     bar = tqdm(total=len(axis.centers) - spheres, desc="medial axis", unit="collapse",
                disable=not progress, leave=False)

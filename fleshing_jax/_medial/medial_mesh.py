@@ -133,10 +133,11 @@ class MedialMesh(eqx.Module):
     def envelope(self, resolution: int = 128) -> trimesh.Trimesh:
         """A closed triangle mesh of the union of the spheres, cones and slabs.
 
-        Surface nets on the union's exact signed distance, vertices projected onto the
-        surface (see `fleshing_jax._medial.envelope`). `resolution`: grid cells along the
-        longest side of the union's bounding box; the volume's error is second order in the
-        cell size (about 0.1 % at the default 128 on a capsule).
+        Marching tetrahedra on the union's exact signed distance (closed and manifold),
+        vertices projected onto the surface (see `fleshing_jax._medial.envelope`).
+        `resolution`: grid cells along the longest side of the union's bounding box; the
+        volume's error is second order in the cell size (about 0.1 % at the default 128 on a
+        capsule).
 
         **Returns:** a `trimesh.Trimesh` (built with `process=False`), faces outward.
         """

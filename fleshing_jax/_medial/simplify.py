@@ -52,6 +52,7 @@ import functools
 
 import numpy as np
 
+from .connect import components
 from .primitives import _Cones, _Slabs
 
 
@@ -129,12 +130,35 @@ def _pairs_by_row(rows_a, rows_b, m):
     return _gather(_groups(rows_b, m), rows_a)
 
 
+BUDGET = 500_000  # about the most (sample, cone or slab) pairs `_uncovered` takes at once
+
+
 def _uncovered(spheres, edges, faces, pairs, optimum, samples, points):
     """The farthest that a contact sample of an edge's two spheres lies outside what would
     remain around them after collapsing it: `(e,)`, for edges `pairs (e, 2)` whose merged
     sphere is `optimum (e, 4)`. `samples = (start (n + 1,), ids)`: each sphere's contact
     samples in `points`. What remains: the merged sphere, its cones to the neighbours of
-    both spheres, and the slabs (with their outer edges) of their faces."""
+    both spheres, and the slabs (with their outer edges) of their faces.
+
+    The edges are taken in blocks of about `BUDGET` (sample, primitive) pairs (one edge
+    may exceed it alone): all at once, a sphere-like shape's spheres, each with thousands of
+    samples and dozens of neighbours, took 2.5–6.6 GB (issue 30)."""
+    n = len(spheres)
+    start = samples[0]
+    count = np.diff(start)
+    around = np.bincount(edges.reshape(-1), minlength=n) + np.bincount(faces.reshape(-1),
+                                                                         minlength=n) + 1
+    size = np.cumsum(count[pairs].sum(1) * around[pairs].sum(1))
+    cuts = np.searchsorted(size, np.arange(1, int(size[-1] // BUDGET) + 2) * BUDGET) \
+        if len(size) else np.zeros(0, np.int64)
+    cuts = np.unique(np.r_[0, np.maximum(cuts, 1), len(pairs)].clip(0, len(pairs)))
+    return np.concatenate([np.zeros(0)] + [
+        _uncovered_block(spheres, edges, faces, pairs[a:b], optimum[a:b], samples, points)
+        for a, b in zip(cuts[:-1], cuts[1:]) if b > a])
+
+
+def _uncovered_block(spheres, edges, faces, pairs, optimum, samples, points):
+    """`_uncovered` for one block of edges."""
     n, m = len(spheres), len(pairs)
     both = np.concatenate([edges, edges[:, ::-1]])
     both = both[np.argsort(both[:, 0], kind="stable")]
@@ -242,11 +266,20 @@ def simplify(centers, radii, edges, faces, quadrics, target: int, *, scale: floa
             cost[stale], optimum[stale] = _edge_costs(spheres, A, b, c, edges[stale], k,
                                                       length_weight, scale, stable, hausdorff,
                                                       uncovered)
+        # No collapse leaves a piece of the graph with one sphere (in no edge): the edges of
+        # two-sphere pieces are out of the queue, and a piece of `s` spheres loses at most
+        # `s - 2` in a round (below).
+        _, piece = components(n, edges)
+        spare = np.bincount(piece, minlength=n) - 2
+        queued = np.where(spare[piece[edges[:, 0]]] > 0, cost, np.inf)
         # The head of the queue: the `limit` cheapest edges, in order of cost.
         limit = min(n - target, max(1, int(batch * n)))
-        head = np.argpartition(cost, limit - 1)[:limit] if limit < len(cost) else \
+        head = np.argpartition(queued, limit - 1)[:limit] if limit < len(cost) else \
             np.arange(len(cost))
-        head = head[np.argsort(cost[head], kind="stable")]
+        head = head[np.argsort(queued[head], kind="stable")]
+        head = head[np.isfinite(queued[head])]
+        if not len(head):
+            break
         # Each collapse drops its smaller sphere into the other. A sphere is dropped by its
         # cheapest head edge only, and a sphere that is dropped keeps nothing: the collapses
         # of a round form stars (spikes around one hub all go in one round).
@@ -257,6 +290,11 @@ def simplify(centers, radii, edges, faces, quadrics, target: int, *, scale: floa
         drop, first = np.unique(drop, return_index=True)
         chosen, keep = head[first], keep[first]
         ok = ~np.isin(keep, drop)
+        chosen, keep, drop = chosen[ok], keep[ok], drop[ok]
+        # Within each piece, the cheapest `spare` drops only.
+        order = np.lexsort((cost[chosen], piece[drop]))
+        rank = np.arange(len(order)) - np.searchsorted(piece[drop][order], piece[drop][order])
+        ok = np.sort(order[rank < spare[piece[drop][order]]])
         chosen, keep, drop = chosen[ok], keep[ok], drop[ok]
         hub, count = np.unique(keep, return_counts=True)
         single = np.isin(keep, hub[count == 1])

@@ -17,6 +17,7 @@ import numpy as np
 import trimesh
 from scipy.spatial import cKDTree
 
+from .shells import orient_shells
 from .weld import weld_faces
 
 MAXIMUM_COORDINATE = 1e100  # volumes are cubes of coordinates: 1e103 overflows float64
@@ -51,12 +52,16 @@ def closed_mesh_arrays(mesh) -> tuple[np.ndarray, np.ndarray]:
 
     - `mesh`: a `trimesh.Trimesh` or a pair `(vertices (V, 3), faces (F, 3) int)`.
 
-    **Returns:** `(vertices (V, 3) float64, faces (F, 3) int64)`, faces oriented outwards.
+    **Returns:** `(vertices (V, 3) float64, faces (F, 3) int64)`, faces oriented outwards:
+    vertices in no face dropped (with a warning giving their count), and shells (face-connected
+    components) that face into their volume flipped (with a warning naming them; see
+    `shells.orient_shells`).
 
     **Raises:** `ValueError` naming the problem: non-finite or badly shaped vertices, face
     indices out of range, boundary edges (open mesh: close it with `fj.cap_holes`; an
     unwelded mesh, closed once its coincident vertices are one, is welded with a warning),
-    non-manifold edges, inconsistent orientation, no enclosed volume (a flat sheet).
+    non-manifold edges, inconsistent orientation, shells that cross each other (a
+    self-intersecting mesh), no enclosed volume (a flat sheet).
     """
     if isinstance(mesh, trimesh.Trimesh):
         vertices, faces = mesh.vertices, mesh.faces
@@ -78,6 +83,16 @@ def closed_mesh_arrays(mesh) -> tuple[np.ndarray, np.ndarray]:
     if faces.min() < 0 or faces.max() >= len(vertices):
         raise ValueError(f"mesh face indices must lie in [0, {len(vertices)}), got "
                          f"[{faces.min()}, {faces.max()}]")
+    used = np.zeros(len(vertices), bool)
+    used[faces.reshape(-1)] = True
+    if not used.all():
+        # An unused vertex is no part of the surface, but it would stretch the bounding box
+        # that scales everything (a far one took the centres out of the shape, radii × 5).
+        warnings.warn(f"mesh has {(~used).sum()} vertices in no face: dropped", stacklevel=3)
+        faces = (np.cumsum(used) - 1)[faces]
+        vertices = vertices[used]
+        if len(vertices) < 4:
+            raise ValueError(f"mesh faces must use at least 4 vertices, got {len(vertices)}")
     half, inverse, counts = _edges(faces)
     copies = 0
     if (counts == 1).any():
@@ -106,6 +121,10 @@ def closed_mesh_arrays(mesh) -> tuple[np.ndarray, np.ndarray]:
     if (np.bincount(inverse.reshape(-1), weights=forward) != 1).any():
         raise ValueError("mesh faces are not consistently oriented (fix its winding, e.g. "
                          "with trimesh.repair.fix_winding)")
+    faces, flipped = orient_shells(vertices, faces)
+    if flipped:
+        warnings.warn(f"mesh shells (face-connected components) {flipped} were inside out "
+                      "(facing into their volume): flipped", stacklevel=3)
     diagonal = float(np.linalg.norm(np.ptp(vertices, axis=0)))
     a, b, c = (vertices[faces[:, k]] for k in range(3))
     volume = float(np.einsum("ij,ij->i", a, np.cross(b, c)).sum() / 6)

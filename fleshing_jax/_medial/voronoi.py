@@ -13,6 +13,10 @@ simplification). The Voronoi diagram is taken as the dual of SciPy's Delaunay te
 - Voronoi face = a Delaunay edge, not on the hull, all of whose tetrahedra are kept: a
   convex polygon in the edge's bisector plane, ordered by angle and fanned into triangles
   (the fan's diagonals become edges too, so every face's edges are edges).
+
+Every inside vertex is kept, with or without a kept neighbour, and the pieces of each volume
+are joined into one connected graph (`connect`): in thin parts the inside vertices are
+scattered, and they are the only spheres there.
 """
 
 from __future__ import annotations
@@ -22,6 +26,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import Delaunay
 
+from .connect import join_pieces, volumes
+from .shells import shells
 from .surface import SurfaceQuery
 
 _PAIRS = np.array([(0, 1), (0, 2), (0, 3), (1, 2), (1, 3), (2, 3)])
@@ -41,6 +47,8 @@ class InitialAxis:
     points: np.ndarray
     normals: np.ndarray
     weights: np.ndarray
+    volume: np.ndarray
+    volumes: int
 
 
 def circumcentres(a, b, c, d):
@@ -133,9 +141,12 @@ def initial_medial_axis(query: SurfaceQuery, points, normals, weights, sample_fa
     edges = np.unique(np.sort(np.concatenate(edges), axis=1), axis=0)
     faces = np.unique(np.sort(faces, axis=1), axis=0)
 
-    # Keep the spheres that some edge uses, renumbered.
-    used = np.unique(edges.reshape(-1))
+    # Every kept sphere, renumbered; then the pieces of each volume joined.
+    used = np.flatnonzero(keep)
     new = np.full(len(tets), -1, dtype=np.int64)
     new[used] = np.arange(len(used))
-    return InitialAxis(centre[used], radius[used], new[edges], new[faces], tets[used],
-                       points, normals, weights)
+    count, volume = volumes(*shells(query.faces)[::-1], sample_faces[tets[used], 0])
+    edges = join_pieces(centre[used], new[edges], volume,
+                        inside=lambda p: query.query(p, exact=False)[2])
+    return InitialAxis(centre[used], radius[used], edges, new[faces], tets[used],
+                       points, normals, weights, volume, count)

@@ -1,0 +1,92 @@
+"""The shells of a closed mesh (its face-connected components): nesting, orientation, overlap.
+
+A closed mesh may hold several shells: separate bodies, or a body and the cavities inside
+it. Each must face away from the volume it bounds: a body's shell outwards (positive signed
+volume), a cavity's inwards (negative), i.e. a shell nested in an odd number of others is a
+cavity. The sign of the whole mesh's volume says nothing about one shell: a body turned
+inside out next to a larger one went unnoticed (issue 30: 608 spheres for 30 asked, none
+joined). And two shells that cross each other (two overlapping spheres) bound no volume
+that the inner Voronoi complex can follow.
+
+Nesting is read from generalised winding numbers (Jacobson et al. 2013; the solid angle of
+each triangle by Van Oosterom & Strackee's formula): a vertex of shell `a` is inside shell
+`b` where `b`'s winding number there is ±1. Every vertex of `a` inside `b`: `a` is nested in
+`b`; none: apart; some: they cross. Only pairs of shells whose bounding boxes overlap are
+tested, in chunks of a fixed size. A shell that crosses itself is not detected.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .connect import components
+
+_CHUNK = 2_000_000  # (vertex, triangle) pairs per block of winding numbers
+
+
+def shells(faces) -> tuple[int, np.ndarray]:
+    """The face-connected components of a mesh: `(count, label of each face (F,))`."""
+    faces = np.asarray(faces, np.int64)
+    n = int(faces.max()) + 1
+    count, vertex_label = components(n, np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]]]))
+    # Unused vertices are components of their own: renumber the labels that faces use.
+    used, label = np.unique(vertex_label[faces[:, 0]], return_inverse=True)
+    return len(used), label
+
+
+def winding(points, a, b, c) -> np.ndarray:
+    """Generalised winding numbers `(P,)` of `points (P, 3)` for triangles `a, b, c (T, 3)`
+    (1 inside an outward closed surface, −1 inside an inward one, 0 outside)."""
+    total = np.zeros(len(points))
+    step = max(1, _CHUNK // max(len(a), 1))
+    for start in range(0, len(points), step):
+        p = points[start:start + step, None, :]
+        x, y, z = a[None] - p, b[None] - p, c[None] - p
+        lx, ly, lz = (np.linalg.norm(v, axis=2) for v in (x, y, z))
+        det = np.einsum("pti,pti->pt", x, np.cross(y, z))
+        div = (lx * ly * lz + np.einsum("pti,pti->pt", x, y) * lz
+               + np.einsum("pti,pti->pt", y, z) * lx + np.einsum("pti,pti->pt", z, x) * ly)
+        total[start:start + step] = np.arctan2(det, div).sum(axis=1) / (2 * np.pi)
+    return total
+
+
+def orient_shells(vertices, faces) -> tuple[np.ndarray, list[int]]:
+    """Faces `(F, 3)` with every shell facing away from its volume, and the shells flipped.
+
+    **Raises:** `ValueError` naming two shells that cross each other.
+    """
+    count, label = shells(faces)
+    if count == 1:
+        return faces, []
+    corners = [vertices[faces[:, k]] for k in range(3)]
+    signed = np.einsum("ij,ij->i", corners[0], np.cross(corners[1], corners[2]))
+    volume = np.bincount(label, weights=signed, minlength=count)
+    members = [np.flatnonzero(label == s) for s in range(count)]
+    points = [np.unique(faces[m]) for m in members]
+    lo = np.array([vertices[p].min(axis=0) for p in points])
+    hi = np.array([vertices[p].max(axis=0) for p in points])
+    depth = np.zeros(count, np.int64)
+    for s in range(count):
+        for t in range(count):
+            if s == t or (lo[s] > hi[t]).any() or (hi[s] < lo[t]).any():
+                continue
+            p = vertices[points[s]]
+            near = ((p >= lo[t]) & (p <= hi[t])).all(axis=1)
+            inside = np.zeros(len(p), bool)
+            if near.any():
+                tri = [x[members[t]] for x in corners]
+                inside[near] = np.abs(winding(p[near], *tri)) > 0.5
+            if inside.all():
+                depth[s] += 1
+            elif inside.any():
+                raise ValueError(f"mesh shells {min(s, t)} and {max(s, t)} (face-connected "
+                                 f"components) cross each other: {inside.sum()} of the "
+                                 f"{len(p)} vertices of shell {s} lie inside shell {t}. A "
+                                 "self-intersecting mesh bounds no single volume: merge them "
+                                 "into one closed surface first (e.g. a mesh boolean union)")
+    # A body's shell (nested in an even number of others) encloses positive volume.
+    flip = np.flatnonzero((volume > 0) != (depth % 2 == 0))
+    faces = faces.copy()
+    wrong = np.isin(label, flip)
+    faces[wrong] = faces[wrong][:, ::-1]
+    return faces, flip.tolist()
