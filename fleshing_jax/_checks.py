@@ -196,17 +196,38 @@ def check_finite_points(points: ArrayLike, name: str) -> np.ndarray:
     Raises `TypeError` naming `name` for values that are not real numbers (strings, `None`,
     complex), `ValueError` for another shape or a non-finite value.
     """
-    if points is None or isinstance(points, str | bytes):
-        raise TypeError(f"`{name}` must be an array of real numbers, got {_short(points)}.")
-    try:
-        array = np.asarray(points)
-    except (TypeError, ValueError) as error:
-        raise TypeError(f"`{name}` must be an array of real numbers ({error}).") from None
-    if array.dtype.kind not in "iuf":
-        raise TypeError(f"`{name}` must be real numbers, got dtype {array.dtype}.")
+    array = as_real_array(points, name, "an array")
     if array.shape[-1:] != (3,) or array.ndim not in (1, 2):
         raise ValueError(f"`{name}` must have shape (k, 3) or (3,), got shape {array.shape}.")
     array = array.astype(np.float64)
     if not np.isfinite(array).all():
         raise ValueError(f"`{name}` must be finite (found NaN or inf).")
+    return array
+
+
+def check_readable_file(path, kind: str, limit: int) -> None:
+    """Raises for a `path` that is a folder (`ValueError`), missing (`FileNotFoundError`) or
+    larger than `limit` bytes (`ValueError`), each naming the file and its `kind` (e.g. "a
+    handle file"): the checks on an input file that need no reading."""
+    if path.is_dir():
+        raise ValueError(f"{path}: is a folder, not {kind}")
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: no such file ({kind})")
+    size = path.stat().st_size
+    if size > limit:
+        raise ValueError(f"{path}: {size} bytes, more than {kind} may hold ({limit} bytes)")
+
+
+def as_real_array(value, name: str, expected: str) -> np.ndarray:
+    """`value` as a NumPy array of real numbers (integers or floats), else a `TypeError` naming
+    `name` and the `expected` array (strings would be parsed, complex numbers lose their
+    imaginary part)."""
+    if value is None or isinstance(value, str | bytes):
+        raise TypeError(f"`{name}` must be {expected} of real numbers, got {_short(value)}.")
+    try:
+        array = np.asarray(value)
+    except (TypeError, ValueError) as error:
+        raise TypeError(f"`{name}` must be {expected} of real numbers ({error}).") from None
+    if array.dtype.kind not in "iuf":
+        raise TypeError(f"`{name}` must be {expected} of real numbers, got dtype {array.dtype}.")
     return array

@@ -13,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .._checks import check_readable_file
 from .medial_mesh import MedialMesh, face_edges
 
 
@@ -29,14 +30,7 @@ MAX_FILE_BYTES = 32 * 2**20  # a bound on untrusted files: 191 MB took 61 s and 
 
 def _text(path: Path) -> str:
     """The text of a medial file, after the checks that need no reading."""
-    if path.is_dir():
-        raise ValueError(f"{path}: is a folder, not a medial mesh (.ma) file")
-    if not path.is_file():
-        raise FileNotFoundError(f"{path}: no such medial mesh (.ma) file")
-    size = path.stat().st_size
-    if size > MAX_FILE_BYTES:
-        raise ValueError(f"{path}: {size} bytes, more than a medial mesh file may hold "
-                         f"({MAX_FILE_BYTES} bytes)")
+    check_readable_file(path, "a medial mesh file", MAX_FILE_BYTES)
     try:
         return path.read_text(encoding="utf-8-sig")
     except UnicodeDecodeError as error:

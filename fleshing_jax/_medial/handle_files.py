@@ -62,14 +62,9 @@ def load_handles(path, medial: MedialMesh | None = None):
 
 
 def _read_json(path: Path):
-    if path.is_dir():
-        raise ValueError(f"{path}: is a folder, not a handle file")
-    if not path.is_file():
-        raise FileNotFoundError(f"{path}: no such handle file")
-    size = path.stat().st_size
-    if size > MAX_FILE_BYTES:
-        raise ValueError(f"{path}: {size} bytes, more than a handle file may hold "
-                         f"({MAX_FILE_BYTES} bytes)")
+    from .._checks import check_readable_file  # (here: the help text reads this module, no JAX)
+
+    check_readable_file(path, "a handle file", MAX_FILE_BYTES)
     try:
         with open(path, encoding="utf-8-sig") as file:  # a byte-order mark is harmless
             return json.load(file)

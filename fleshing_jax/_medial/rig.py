@@ -44,7 +44,7 @@ import numpy as np
 from jaxtyping import Array, ArrayLike, Bool, Float, Int
 from scipy import sparse
 
-from .._checks import check_number, is_concrete
+from .._checks import as_real_array, check_number, is_concrete
 from .._mesh.volume import triangulate
 from .._numerics import cast_floats
 from .footprint import bind
@@ -67,16 +67,7 @@ def check_method(method) -> None:
 
 
 def _check_vertices(vertices) -> np.ndarray:
-    if vertices is None or isinstance(vertices, str | bytes):
-        raise TypeError(f"`vertices` must be an (n, 3) array of real numbers, got {vertices!r}")
-    try:
-        v = np.asarray(vertices)
-    except (TypeError, ValueError) as error:
-        raise TypeError(f"`vertices` must be an (n, 3) array of real numbers ({error})") from None
-    if v.dtype.kind not in "iuf":
-        # Complex numbers would lose their imaginary part, strings be parsed.
-        raise TypeError(f"`vertices` must be an (n, 3) array of real numbers, got dtype "
-                        f"{v.dtype}")
+    v = as_real_array(vertices, "vertices", "an (n, 3) array")
     if v.ndim != 2 or v.shape[1] != 3 or v.shape[0] == 0:
         raise ValueError(f"`vertices` must have shape (n, 3) with n >= 1, got {v.shape}")
     return v.astype(np.float64)
