@@ -45,6 +45,7 @@ def _assert_connected(medial, volumes=1, spheres=None):
 # --- connected by construction -------------------------------------------------------------
 
 
+@pytest.mark.slow  # (`python -m pytest -m slow`: kept out of the 10-minute suite)
 @pytest.mark.parametrize("name", ["animal", "spot", "capsule"])
 def test_medial_meshes_are_connected_and_rigged(name):
     mesh = {"animal": lambda: animal(40), "spot": _spot,
@@ -60,6 +61,7 @@ def test_medial_meshes_are_connected_and_rigged(name):
     check_topology(len(centers), edges, np.array([0]))
 
 
+@pytest.mark.slow  # (`python -m pytest -m slow`: kept out of the 10-minute suite)
 def test_thin_animal_limbs_are_joined_into_one_graph():
     """The legs, horns and tail of a coarse animal hold scattered inner Voronoi vertices;
     they are joined, and every limb's tip is near a sphere of the one graph."""

@@ -91,8 +91,11 @@ def continuity(points, valid, edges, map_points, pieces=8):
     return piece.max(axis=1) / piece.mean(axis=1)
 
 
-@pytest.mark.parametrize(
-    "seed, method", [(1, "radial"), (2, "radial"), (2, "normal"), (1, "binormal")]
+@pytest.mark.parametrize(  # one case in the suite, the rest with `python -m pytest -m slow`
+    "seed, method",
+    [(1, "radial")]
+    + [pytest.param(*case, marks=pytest.mark.slow)
+       for case in ((2, "radial"), (2, "normal"), (1, "binormal"))],
 )
 def test_valid_edges_are_never_torn_on_random_wavy_spines(seed, method):
     # Property: random wavy spines (their bends come close to each other), random targets,
@@ -116,6 +119,7 @@ def test_valid_edges_are_never_torn_on_random_wavy_spines(seed, method):
         assert continuity(points, valid, edges, raw).max() > 4.5
 
 
+@pytest.mark.slow  # (`python -m pytest -m slow`: kept out of the 10-minute suite)
 def test_one_point_batched_and_jit_paths_agree_on_the_region():
     source = fj.BSpline(HAIRPIN, degree=3)
     target = fj.Arc(2.0, float(source.length))
@@ -239,6 +243,7 @@ def _spot():
     return trimesh.Trimesh(mesh.vertices, mesh.faces, process=False)
 
 
+@pytest.mark.slow  # (`python -m pytest -m slow`: kept out of the 10-minute suite)
 def test_spot_on_wavy_spines_is_never_torn_and_keeps_its_volume():
     # Wavy rest spines through spot's body (head to rump, along −z), bent onto others: the
     # mesh's edges with two valid ends stay continuous; with a straight rest spine every
