@@ -1,4 +1,5 @@
-"""The batched paths called eagerly: two phases, the global searches compiled only if needed.
+"""The batched paths called eagerly: two phases, the fallbacks compiled only if needed (the
+registration's global search; a pose's sampled test of the valid region, `region`).
 
 Under `jit`, `Registrar.register` and `Poser.pose` carry their global fallback (the
 multi-candidate search for the points that the reach bounds do not certify) inside the

@@ -3,7 +3,8 @@
 Written for one point and batched with `vmap`. Registration depends only on the source spine,
 so `register` runs once per shape and `pose` is the per-frame path: O(1) work per point plus,
 by default, the check that each image projects back where it should (certified for most points
-by lower bounds of the target's reach, `reach`; the global search runs on the others only).
+by lower bounds of the target's reach, `reach`; the valid region's sampled test runs on the others
+only, `region`).
 The batched paths (`Registrar`, `Poser`) run in chunks of points (`_batching.chunks`) on exact
 spines, on whole batches on tabulated ones (single precision, `_spines.table`).
 
@@ -46,7 +47,7 @@ def bend_point(
     registration: Registration, frames: TargetFrames, method: str
 ) -> tuple[Array, Array, Array, Array]:
     """Unbends, transfers and bends one registered point onto the target whose (twisted)
-    `frames` are given, without the global projection check: `(image (3,), valid, s₁, |d₁|)`
+    `frames` are given, without the projection check: `(image (3,), valid, s₁, |d₁|)`
     (the image lies at offset `d₁` from `C₁(s₁)`, in its normal plane). Valid requires `s₁`
     inside the target's search range (its ends continued a quarter turn at most), as the
     registration requires on the source."""
@@ -218,7 +219,7 @@ class Poser(eqx.Module):
         return jnp.where(outside[:, None], moved, images), jnp.where(outside, finite, valid)
 
     def pose_certified(self, registration: Registration) -> tuple[Array, Array, Array]:
-        """`pose` without the global projection check: `(images, valid, pending)`, where the
+        """`pose` without the region's sampled check: `(images, valid, pending)`, where the
         pending points (valid but not certified by the reach bound; none on lines and arcs)
         have their image but are not valid yet, for `eager` to check them."""
         image, _, certified, pending = self._bent_images(registration)
@@ -252,13 +253,13 @@ class Poser(eqx.Module):
         return jax.vmap(image)(bent.arc_length, bent.x, bent.y, kept, points)
 
     def projects(self, registration: Registration) -> Array:
-        """The global projection check of each registered point (n,), bent again."""
+        """The region's sampled check of each registered point's image (n,), bent again."""
         return jax.vmap(self._projects, in_axes=(batch_axes(registration),))(registration)
 
     def _bent_images(self, registration: Registration) -> tuple[Array, Array, Array, Array]:
         """`(images, valid, certified, pending)`: valid before the projection check; certified
         by the reach bound or checked in closed form (or valid, without the check);
-        pending: the valid points that the bound does not certify, for the global search."""
+        pending: the valid points that the bound does not certify, for the sampled test."""
         image, valid, s1, distance = jax.vmap(
             lambda reg: bend_point(reg, self.frames, self.method),
             in_axes=(batch_axes(registration),),
@@ -349,7 +350,8 @@ class Fleshing(eqx.Module):
 
     - `source`, `target`: `AbstractSpine`s (`C0`, `C1`); their lengths may differ.
     - `method`: `"radial"`, `"normal"`, `"binormal"` or `"skinning"` (the uncorrected baseline).
-    - `twist`: scalar global twist in radians, applied to the target frame about `T₁(0)`.
+    - `twist`: scalar global twist in radians about `T₁(0)`, from the source's first normal
+      carried to the target's start (`ends.aligned_twist`).
     - `check_projection`: also require that `M(x)` projects back on `target` at the mapped arc
       length only (the target's valid region: catches spines that come back near themselves).
     - `margin`: a point is valid only if the ball of this radius around it is clear of the
@@ -542,7 +544,7 @@ def prepare_target(
 
 def pose_prepared(registration: Registration, poser: Poser) -> tuple[Array, Array]:
     """`pose` onto a target from `prepare_target` (with the registered points' dtype)."""
-    if is_concrete(registration):  # called eagerly: the global check compiled only if needed
+    if is_concrete(registration):  # called eagerly: the sampled check compiled only if needed
         n = registration.points.shape[0]  # and the batch padded to a bucket size
         return unpad_batch(pose_eagerly(poser, pad_batch(registration, bucket(n))), n)
     return _pose(poser, registration)
