@@ -36,9 +36,9 @@ import numpy as np
 import trimesh
 
 from fleshing_jax import data
-from fleshing_jax._medial.construct import medial_mesh
-from fleshing_jax._medial.distance import medial_distance
-from fleshing_jax._medial.files import load_medial
+from fleshing_jax._medial_axis.construct import medial_mesh
+from fleshing_jax._medial_axis.distance import medial_distance
+from fleshing_jax._medial_axis.files import load_medial
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 
@@ -149,7 +149,7 @@ def compare(path: str, mesh_path: str, seed: int) -> None:
     Axis, ...) of the mesh at `mesh_path`, measured as ours are: `medial_distance(...,
     seed=1)` both ways, the volume error, `V − E + F`, the widest slab; and the spheres in
     no edge and the graph's connected components (ours: none, and one per volume)."""
-    from fleshing_jax._medial.connect import components
+    from fleshing_jax._medial_axis.connect import components
 
     mesh = trimesh.load(mesh_path, process=False)
     if mesh_path.endswith(".obj"):  # seams split vertices in OBJ files: weld them

@@ -20,17 +20,16 @@ from ._fleshing.projection import (
     closest_arc_length as closest_arc_length,
 )
 from ._fleshing.verify import jacobian_determinant as jacobian_determinant
-from ._medial.arap import arap_medial as arap_medial
-from ._medial.construct import medial_mesh as medial_mesh
-from ._medial.deform import deform_medial as deform_medial
-from ._medial.distance import medial_distance as medial_distance
-from ._medial.figure import plot_medial as plot_medial
-from ._medial.files import load_medial as load_medial, save_medial as save_medial
-from ._medial.fit_handles import fit_handles as fit_handles
-from ._medial.medial_mesh import MedialMesh as MedialMesh
-from ._medial.pose import MedialPose as MedialPose
-from ._medial.rest_spine import rest_spine as rest_spine
-from ._medial.rig import MedialRig as MedialRig
+from ._medial_axis.construct import medial_mesh as medial_mesh
+from ._medial_axis.distance import medial_distance as medial_distance
+from ._medial_axis.figure import plot_medial as plot_medial
+from ._medial_axis.files import load_medial as load_medial, save_medial as save_medial
+from ._medial_axis.medial_mesh import MedialMesh as MedialMesh
+from ._medial_deform.arap import arap_medial as arap_medial
+from ._medial_deform.deform import deform_medial as deform_medial
+from ._medial_deform.fit_handles import fit_handles as fit_handles
+from ._medial_deform.pose import MedialPose as MedialPose
+from ._medial_deform.rig import MedialRig as MedialRig
 from ._mesh.deform import deform_mesh as deform_mesh, flesh_chunked as flesh_chunked
 from ._mesh.files import load_mesh as load_mesh, write_mesh_atomic as write_mesh_atomic
 from ._mesh.holes import cap_holes as cap_holes
@@ -48,6 +47,7 @@ from ._mesh.volume import (
     volume as volume,
     volume_change as volume_change,
 )
+from ._skeleton.rest_spine import rest_spine as rest_spine
 from ._spines.analytic import Arc as Arc, Helix as Helix, Line as Line
 from ._spines.bspline import BSpline as BSpline
 from ._spines.files import load_spine as load_spine, save_spine as save_spine

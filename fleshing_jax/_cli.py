@@ -300,7 +300,7 @@ def _deform(args) -> int:
 def _found_rest_spine(mesh, args):
     import trimesh
 
-    from ._medial.rest_spine import rest_spine
+    from ._skeleton.rest_spine import rest_spine
 
     if not (isinstance(mesh, trimesh.Trimesh) and mesh.is_watertight):
         raise ValueError(
@@ -309,7 +309,7 @@ def _found_rest_spine(mesh, args):
         )
     if args.medial is None:
         return rest_spine(mesh, ends=args.ends)
-    from ._medial.files import load_medial
+    from ._medial_axis.files import load_medial
 
     return rest_spine(load_medial(args.medial), ends=args.ends, surface=mesh)
 
@@ -345,9 +345,9 @@ def _print_causes(causes) -> None:
 
 def _medial(args) -> int:
 
-    from ._medial.construct import medial_mesh
-    from ._medial.distance import medial_distance
-    from ._medial.files import check_medial_path, save_medial
+    from ._medial_axis.construct import medial_mesh
+    from ._medial_axis.distance import medial_distance
+    from ._medial_axis.files import check_medial_path, save_medial
     from ._mesh.files import check_output_path, write_mesh_atomic
 
     if not str(args.output).lower().endswith(".ma"):
@@ -401,7 +401,7 @@ def _welded_input(path, cap: bool):
         mesh = welded
     return cap_holes(mesh) if cap else mesh
 def _handles_format() -> str:
-    from ._medial.handle_files import HANDLES_FORMAT
+    from ._medial_deform.handle_files import HANDLES_FORMAT
 
     return HANDLES_FORMAT
 
@@ -410,9 +410,9 @@ def _medial_deform(args) -> int:
     import numpy as np
     import trimesh
 
-    from ._medial.deform import deform_medial
-    from ._medial.files import load_medial
-    from ._medial.handle_files import load_handles
+    from ._medial_axis.files import load_medial
+    from ._medial_deform.deform import deform_medial
+    from ._medial_deform.handle_files import load_handles
     from ._mesh.files import check_output_path, write_mesh_atomic
     from ._mesh.volume import volume
 

@@ -12,9 +12,9 @@ import pytest
 from jax.test_util import check_grads
 
 import fleshing_jax as fj
-from fleshing_jax._medial.arap import arap_energies, fit_rotation
-from fleshing_jax._medial.medial_mesh import face_edges
-from fleshing_jax._medial.quaternions import matrix_from_quaternion, quaternion_from_matrix
+from fleshing_jax._medial_axis.medial_mesh import face_edges
+from fleshing_jax._medial_deform.arap import arap_energies, fit_rotation
+from fleshing_jax._medial_deform.quaternions import matrix_from_quaternion, quaternion_from_matrix
 
 LENGTH = 4.0
 

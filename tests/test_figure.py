@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 import fleshing_jax as fj
-from fleshing_jax._medial.figure import default_up, upright
+from fleshing_jax._medial_axis.figure import default_up, upright
 
 matplotlib.use("Agg")
 

@@ -8,22 +8,22 @@ import os
 import numpy as np
 import pytest
 import trimesh
+from fleshing_jax._medial import construct, primitives, simplify
 
 import fleshing_jax as fj
-from fleshing_jax._medial import construct, primitives, simplify
-from fleshing_jax._medial.construct import medial_mesh
-from fleshing_jax._medial.distance import medial_distance
-from fleshing_jax._medial.files import load_medial, save_medial
-from fleshing_jax._medial.medial_mesh import MedialMesh
-from fleshing_jax._medial.primitives import (
+from fleshing_jax._medial_axis.construct import medial_mesh
+from fleshing_jax._medial_axis.distance import medial_distance
+from fleshing_jax._medial_axis.files import load_medial, save_medial
+from fleshing_jax._medial_axis.medial_mesh import MedialMesh
+from fleshing_jax._medial_axis.primitives import (
     UnionPrimitives,
     cone_distance,
     slab_plane_distance,
     union_closest,
     union_distance,
 )
-from fleshing_jax._medial.refine import _centres_kept_inside, _closest, _weights
-from fleshing_jax._medial.surface import SurfaceQuery
+from fleshing_jax._medial_axis.refine import _centres_kept_inside, _closest, _weights
+from fleshing_jax._medial_axis.surface import SurfaceQuery
 
 SAMPLES = 4000
 

@@ -17,15 +17,15 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 import trimesh
+from fleshing_jax._medial import construct, deform, distance, files
 
 import fleshing_jax as fj
 from fleshing_jax._cli import main
-from fleshing_jax._medial import construct, deform, distance, files
-from fleshing_jax._medial.handle_files import load_handles
-from fleshing_jax._medial.medial_mesh import MedialMesh
-from fleshing_jax._medial.pose import MedialPose
-from fleshing_jax._medial.rig import MedialRig
-from fleshing_jax._medial.surface import closed_mesh_arrays
+from fleshing_jax._medial_axis.medial_mesh import MedialMesh
+from fleshing_jax._medial_axis.surface import closed_mesh_arrays
+from fleshing_jax._medial_deform.handle_files import load_handles
+from fleshing_jax._medial_deform.pose import MedialPose
+from fleshing_jax._medial_deform.rig import MedialRig
 
 SPHERES = 9
 SPOT = Path(__file__).resolve().parents[2] / "shared" / "data" / "spot.obj"

@@ -10,11 +10,11 @@ a sphere) with a chain of cones hanging off it and a lone sphere; 1500 points ar
 import jax.numpy as jnp
 import numpy as np
 import pytest
-
 from fleshing_jax._medial import footprint, primitives
-from fleshing_jax._medial.footprint import _nearest_k, bind, slab_distance
-from fleshing_jax._medial.implicit import cone_table, pack_rows, slab_table, unpack_rows
-from fleshing_jax._medial.primitives import _Cones, _Slabs
+
+from fleshing_jax._medial_axis.primitives import _Cones, _Slabs
+from fleshing_jax._medial_deform.footprint import _nearest_k, bind, slab_distance
+from fleshing_jax._medial_deform.implicit import cone_table, pack_rows, slab_table, unpack_rows
 
 
 def sheet_and_chain():

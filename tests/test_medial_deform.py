@@ -9,7 +9,7 @@ import trimesh
 
 import fleshing_jax as fj
 from fleshing_jax._cli import main
-from fleshing_jax._medial.handle_files import load_handles
+from fleshing_jax._medial_deform.handle_files import load_handles
 
 SPHERES = 9
 

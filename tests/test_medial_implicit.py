@@ -12,10 +12,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from fleshing_jax._medial import implicit
 from jax.test_util import check_grads
 
-from fleshing_jax._medial import implicit
-from fleshing_jax._medial.implicit import (
+from fleshing_jax._medial_axis.medial_mesh import MedialMesh
+from fleshing_jax._medial_deform.implicit import (
     cone_field,
     cone_table,
     correct,
@@ -24,9 +25,8 @@ from fleshing_jax._medial.implicit import (
     slab_table,
     smooth_union,
 )
-from fleshing_jax._medial.medial_mesh import MedialMesh
-from fleshing_jax._medial.pose import MedialPose
-from fleshing_jax._medial.rig import MedialRig
+from fleshing_jax._medial_deform.pose import MedialPose
+from fleshing_jax._medial_deform.rig import MedialRig
 
 CENTERS = np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0.2], [2, 0.5, 0], [3, 0.5, 0.3]])
 RADII = np.array([0.3, 0.4, 0.35, 0.45, 0.3, 0.25])

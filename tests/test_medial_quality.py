@@ -8,17 +8,17 @@ from pathlib import Path
 import numpy as np
 import pytest
 import trimesh
-
 from fleshing_jax._medial import simplify
-from fleshing_jax._medial.animal import animal, animal_medial
-from fleshing_jax._medial.cells import check_topology
-from fleshing_jax._medial.connect import components, join_pieces
-from fleshing_jax._medial.construct import medial_mesh
-from fleshing_jax._medial.distance import medial_distance
-from fleshing_jax._medial.primitives import union_distance
-from fleshing_jax._medial.rig import MedialRig
-from fleshing_jax._medial.shells import orient_shells, winding
-from fleshing_jax._medial.surface import closed_mesh_arrays
+
+from fleshing_jax._medial_axis.animal import animal, animal_medial
+from fleshing_jax._medial_axis.connect import components, join_pieces
+from fleshing_jax._medial_axis.construct import medial_mesh
+from fleshing_jax._medial_axis.distance import medial_distance
+from fleshing_jax._medial_axis.primitives import union_distance
+from fleshing_jax._medial_axis.shells import orient_shells, winding
+from fleshing_jax._medial_axis.surface import closed_mesh_arrays
+from fleshing_jax._medial_deform.cells import check_topology
+from fleshing_jax._medial_deform.rig import MedialRig
 
 DATA = Path(__file__).parents[1].parent / "shared" / "data"
 SAMPLES = 3000

@@ -14,12 +14,12 @@ import trimesh
 from jax.test_util import check_grads
 
 import fleshing_jax as fj
-from fleshing_jax._medial.footprint import segment_footprint, slab_footprint
-from fleshing_jax._medial.implicit import cone_field, cone_table, slab_field, slab_table
-from fleshing_jax._medial.medial_mesh import MedialMesh
-from fleshing_jax._medial.pose import MedialPose
-from fleshing_jax._medial.primitives import union_distance
-from fleshing_jax._medial.rig import METHODS, MedialRig
+from fleshing_jax._medial_axis.medial_mesh import MedialMesh
+from fleshing_jax._medial_axis.primitives import union_distance
+from fleshing_jax._medial_deform.footprint import segment_footprint, slab_footprint
+from fleshing_jax._medial_deform.implicit import cone_field, cone_table, slab_field, slab_table
+from fleshing_jax._medial_deform.pose import MedialPose
+from fleshing_jax._medial_deform.rig import METHODS, MedialRig
 
 RADIUS, LENGTH, SPHERES = 0.5, 4.0, 9
 

@@ -9,8 +9,8 @@ import trimesh
 
 import fleshing_jax as fj
 from fleshing_jax._cli import main
-from fleshing_jax._medial.medial_mesh import MedialMesh
-from fleshing_jax._medial.rest_spine import rest_spine
+from fleshing_jax._medial_axis.medial_mesh import MedialMesh
+from fleshing_jax._skeleton.rest_spine import rest_spine
 
 
 @pytest.fixture(scope="module")
@@ -117,7 +117,7 @@ def test_medial_command(tmp_path, capsys, capsule):
 
 @pytest.fixture(scope="module")
 def spot_medial():
-    from fleshing_jax._medial.construct import medial_mesh
+    from fleshing_jax._medial_axis.construct import medial_mesh
 
     # As `rest_spine` computes it, with fewer spheres (seconds).
     return medial_mesh(fj.data.spot(), 40, refine=0, progress=False)

@@ -16,7 +16,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 if TYPE_CHECKING:  # (not imported: the command line's help reads this module without JAX)
-    from .medial_mesh import MedialMesh
+    from .._medial_axis.medial_mesh import MedialMesh
 
 HANDLES_FORMAT = (
     '{"handles": [i or {"at": [x, y, z]}, ...], "targets": [[x, y, z], ...]} (one target per '

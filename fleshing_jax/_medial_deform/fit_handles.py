@@ -20,6 +20,7 @@ from jaxtyping import Array, ArrayLike, Float
 from .._checks import check_number
 from .._fit.correspondences import weighted_rms
 from .._fit.problem import AbstractFitOutcome, check_cloud, default_solver
+from .._medial_axis.medial_mesh import MedialMesh
 from .arap import (
     ITERATIONS,
     SMOOTHNESS,
@@ -30,7 +31,6 @@ from .arap import (
     solve,
 )
 from .cells import ArapCells
-from .medial_mesh import MedialMesh
 from .pose import MedialPose
 from .rig import MedialRig, check_method
 

@@ -50,9 +50,9 @@ from jax.scipy.linalg import cho_solve
 from jaxtyping import Array, ArrayLike, Float
 
 from .._checks import as_float_array, check_number, is_concrete
+from .._medial_axis.medial_mesh import MedialMesh
 from .._numerics import safe_divide, safe_sqrt
 from .cells import ArapCells, arap_cells
-from .medial_mesh import MedialMesh
 from .pose import ROTATION_TOLERANCE, MedialPose, not_rotations
 from .quaternions import matrix_from_quaternion, quaternion_from_matrix
 
@@ -404,9 +404,9 @@ def arap_medial(
 
     Minimises the ARAP energy of Lan et al. 2017 (eq. 27) over sphere centres and per-cell
     rotations, on one-ring cells with a rotation-smoothness term (our choice: the paper's
-    cone/slab cells leave twist and hinges free; see `fleshing_jax._medial.cells`), by
+    cone/slab cells leave twist and hinges free; see `fleshing_jax._medial_deform.cells`), by
     `iterations` alternations of a centre step and a rotation step (see
-    `fleshing_jax._medial.arap`). Radii are kept.
+    `fleshing_jax._medial_deform.arap`). Radii are kept.
 
     Works under `jax.jit` and `jax.grad` with `targets` and `rotations` traced (the pose is a
     smooth function of them; the medial mesh and `handles` must be concrete: close over them).

@@ -24,7 +24,7 @@ from typing import NamedTuple
 import numpy as np
 from scipy.spatial import cKDTree
 
-from .primitives import _Cones, _Slabs, in_blocks
+from .._medial_axis.primitives import _Cones, _Slabs, in_blocks
 
 CHUNK = 1024  # points per block of the (point, primitive) bound matrix
 

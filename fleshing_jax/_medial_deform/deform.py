@@ -6,8 +6,8 @@ import numpy as np
 import trimesh
 from jaxtyping import ArrayLike
 
+from .._medial_axis.medial_mesh import MedialMesh
 from .arap import ITERATIONS, SMOOTHNESS, _prepare, posed
-from .medial_mesh import MedialMesh
 from .rig import MedialRig, check_method
 
 

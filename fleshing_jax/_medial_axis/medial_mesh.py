@@ -134,7 +134,7 @@ class MedialMesh(eqx.Module):
         """A closed triangle mesh of the union of the spheres, cones and slabs.
 
         Marching tetrahedra on the union's exact signed distance (closed and manifold),
-        vertices projected onto the surface (see `fleshing_jax._medial.envelope`).
+        vertices projected onto the surface (see `fleshing_jax._medial_axis.envelope`).
         `resolution`: grid cells along the longest side of the union's bounding box; the
         volume's error is second order in the cell size (about 0.1 % at the default 128 on a
         capsule).

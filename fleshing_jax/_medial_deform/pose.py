@@ -13,7 +13,7 @@ import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
 from .._checks import as_float_array, is_concrete
-from .medial_mesh import MedialMesh
+from .._medial_axis.medial_mesh import MedialMesh
 
 ROTATION_TOLERANCE = 1e-4  # of |RᵀR − I| (max entry), so that float32 rotations pass
 

@@ -23,8 +23,8 @@ from scipy import sparse
 from scipy.interpolate import BSpline as ScipyBSpline
 from scipy.sparse import csgraph
 
+from .._medial_axis.medial_mesh import MedialMesh
 from .._spines.bspline import BSpline
-from .medial_mesh import MedialMesh
 
 RESAMPLED = 200  # points of the path given to the least-squares fit
 MAX_CONTROL_POINTS = 16
@@ -69,7 +69,7 @@ def rest_spine(
     **Returns:** an `fj.BSpline` (float64). **Raises:** `ValueError` when the medial graph has
     no path of two spheres, or `ends` is not (2, 3) and finite.
     """
-    from .surface import closed_mesh_arrays
+    from .._medial_axis.surface import closed_mesh_arrays
 
     if isinstance(mesh_or_medial, MedialMesh):
         medial = mesh_or_medial
@@ -78,7 +78,7 @@ def rest_spine(
     else:
         if surface is not None:
             raise ValueError("`surface` goes with a `MedialMesh` (a mesh is its own surface).")
-        from .construct import medial_mesh
+        from .._medial_axis.construct import medial_mesh
 
         # No fit of the spheres (`refine=0`): a least-squares spline through the path
         # smooths them anyway, and `deform` without `--from` stays as fast as before.

@@ -45,15 +45,15 @@ from jaxtyping import Array, ArrayLike, Bool, Float, Int
 from scipy import sparse
 
 from .._checks import as_real_array, check_number, is_concrete
+from .._medial_axis.medial_mesh import MedialMesh
+from .._medial_axis.weld import weld
 from .._mesh.volume import triangulate
 from .._numerics import cast_floats
 from .footprint import bind
 from .implicit import Correction, correct
-from .medial_mesh import MedialMesh
 from .pose import MedialPose
 from .quaternions import matrix_from_quaternion
 from .skin import blend_quaternion, dqs_vertex, lbs_vertex, medial_vertex, sphere_motions
-from .weld import weld
 
 METHODS = ("medial", "lbs", "dqs")
 RING = 8  # neighbours per vertex in the relaxation's one-ring table
