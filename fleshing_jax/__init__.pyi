@@ -49,6 +49,7 @@ from ._mesh.volume import (
 )
 from ._skeleton.rest_spine import rest_spine as rest_spine
 from ._spines.analytic import Arc as Arc, Helix as Helix, Line as Line
+from ._spines.bent import BentSpine as BentSpine
 from ._spines.bspline import BSpline as BSpline
 from ._spines.files import load_spine as load_spine, save_spine as save_spine
 from ._spines.frames import (

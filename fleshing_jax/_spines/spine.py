@@ -131,6 +131,11 @@ class AbstractSpine(eqx.Module):
         """How many samples the coarse closest-point search uses on this spine (static)."""
         return 128
 
+    def _breaks(self) -> Array:
+        """Arc lengths where the spine's pieces join (K,), where it may be less smooth than
+        elsewhere (quadratures split there: `bent`); none (the default) for analytic spines."""
+        return jnp.zeros((0,), self.length.dtype)
+
     def _tabulable(self) -> bool:
         """Whether the batched single-precision paths may evaluate this spine through a table of
         cubic pieces (`table`): smooth spines yes, piecewise ones (polylines) no (static)."""
@@ -300,6 +305,11 @@ class PreparedSpine(AbstractSpine):
     def default_samples(self) -> int:
         return self.samples
 
+    def _breaks(self) -> Array:
+        # The piece breaks of a parametric spine's tables (`Tables.cumulative`), if any.
+        cumulative = getattr(self.tables, "cumulative", None)
+        return super()._breaks() if cumulative is None else cumulative
+
     def _tabulable(self) -> bool:
         return self.tabulable
 
@@ -345,6 +355,9 @@ class AbstractTabulatedSpine(AbstractSpine):
 
     def _torsion(self, s):
         return self._prepare()._torsion(s)
+
+    def _breaks(self):
+        return self._prepare()._breaks()
 
 
 def _pick(index: Array, candidates: list):

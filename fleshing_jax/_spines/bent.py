@@ -1,0 +1,247 @@
+"""A spine bent smoothly from a point on it: what posing a limb turns its rest spine into.
+
+`BentSpine(base, joint=j, bend=θ, direction=φ, twist=ψ, stop=e)` is the spine `base` left as it
+is up to arc length `j`, turned beyond it by a rotation that grows smoothly from the identity at
+`j` to its full angle at `e` (default: the base's end), and moved rigidly past `e`:
+
+    T₁(s) = Q(s) T₀(s),   Q(s) = R_a(θ r(u)) R_t(ψ r(u)),   u = (s − j) / (e − j) ∈ [0, 1],
+
+where `t = T₀(j)` is the tangent at the joint, `a = t × (cos φ I + sin φ J)` with `(I, J)` the
+base's normals there (the bend turns the limb towards the normal at angle `φ` from `I`), and
+`r(u) = u³(10 − 15u + 6u²)`, whose first two derivatives vanish at both ends. So the curvature
+starts changing from nothing at the joint (a ramp, not a kink: what lies at the joint does not
+move, nor does anything before it), and past `e` the spine is the base moved rigidly (a hoof
+follows its leg). Both rotations have fixed axes, so that past `e` the whole frame is the rest
+frame turned by one rotation. The normals turn with the tangent, `(I₁, J₁) = Q (I₀, J₀)`: the
+limb's cross-sections rotate with it and the twist turns them about the joint's tangent.
+
+Exactly arc length (`|T₁| = 1`) and as long as the base, so that the fleshing from the base to it
+preserves volume exactly: `det J = 1` needs only `C₁′ = T₁` and `k₁ = T₁′` (a frame turning
+about the tangent does not change the determinant). `k₁ = Q k₀ + Q′ T₀` is written out; the
+position between `j` and `e` is the integral of `T₁`, by Gauss–Legendre on intervals split at the
+base's own breaks (B-spline pieces), at `j` and at `e`, where the integrand is analytic: the
+quadrature's error, and its derivative's, are at round-off.
+"""
+
+from __future__ import annotations
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, ArrayLike
+
+from .._checks import as_float_array, is_concrete
+from .._numerics import dot, safe_divide
+from .spine import AbstractSpine, AbstractTabulatedSpine
+
+GAUSS = 8  # Gauss–Legendre points an interval (exact for degree 15)
+INTERVALS = 32  # uniform intervals on [0, length], besides the base's own breaks
+_NODES, _WEIGHTS = np.polynomial.legendre.leggauss(GAUSS)
+
+
+def ramp(u: Array) -> Array:
+    """`r(u) = u³(10 − 15u + 6u²)`: 0 at 0, 1 at 1, first two derivatives 0 at both."""
+    return u**3 * (10 - 15 * u + 6 * u**2)
+
+
+def ramp_slope(u: Array) -> Array:
+    """`r′(u) = 30 u²(1 − u)²`."""
+    return 30 * u**2 * (1 - u) ** 2
+
+
+def rotate(axis: Array, angle: Array, v: Array) -> Array:
+    """`v` (3,) turned by `angle` radians about the unit `axis` (3,) (Rodrigues): exactly `v`
+    at angle 0."""
+    cos, sin = jnp.cos(angle), jnp.sin(angle)
+    return cos * v + sin * jnp.cross(axis, v) + (1 - cos) * dot(axis, v) * axis
+
+
+class BentSpine(AbstractTabulatedSpine):
+    """`base` bent by `bend` radians from arc length `joint`, ramped up smoothly until `stop`.
+
+    **Arguments:**
+
+    - `base`: a smooth spine (any `AbstractSpine`; a limb's rest spine).
+    - `joint`: scalar arc length where the bend starts, in `[0, length)`.
+    - `bend`: scalar radians: the angle between the tangents at `joint` and at `stop`.
+    - `direction`: scalar radians: the bend turns the spine towards the normal
+      `cos(direction) I + sin(direction) J` of the base's frame at `joint`.
+    - `twist`: scalar radians: the frame, and what lies beyond `joint`, turned about the tangent
+      at `joint`, ramped up with the bend.
+    - `stop`: scalar arc length where the bend is complete, in `(joint, length]` (default: the
+      base's length); past it the spine is the base moved rigidly.
+
+    The same length as `base`, exactly arc length, identical to it up to `joint`. Differentiable
+    in every argument (angles, arc lengths and the base's parameters).
+    """
+
+    base: AbstractSpine
+    joint: Array
+    stop: Array
+    bend: Array
+    direction: Array
+    twist: Array
+
+    def __init__(
+        self,
+        base: AbstractSpine,
+        *,
+        joint: ArrayLike,
+        bend: ArrayLike = 0.0,
+        direction: ArrayLike = 0.0,
+        twist: ArrayLike = 0.0,
+        stop: ArrayLike | None = None,
+    ):
+        if not isinstance(base, AbstractSpine):
+            raise TypeError(f"`base` must be a spine (AbstractSpine), got {type(base)}.")
+        self.base = base
+        self.joint = as_float_array(joint, "joint", ())
+        self.stop = base.length if stop is None else as_float_array(stop, "stop", ())
+        self.bend = as_float_array(bend, "bend", ())
+        self.direction = as_float_array(direction, "direction", ())
+        self.twist = as_float_array(twist, "twist", ())
+        _check(self)
+
+    @property
+    def length(self) -> Array:
+        """The base's length (scalar)."""
+        return self.base.length
+
+    def _prepare(self) -> PreparedBent:
+        return _prepared(self)
+
+    def _bucketed(self) -> BentSpine:
+        return eqx.tree_at(lambda b: b.base, self, self.base._bucketed())
+
+    def default_samples(self) -> int:
+        return self.base.default_samples()
+
+    def _tabulable(self) -> bool:
+        return self.base._tabulable()
+
+
+def _check(spine: BentSpine) -> None:
+    """`ValueError`s for concrete arguments out of range (traced ones are not checked)."""
+    values = (spine.joint, spine.stop, spine.bend, spine.direction, spine.twist, spine.length)
+    if not all(is_concrete(v) for v in values):
+        return
+    joint, stop, bend, direction, twist, length = (float(v) for v in values)
+    for name, value in zip(("bend", "direction", "twist"), (bend, direction, twist)):
+        if not np.isfinite(value):
+            raise ValueError(f"`{name}` must be a finite angle in radians, got {value}.")
+    if not 0 <= joint < length:
+        raise ValueError(f"`joint` must be an arc length in [0, {length:g}), got {joint}.")
+    if not joint < stop <= length * (1 + 1e-12):
+        raise ValueError(f"`stop` must be an arc length in ({joint:g}, {length:g}], got {stop}.")
+
+
+class PreparedBent(AbstractSpine):
+    """A `BentSpine` with what does not depend on `s` computed once: the prepared base, the
+    rotation axes, and `C₁` at the quadrature's breaks.
+
+    **Fields:** `base` (prepared); `joint`, `stop`, `bend`, `twist` (scalars); `bend_axis`, `twist_axis`
+    (3,): the bend's axis and the joint's tangent (the twist's axis); `breaks` (M,): the
+    quadrature's breaks on `[joint, stop]`; `positions` (M, 3): `C₁` there; `rest_stop` (3,):
+    `C₀(stop)`.
+    """
+
+    base: AbstractSpine
+    joint: Array
+    stop: Array
+    bend: Array
+    twist: Array
+    bend_axis: Array
+    twist_axis: Array
+    breaks: Array
+    positions: Array
+    rest_stop: Array
+
+    @property
+    def length(self) -> Array:
+        return self.base.length
+
+    def _angles(self, s: Array) -> tuple[Array, Array, Array]:
+        """`(r(u), r′(u) du/ds)` at `s`: the ramp and its slope in `s`."""
+        width = self.stop - self.joint
+        u = (s - self.joint) / width
+        u = jnp.where(u < 0, 0, jnp.where(u > 1, 1, u))
+        return ramp(u), ramp_slope(u) / width
+
+    def _turn(self, r: Array, v: Array) -> Array:
+        """`Q v` for the ramp value `r`."""
+        return rotate(self.bend_axis, self.bend * r, rotate(self.twist_axis, self.twist * r, v))
+
+    def _turn_slope(self, r: Array, slope: Array, v: Array) -> Array:
+        """`Q′ v` (derivative in `s`) for the ramp value `r` and its slope."""
+        turned = self._turn(r, v)
+        twisted = rotate(self.twist_axis, self.twist * r, v)
+        about_tangent = rotate(self.bend_axis, self.bend * r, jnp.cross(self.twist_axis, twisted))
+        return slope * (self.bend * jnp.cross(self.bend_axis, turned) + self.twist * about_tangent)
+
+    def _tangent(self, s: Array) -> Array:
+        """`T₁(s) = Q(s) T₀(s)` for `s ∈ [joint, stop]` (the quadrature's integrand)."""
+        return self._turn(self._angles(s)[0], self.base._jet(s)[1])
+
+    def _position(self, s: Array, c0: Array) -> Array:
+        """`C₁(s)`, given `c0 = C₀(s)`."""
+        inside = jnp.where(s < self.joint, self.joint, jnp.where(s > self.stop, self.stop, s))
+        m = jnp.clip(jnp.searchsorted(self.breaks, inside, side="right") - 1, 0,
+                     self.breaks.shape[0] - 2)
+        start = self.breaks[m]
+        half = (inside - start) / 2
+        points = start + half * (1 + jnp.asarray(_NODES, s.dtype))
+        values = jax.vmap(self._tangent)(points)
+        integral = self.positions[m] + half * jnp.asarray(_WEIGHTS, s.dtype) @ values
+        rigid = self.positions[-1] + self._turn(jnp.ones_like(s), c0 - self.rest_stop)
+        return jnp.where(s <= self.joint, c0, jnp.where(s >= self.stop, rigid, integral))
+
+    def _jet_and_normals(self, s: Array):
+        (c0, t0, k0), (i0, j0) = self.base._jet_and_normals(s)
+        r, slope = self._angles(s)
+        tangent = self._turn(r, t0)
+        k = self._turn(r, k0) + self._turn_slope(r, slope, t0)
+        jet = (self._position(s, c0), tangent, k)
+        return jet, (self._turn(r, i0), self._turn(r, j0))
+
+    def _jet(self, s: Array):
+        return self._jet_and_normals(s)[0]
+
+    def _normals(self, s: Array):
+        return self._jet_and_normals(s)[1]
+
+    def _torsion(self, s: Array) -> Array:
+        def k(t):
+            return self._jet(t)[1:]
+
+        (tangent, curvature), (_, dk) = jax.jvp(k, (s,), (jnp.ones_like(s),))
+        return safe_divide(dot(jnp.cross(tangent, curvature), dk), dot(curvature, curvature))
+
+    def default_samples(self) -> int:
+        return self.base.default_samples()
+
+    def _tabulable(self) -> bool:
+        return self.base._tabulable()
+
+
+def _prepared(spine: BentSpine) -> PreparedBent:
+    """The `PreparedBent` of `spine` (differentiable in its parameters)."""
+    base = spine.base._prepare()
+    (c, t, _), (i, j) = base._jet_and_normals(spine.joint)
+    axis = jnp.cross(t, jnp.cos(spine.direction) * i + jnp.sin(spine.direction) * j)
+    length = base.length
+    uniform = jnp.linspace(0, 1, INTERVALS + 1, dtype=length.dtype) * length
+    cuts = jnp.concatenate([base._breaks(), uniform, jnp.stack([spine.joint, spine.stop])])
+    breaks = jnp.sort(jnp.where(cuts < spine.joint, spine.joint,
+                                jnp.where(cuts > spine.stop, spine.stop, cuts)))
+    partial = PreparedBent(base, spine.joint, spine.stop, spine.bend, spine.twist, axis, t,
+                           breaks, jnp.zeros((breaks.shape[0], 3), c.dtype), c)
+    # Each interval's integral of T₁ (Gauss–Legendre), summed from C₀(joint).
+    half = (breaks[1:] - breaks[:-1]) / 2
+    points = (breaks[:-1] + half)[:, None] + half[:, None] * jnp.asarray(_NODES, c.dtype)
+    values = jax.vmap(jax.vmap(partial._tangent))(points)  # (M − 1, GAUSS, 3)
+    steps = half[:, None] * jnp.einsum("g,mgc->mc", jnp.asarray(_WEIGHTS, c.dtype), values)
+    positions = c + jnp.concatenate([jnp.zeros((1, 3), c.dtype), jnp.cumsum(steps, axis=0)])
+    rest_stop = base._jet(spine.stop)[0]
+    return PreparedBent(base, spine.joint, spine.stop, spine.bend, spine.twist, axis, t, breaks,
+                        positions, rest_stop)
