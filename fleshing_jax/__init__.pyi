@@ -48,6 +48,7 @@ from ._mesh.volume import (
     volume_change as volume_change,
 )
 from ._skeleton.rest_spine import rest_spine as rest_spine
+from ._skeleton.skeleton import Limb as Limb, Skeleton as Skeleton
 from ._spines.analytic import Arc as Arc, Helix as Helix, Line as Line
 from ._spines.bent import BentSpine as BentSpine
 from ._spines.bspline import BSpline as BSpline

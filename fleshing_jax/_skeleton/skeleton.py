@@ -1,0 +1,125 @@
+"""`Limb` and `Skeleton`: a shape as a tree of limbs on a body, each limb with its rest spine.
+
+The data that `skeleton` finds on the medial axis and that posing reads: per limb a rest spine
+(exactly arc-length, starting a little inside the parent), the arc length where it leaves its
+parent, and the parent's index; per mesh vertex the limb it belongs to (−1: the body).
+"""
+
+from __future__ import annotations
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, ArrayLike
+from scipy.spatial import cKDTree
+
+from .._checks import check_finite_points, is_concrete
+from .._spines.spine import AbstractSpine
+
+
+class Limb(eqx.Module):
+    """One limb of a `Skeleton`.
+
+    **Arguments/fields:**
+
+    - `spine`: the limb's rest spine (an `AbstractSpine`; `skeleton` gives an `fj.BSpline`
+      in float64), exactly parameterised by arc length. `s = 0` lies inside the parent (the
+      spine is continued a little into it) and `s = spine.length` at the limb's tip.
+    - `joint`: scalar: the arc length on `spine` where the limb leaves its parent,
+      `0 < joint < spine.length`.
+    - `parent`: static int: the parent limb's index in `Skeleton.limbs`, or −1 for the body.
+    """
+
+    spine: AbstractSpine
+    joint: Array
+    parent: int = eqx.field(static=True)
+
+    def __init__(self, spine: AbstractSpine, joint: ArrayLike, parent: int = -1):
+        if not isinstance(spine, AbstractSpine):
+            raise TypeError(f"`spine` must be an AbstractSpine, got {type(spine).__name__}.")
+        if isinstance(parent, bool | np.bool_) or not isinstance(parent, int | np.integer):
+            raise TypeError(f"`parent` must be an integer limb index or -1, got {parent!r}.")
+        if parent < -1:
+            raise ValueError(f"`parent` must be a limb index or -1 (the body), got {parent}.")
+        self.spine = spine
+        self.joint = jnp.asarray(joint, dtype=jnp.result_type(spine.length))
+        self.parent = int(parent)
+
+    def __check_init__(self):
+        if self.joint.shape != ():
+            raise ValueError(f"`joint` must be a scalar, got shape {self.joint.shape}.")
+        if is_concrete(self.joint, self.spine.length):
+            joint, length = float(self.joint), float(self.spine.length)
+            if not 0 < joint < length:
+                raise ValueError(
+                    f"`joint` must lie inside the spine, in (0, {length:.6g}), got {joint:.6g}."
+                )
+
+
+class Skeleton(eqx.Module):
+    """A shape as a body and a tree of limbs (built by `fj.skeleton`).
+
+    **Arguments/fields:**
+
+    - `limbs`: tuple of `Limb`s in topological order: each limb's `parent` is −1 (the body) or
+      the index of an earlier limb.
+    - `region`: `(n,)` int32: the limb each mesh vertex belongs to, −1 for the body.
+    - `vertices`: `(n, 3)` float: the rest vertices the regions were computed on.
+    """
+
+    limbs: tuple[Limb, ...]
+    region: Array
+    vertices: Array
+
+    def __init__(self, limbs, region: ArrayLike, vertices: ArrayLike):
+        limbs = tuple(limbs)
+        for i, limb in enumerate(limbs):
+            if not isinstance(limb, Limb):
+                raise TypeError(f"`limbs[{i}]` must be a Limb, got {type(limb).__name__}.")
+            if limb.parent >= i:
+                raise ValueError(
+                    f"`limbs[{i}].parent` must be -1 or an earlier limb's index (< {i}), "
+                    f"got {limb.parent}."
+                )
+        self.limbs = limbs
+        region = np.asarray(region) if not isinstance(region, jax.Array) else region
+        if not jnp.issubdtype(region.dtype, jnp.integer):
+            raise TypeError(f"`region` must hold integer limb indices, got dtype {region.dtype}.")
+        self.region = jnp.asarray(region, jnp.int32)
+        self.vertices = jnp.asarray(vertices)
+
+    def __check_init__(self):
+        n = self.region.shape[0] if self.region.ndim == 1 else -1
+        if self.region.ndim != 1:
+            raise ValueError(f"`region` must have shape (n,), got {self.region.shape}.")
+        if self.vertices.shape != (n, 3):
+            raise ValueError(f"`vertices` must have shape ({n}, 3), got {self.vertices.shape}.")
+        if is_concrete(self.region) and n:
+            low, high = int(jnp.min(self.region)), int(jnp.max(self.region))
+            if low < -1 or high >= len(self.limbs):
+                raise ValueError(
+                    f"`region` must hold limb indices in [-1, {len(self.limbs)}), "
+                    f"got [{low}, {high}]."
+                )
+
+    def limb_at(self, point: ArrayLike) -> int:
+        """The limb whose region holds the rest vertex nearest to `point` ((3,) finite), −1
+        for the body."""
+        point = check_finite_points(point, "point")
+        if point.shape != (3,):
+            raise ValueError(f"`point` must have shape (3,), got {point.shape}.")
+        _, nearest = cKDTree(np.asarray(self.vertices, np.float64)).query(point)
+        return int(self.region[int(nearest)])
+
+    def children(self, index: int) -> tuple[int, ...]:
+        """The indices of the limbs whose parent is limb `index` (−1: the body's limbs)."""
+        if isinstance(index, bool | np.bool_) or not isinstance(index, int | np.integer):
+            raise TypeError(f"`index` must be an integer limb index or -1, got {index!r}.")
+        if not -1 <= index < len(self.limbs):
+            raise ValueError(f"`index` must be in [-1, {len(self.limbs)}), got {index}.")
+        return tuple(i for i, limb in enumerate(self.limbs) if limb.parent == index)
+
+    def __repr__(self):
+        parents = [limb.parent for limb in self.limbs]
+        return f"Skeleton(limbs={len(self.limbs)}, parents={parents}, vertices={len(self.region)})"
