@@ -45,10 +45,13 @@ def register_eagerly(registrar: Registrar, points: Array) -> tuple:
     (a B-spline's registration of a million points 147 → 97 ms; benchmarks/README.md)."""
     if registrar.fused:
         start = _register_start(registrar, points)
-        registration, pending, any_pending = _register_finish(registrar, points, *start)
+        registration, pending, unclear, any_pending = _register_finish(registrar, points, *start)
     else:
-        registration, pending, any_pending = _register_certified(registrar, points)
-    if bool(any_pending):
+        registration, pending, unclear, any_pending = _register_certified(registrar, points)
+    search, sampled = (bool(a) for a in np.asarray(any_pending))
+    if sampled:  # before the search: its points are cleared with it
+        registration = _register_clear(registrar, registration, pending_index(unclear))
+    if search:
         registration = _register_pending(registrar, points, registration, pending_index(pending))
     r = registration
     return r.arc_length, r.offset, r.curvature, r.valid, r.discontinuous, r.length, r.ends
@@ -84,8 +87,8 @@ def _rigid(poser, registration, images, valid):
 
 @eqx.filter_jit
 def _register_certified(registrar, points):
-    registration, pending = map_chunks(registrar.register_certified, points, whole=registrar.fused)
-    return registrar.shared(registration), pending, jnp.any(pending)
+    fields = map_chunks(registrar.register_certified, points, whole=registrar.fused)
+    return _shared_and_pending(registrar, *fields)
 
 
 @eqx.filter_jit
@@ -95,8 +98,19 @@ def _register_start(registrar, points):
 
 @eqx.filter_jit
 def _register_finish(registrar, points, s, certified):
-    registration, pending = registrar.finish(points, s, certified)
-    return registrar.shared(registration), pending, jnp.any(pending)
+    return _shared_and_pending(registrar, *registrar.finish(points, s, certified))
+
+
+def _shared_and_pending(registrar, registration, pending, unclear):
+    """The registration with its shared scalars, the two pending masks and whether any point
+    is pending on each (one (2,) array: one transfer)."""
+    any_pending = jnp.stack([jnp.any(pending), jnp.any(unclear)])
+    return registrar.shared(registration), pending, unclear, any_pending
+
+
+@eqx.filter_jit
+def _register_clear(registrar, registration, index):
+    return registrar.clear_pending(registration, index)
 
 
 @eqx.filter_jit

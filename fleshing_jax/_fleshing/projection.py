@@ -257,39 +257,57 @@ class Registrar(eqx.Module):
         registration = jax.vmap(lambda *a: _local_coordinates(self.spine, *a))(points, s, converged)
         return self.cleared(registration)
 
-    def cleared(self, registration: Registration) -> Registration:
+    def cleared(self, registration: Registration, sampled: bool = True):
         """`registration` with its points closer than the margin to the spine's cut locus or
         focal set flagged `discontinuous` and not valid (`region`): certified in O(1) a point
-        where they can be, the sampled test run on the others only."""
+        where they can be, the sampled test run on the others only.
+
+        `sampled=False` (the eager path, `eager`): the sampled test is not run, and not
+        compiled; `(registration, unclear (n,))`, the valid points that the O(1) test does not
+        certify flagged as if they failed it, for `clear_pending` to test them."""
         reg, margin = registration, self.margin
+        unclear = jnp.zeros_like(reg.valid)
         if self.region is None:
             clear = jax.vmap(closed_form_clear, (0, 0, None))(reg.offset, reg.curvature, margin)
         else:
             region = self.region
             clear = jax.vmap(region.certified)(reg.arc_length, norm(reg.offset))
-            clear = update_where(
-                reg.valid & ~clear, lambda a: region.clear(*a), clear, (reg.points, reg.arc_length)
-            )
-        return eqx.tree_at(
+            if sampled:
+                clear = update_where(reg.valid & ~clear, lambda a: region.clear(*a), clear,
+                                     (reg.points, reg.arc_length))
+            else:
+                unclear = reg.valid & ~clear
+        reg = eqx.tree_at(
             lambda r: (r.valid, r.discontinuous), reg, (reg.valid & clear, reg.valid & ~clear)
         )
+        return reg if sampled else (reg, unclear)
 
-    def register_certified(self, points: Array) -> tuple[Registration, Array]:
-        """`register` without the global search: `(registration, pending (n,))`, the finite
-        points the fast path does not certify marked invalid and pending (see `eager`)."""
+    def clear_pending(self, registration: Registration, index: Array) -> Registration:
+        """`registration` with the sampled test run on the points at `index` (valid before
+        `cleared(..., sampled=False)` flagged them)."""
+        clear = jax.vmap(self.region.clear)(registration.points[index],
+                                            registration.arc_length[index])
+        fields = (registration.valid.at[index].set(clear),
+                  registration.discontinuous.at[index].set(~clear))
+        return eqx.tree_at(lambda r: (r.valid, r.discontinuous), registration, fields)
+
+    def register_certified(self, points: Array) -> tuple[Registration, Array, Array]:
+        """`register` without the global search nor the region's sampled test: `(registration,
+        pending (n,), unclear (n,))`, the finite points the fast path does not certify marked
+        invalid and pending, those the valid region does not certify unclear (see `eager`)."""
         return self.finish(points, *self.begin(points))
 
     def begin(self, points: Array) -> tuple[Array, Array]:
         """`register_certified` up to the fast path's start: `(s, certified)`, each (n,)."""
         return jax.vmap(self.start)(jax.lax.stop_gradient(_finite_or_zero(points)))
 
-    def finish(self, points: Array, s: Array, certified: Array) -> tuple[Registration, Array]:
+    def finish(self, points: Array, s: Array, certified: Array):
         """`register_certified` from the start `(s, certified)` of `begin`: Newton's polish
         and the local coordinates."""
         s, converged = self._polished(_finite_or_zero(points), s, certified)
         coordinates = jax.vmap(lambda *a: _local_coordinates(self.spine, *a))
-        registration = self.cleared(coordinates(points, s, converged))
-        return registration, ~certified & jnp.all(jnp.isfinite(points), -1)
+        registration, unclear = self.cleared(coordinates(points, s, converged), sampled=False)
+        return registration, ~certified & jnp.all(jnp.isfinite(points), -1), unclear
 
     def register_all(self, points: Array) -> Registration:
         """`register` for any number of points (N, 3): in chunks (`map_chunks`) on exact
