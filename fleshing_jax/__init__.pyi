@@ -47,6 +47,13 @@ from ._mesh.volume import (
     volume as volume,
     volume_change as volume_change,
 )
+from ._skeleton.limb_pose import LimbPose as LimbPose
+from ._skeleton.posing import (
+    PosedSkeleton as PosedSkeleton,
+    SkeletonRegistration as SkeletonRegistration,
+    pose_skeleton as pose_skeleton,
+    register_skeleton as register_skeleton,
+)
 from ._skeleton.rest_spine import rest_spine as rest_spine
 from ._skeleton.skeleton import Limb as Limb, Skeleton as Skeleton
 from ._spines.analytic import Arc as Arc, Helix as Helix, Line as Line

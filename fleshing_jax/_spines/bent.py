@@ -140,10 +140,10 @@ class PreparedBent(AbstractSpine):
     """A `BentSpine` with what does not depend on `s` computed once: the prepared base, the
     rotation axes, and `C₁` at the quadrature's breaks.
 
-    **Fields:** `base` (prepared); `joint`, `stop`, `bend`, `twist` (scalars); `bend_axis`, `twist_axis`
-    (3,): the bend's axis and the joint's tangent (the twist's axis); `breaks` (M,): the
-    quadrature's breaks on `[joint, stop]`; `positions` (M, 3): `C₁` there; `rest_stop` (3,):
-    `C₀(stop)`.
+    **Fields:** `base` (prepared); `joint`, `stop`, `bend`, `twist` (scalars); `bend_axis` and
+    `twist_axis` (3,): the bend's axis and the joint's tangent (the twist's axis); `breaks`
+    (M,): the quadrature's breaks on `[joint, stop]`; `positions` (M, 3): `C₁` there;
+    `rest_stop` (3,): `C₀(stop)`.
     """
 
     base: AbstractSpine

@@ -1,0 +1,304 @@
+"""Posing a mesh limb by limb: each limb's region fleshed along its own spine, children carried.
+
+`register_skeleton` registers each limb's region on the limb's rest spine, once per mesh and
+skeleton; `pose_skeleton` then poses it (the per-frame path, compiled once per set of posed
+limbs). A posed limb's target is its rest spine bent from the joint (`fj.BentSpine`, from a
+`LimbPose`), or a spine the caller gives. Fleshing maps the region with `det J = 1`; a vertex
+past the spine's end moves rigidly with the end frame (`beyond="rigid"`).
+
+No crack at a region's borders, by construction of where the bend starts and stops:
+
+- **Joint.** The bend starts at the largest arc length of the region's vertices on its border
+  with the parent (or the limb's own `joint`, if larger). Before it the bent spine is the rest
+  spine (frames and all), so those vertices map to themselves (to round-off): the seam with the
+  still parent is closed.
+- **Children.** A limb's bend is complete at the smallest arc length of its vertices on its
+  borders with its child limbs; past it the bent spine is the rest spine moved rigidly, and so
+  is the fleshing. A child's region is first fleshed by its own pose (if any: it is still up to
+  its own joint), then moved by that same rigid motion (its parent's end frame), composed with
+  those of the parent's ancestors.
+
+The body, and every limb that is not posed and has no posed ancestor, are never touched: they
+stay bit for bit.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import equinox as eqx
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Bool, Float
+
+from .._batching.buckets import bucket, pad_batch
+from .._checks import as_margin, is_concrete
+from .._fleshing.ends import EndFrames, aligned_twist, target_ends
+from .._fleshing.methods import check_method
+from .._fleshing.pipeline import pose as pose_registration, pose_points, register
+from .._fleshing.projection import Registration
+from .._mesh.deform import longest_edge
+from .._numerics import cast_floats
+from .._spines.spine import AbstractSpine
+from .limb_pose import LimbPose
+from .skeleton import Skeleton
+
+
+class SkeletonRegistration(eqx.Module):
+    """What posing a mesh on a skeleton needs, computed once (`register_skeleton`).
+
+    **Fields** (per limb, in the skeleton's order): `registrations`: the limb's region
+    registered on its rest spine (a `Registration`, padded to a bucket size so that limbs share
+    compiled programs, `_batching.buckets`); `rests`: the rest spines, in the vertices' dtype
+    and padded alike; `indices` (n_k,) int32: the region's vertices; `joints`, `stops`:
+    scalars, where each limb's bend starts and is complete (see the module's docstring);
+    `vertices` (n, 3): the rest vertices; `margin`: scalar.
+    """
+
+    registrations: tuple[Registration, ...]
+    rests: tuple[AbstractSpine, ...]
+    indices: tuple[Array, ...]
+    joints: tuple[Array, ...]
+    stops: tuple[Array, ...]
+    vertices: Array
+    margin: Array
+
+
+class PosedSkeleton(NamedTuple):
+    """A posed mesh: `vertices` (n, 3) and `valid` (n,) bool (a vertex of a posed region outside
+    its limb's valid space is left where it was, flagged `False`)."""
+
+    vertices: Float[Array, "n 3"]
+    valid: Bool[Array, " n"]
+
+
+def mesh_arrays(mesh) -> tuple[np.ndarray, np.ndarray]:
+    """`(vertices (n, 3), faces (F, k))` of a `trimesh.Trimesh` or a `(vertices, faces)` pair,
+    vertex order kept."""
+    import trimesh
+
+    if isinstance(mesh, trimesh.Trimesh):
+        return np.asarray(mesh.vertices), np.asarray(mesh.faces)
+    if isinstance(mesh, tuple) and len(mesh) == 2:
+        vertices, faces = np.asarray(mesh[0]), np.asarray(mesh[1])
+        if vertices.ndim != 2 or vertices.shape[1] != 3:
+            raise ValueError(f"`mesh` vertices must be an (n, 3) array, got {vertices.shape}.")
+        if faces.ndim != 2 or not np.issubdtype(faces.dtype, np.integer):
+            raise ValueError(f"`mesh` faces must be an (F, k) integer array, got {faces.shape}.")
+        if faces.size and (faces.min() < 0 or faces.max() >= len(vertices)):
+            raise ValueError(f"`mesh` faces must index its {len(vertices)} vertices.")
+        return vertices, faces
+    raise TypeError(
+        f"`mesh` must be a trimesh.Trimesh or a (vertices, faces) pair, got {type(mesh)}."
+    )
+
+
+def _check_skeleton(skeleton, vertices: np.ndarray) -> None:
+    if not isinstance(skeleton, Skeleton):
+        raise TypeError(f"`skeleton` must be an fj.Skeleton, got {type(skeleton)}.")
+    if skeleton.region.shape[0] != vertices.shape[0]:
+        raise ValueError(
+            f"`skeleton` has regions for {skeleton.region.shape[0]} vertices, the mesh has "
+            f"{vertices.shape[0]}: it was built on another mesh."
+        )
+
+
+def register_skeleton(mesh, skeleton: Skeleton, *, margin: float | None = None,
+                      dtype=None) -> SkeletonRegistration:
+    """Registers each limb's region of `mesh` on the limb's rest spine, for `pose_skeleton`.
+
+    **Arguments:** `mesh`: a `trimesh.Trimesh` or `(vertices (n, 3), faces (F, k))`, the mesh
+    `skeleton` was built on; `skeleton`: an `fj.Skeleton`; `margin`: the valid region's margin
+    (`fj.register`; default half the mesh's longest edge: an edge with two valid ends is never
+    torn); `dtype`: of the posed vertices (default: the mesh's; float32 is the fast one).
+
+    **Returns:** a `SkeletonRegistration`. **Raises:** `TypeError`/`ValueError` for a mesh or
+    skeleton that does not fit, `ValueError` where a limb's children start before its joint.
+    """
+    vertices, faces = mesh_arrays(mesh)
+    _check_skeleton(skeleton, vertices)
+    points = jnp.asarray(vertices, dtype)
+    if margin is None:
+        margin = 0.5 * longest_edge(vertices, faces)
+    margin = as_margin(margin, points.dtype)
+    region = np.asarray(skeleton.region)
+    lineage = _lineage(skeleton)
+    edges = _edges(faces)
+    registrations, rests, indices, joints, stops = [], [], [], [], []
+    for k, limb in enumerate(skeleton.limbs):
+        ids = np.flatnonzero(region == k)
+        spine = cast_floats(limb.spine, points.dtype)._bucketed()
+        reg = register(points[ids], spine, margin=margin)
+        arc = np.full(len(vertices), np.nan)
+        arc[ids] = np.asarray(reg.arc_length)
+        # The bend starts past the border with the parent (or any region not below this limb).
+        outside = ~np.isin(region, [k, *lineage[k]])
+        border = _border(edges, region == k, outside)
+        joint = max(float(limb.joint), float(np.max(arc[border], initial=-np.inf)))
+        # It is complete before the borders with the children.
+        inner = np.isin(region, lineage[k])
+        stop = min(float(spine.length), float(np.min(arc[_border(edges, region == k, inner)],
+                                                      initial=np.inf)))
+        if not joint < stop:
+            raise ValueError(
+                f"`skeleton`: limb {k}'s region meets its child limbs (arc length {stop:.4g}) "
+                f"before it leaves its parent ({joint:.4g}): there is no room to bend it."
+            )
+        registrations.append(pad_batch(reg, bucket(len(ids))))
+        rests.append(spine)
+        indices.append(jnp.asarray(ids, jnp.int32))
+        joints.append(jnp.asarray(joint, points.dtype))
+        stops.append(jnp.asarray(stop, points.dtype))
+    return SkeletonRegistration(tuple(registrations), tuple(rests), tuple(indices), tuple(joints),
+                                tuple(stops), points, margin)
+
+
+def _lineage(skeleton: Skeleton) -> list[list[int]]:
+    """Each limb's descendants (children, their children, …)."""
+    below = [[] for _ in skeleton.limbs]
+    for k in reversed(range(len(skeleton.limbs))):
+        parent = skeleton.limbs[k].parent
+        if parent >= 0:
+            below[parent] += [k, *below[k]]
+    return below
+
+
+def _edges(faces: np.ndarray) -> np.ndarray:
+    """The polygon edges of `faces` (F, k), (E, 2)."""
+    faces = np.asarray(faces)
+    if faces.size == 0:
+        return np.zeros((0, 2), np.int64)
+    return np.stack([faces.ravel(), np.roll(faces, -1, axis=1).ravel()], axis=1)
+
+
+def _border(edges: np.ndarray, inside: np.ndarray, other: np.ndarray) -> np.ndarray:
+    """(n,) bool: the vertices of `inside` that share an edge with a vertex of `other`."""
+    a, b = edges[:, 0], edges[:, 1]
+    border = np.zeros(inside.shape, bool)
+    border[a[inside[a] & other[b]]] = True
+    border[b[inside[b] & other[a]]] = True
+    return border
+
+
+def _check_poses(poses, skeleton: Skeleton) -> dict:
+    if not isinstance(poses, dict):
+        raise TypeError(
+            f"`poses` must be a dict of limb index → LimbPose or spine, got {type(poses)}."
+        )
+    count = len(skeleton.limbs)
+    for k, pose in poses.items():
+        if isinstance(k, bool) or not isinstance(k, int | np.integer) or not 0 <= k < count:
+            raise ValueError(
+                f"`poses`: {k!r} is not a limb index of this skeleton (0 to {count - 1})."
+            )
+        if not isinstance(pose, LimbPose | AbstractSpine):
+            raise TypeError(f"`poses[{k}]` must be a LimbPose or a spine, got {type(pose)}.")
+    return {int(k): v for k, v in sorted(poses.items())}
+
+
+def pose_skeleton(
+    mesh_or_registration, skeleton: Skeleton, poses: dict, *, method: str = "radial"
+) -> PosedSkeleton:
+    """Poses a mesh limb by limb: each limb bent along its own spine, the rest still.
+
+    **Arguments:**
+
+    - `mesh_or_registration`: the mesh `skeleton` was built on (`trimesh.Trimesh` or
+      `(vertices, faces)`), or its `register_skeleton` (the per-frame path: register once).
+    - `skeleton`: an `fj.Skeleton`.
+    - `poses`: dict of limb index → `fj.LimbPose` (degrees) or a target spine for the limb (as
+      long as its rest spine, equal to it up to the joint for a closed seam).
+    - `method`: the fleshing (`"radial"`, `"normal"`, `"binormal"`; `fj.METHODS`).
+
+    Each posed limb's region is fleshed from its rest spine to the bent one (`det J = 1`); its
+    child limbs follow rigidly its end frame, then bend by their own poses. The body and the
+    limbs neither posed nor below a posed limb are not touched. Differentiable in the poses'
+    angles (`jax.grad`), under `jit` too.
+
+    **Returns:** a `PosedSkeleton` `(vertices (n, 3), valid (n,))`.
+    """
+    if isinstance(mesh_or_registration, SkeletonRegistration):
+        registration = mesh_or_registration
+        if not isinstance(skeleton, Skeleton):
+            raise TypeError(f"`skeleton` must be an fj.Skeleton, got {type(skeleton)}.")
+        if len(registration.registrations) != len(skeleton.limbs):
+            raise ValueError("`skeleton` is not the one `mesh_or_registration` was registered on.")
+    else:
+        registration = register_skeleton(mesh_or_registration, skeleton)
+    poses = _check_poses(poses, skeleton)
+    return posed(registration, skeleton, poses, check_method(method))
+
+
+class Rigid(NamedTuple):
+    """The rigid motion `x ↦ R x + t`: `rotation` (3, 3), `translation` (3,)."""
+
+    rotation: Array
+    translation: Array
+
+    def __call__(self, x: Array) -> Array:
+        return x @ self.rotation.T + self.translation
+
+    def then(self, outer: Rigid | None) -> Rigid:
+        """`outer ∘ self` (`self` if `outer` is None)."""
+        if outer is None:
+            return self
+        return Rigid(outer.rotation @ self.rotation, outer(self.translation))
+
+
+def end_motion(rest: AbstractSpine, posed: AbstractSpine) -> Rigid:
+    """The rigid motion taking the frame `(C, T, I, J)` of `rest` at its end to that of
+    `posed` (its normals carried from the rest's start, as the fleshing's: `aligned_twist`):
+    where a posed limb carries its children. Differentiable in `posed`."""
+    target = posed._prepare()
+    zero = jnp.zeros((), target.length.dtype)
+    twist = aligned_twist(EndFrames(rest), target, zero)
+    c0, *f0 = EndFrames(rest).frame(1)
+    c1, *f1 = target_ends(target, twist).frame(1)
+    rotation = jnp.stack(f1, axis=1) @ jnp.stack(f0, axis=0)
+    return Rigid(rotation, c1 - rotation @ c0)
+
+
+def posed(registration: SkeletonRegistration, skeleton: Skeleton, poses: dict,
+          method: str) -> PosedSkeleton:
+    """`pose_skeleton` on a registration (traceable: `poses` are its only free values)."""
+    reg = registration
+    vertices = reg.vertices
+    valid = jnp.ones(vertices.shape[0], bool)
+    carried: dict[int, Rigid | None] = {}  # what moves each touched limb's children
+    for k, limb in enumerate(skeleton.limbs):
+        carry = carried.get(limb.parent)
+        pose = poses.get(k)
+        if pose is None and (limb.parent not in carried):
+            continue  # neither posed nor below a posed limb: not touched
+        ids = reg.indices[k]
+        n = ids.shape[0]
+        images, ok, motion = reg.vertices[ids], jnp.ones(n, bool), None
+        if pose is not None:
+            images, ok, motion = _pose_limb(reg.registrations[k], reg.rests[k], pose,
+                                            reg.joints[k], reg.stops[k], method, reg.margin)
+            images, ok = images[:n], ok[:n]
+        if carry is not None:
+            images = carry(images)
+        carried[k] = carry if motion is None else motion.then(carry)
+        vertices = vertices.at[ids].set(images)
+        valid = valid.at[ids].set(ok)
+    return PosedSkeleton(vertices, valid)
+
+
+def _pose_limb(registration, rest, pose, joint, stop, method, margin):
+    """One limb's region posed: `(images, valid, end motion)`. Called eagerly, the fleshing
+    runs in two phases (its sampled fallback compiled only if needed: `_fleshing.eager`)
+    with programs shared by every limb of a bucket; traced, in one program."""
+    dtype = registration.points.dtype
+    target = pose if isinstance(pose, AbstractSpine) else pose.spine(rest, joint, stop)
+    target = cast_floats(target, dtype)
+    if is_concrete(target):
+        images, ok = pose_registration(registration, target, method=method, margin=margin,
+                                       beyond="rigid")
+    else:
+        zero = jnp.zeros((), dtype)
+        images, ok = pose_points(registration, target, method, zero, True, margin, "rigid")
+    return images, ok, _end_motion(rest, target)
+
+
+_end_motion = eqx.filter_jit(end_motion)

@@ -1,0 +1,188 @@
+"""Posing a shape limb by limb (`fj.pose_skeleton`, `fj.LimbPose`, `fj.BentSpine`).
+
+One tube along x, cut by hand into a body (2 ≤ x ≤ 4), a right limb with a child at its tip and
+a left limb, is posed in float64 throughout, so that the tests share their compiled programs.
+"""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from jax.test_util import check_grads
+
+import fleshing_jax as fj
+
+RADIUS = 0.3
+
+
+def _straight(start, end, count=6):
+    return fj.BSpline(np.linspace(start, end, count))
+
+
+@pytest.fixture(scope="module")
+def tube():
+    angle = np.linspace(0, 2 * np.pi, 16, endpoint=False)
+    return fj.extrusion(RADIUS * np.stack([np.cos(angle), np.sin(angle)], 1), 6.0, 60)
+
+
+@pytest.fixture(scope="module")
+def skeleton(tube):
+    x = np.asarray(tube.vertices)[:, 0]
+    region = np.full(len(x), -1)
+    region[x > 4.0 + 1e-9] = 0
+    region[x > 5.2 + 1e-9] = 1
+    region[x < 2.0 - 1e-9] = 2
+    limbs = [
+        fj.Limb(_straight([3.5, 0, 0], [6, 0, 0]), 0.5, -1),
+        fj.Limb(_straight([4.8, 0, 0], [6, 0, 0]), 0.4, 0),
+        fj.Limb(_straight([2.5, 0, 0], [0, 0, 0]), 0.5, -1),
+    ]
+    return fj.Skeleton(limbs, region, tube.vertices)
+
+
+@pytest.fixture(scope="module")
+def registration(tube, skeleton):
+    return fj.register_skeleton(tube, skeleton)
+
+
+def _pose(registration, skeleton, poses):
+    posed = fj.pose_skeleton(registration, skeleton, poses)
+    return np.asarray(posed.vertices), np.asarray(posed.valid)
+
+
+def _stretch(tube, before, after, edges=None):
+    e = tube.edges_unique if edges is None else edges
+    length = np.linalg.norm(before[e[:, 0]] - before[e[:, 1]], axis=1)
+    return np.linalg.norm(after[e[:, 0]] - after[e[:, 1]], axis=1) / length
+
+
+def test_bent_spine_is_the_base_up_to_the_joint_and_rigid_past_its_stop():
+    base = fj.BSpline(np.array([[0, 0, 0], [1, 0.2, 0], [2, 0.1, 0.3], [3, -0.2, 0.2],
+                                [4, 0, 0], [5, 0.1, 0.1]]))
+    bent = fj.BentSpine(base, joint=1.0, stop=3.5, bend=1.2, direction=0.7, twist=0.5)
+    assert float(bent.length) == float(base.length)
+    np.testing.assert_array_equal(bent(0.8), base(0.8))
+    for a, b in zip(jax.tree.leaves(bent.jet_and_normals(0.8)),
+                    jax.tree.leaves(base.jet_and_normals(0.8))):
+        np.testing.assert_array_equal(a, b)
+    # Exactly arc length, with the jet's derivatives consistent to round-off (det J = 1).
+    for s in (1.2, 2.0, 3.0, 3.6, float(base.length) - 0.1):
+        s = jnp.asarray(s)
+        np.testing.assert_allclose(jax.jacfwd(bent)(s), bent.tangent(s), atol=1e-14)
+        np.testing.assert_allclose(jax.jacfwd(bent.tangent)(s), bent.curvature_vector(s),
+                                   atol=1e-13)
+        assert abs(float(jnp.linalg.norm(bent.tangent(s))) - 1) < 1e-14
+    # Past the stop, the base moved rigidly: distances kept, and moved.
+    s = jnp.linspace(3.5, float(base.length), 5)
+    a, b = jax.vmap(bent)(s), jax.vmap(base)(s)
+    np.testing.assert_allclose(np.linalg.norm(a[:, None] - a[None], axis=-1),
+                               np.linalg.norm(b[:, None] - b[None], axis=-1), atol=1e-13)
+    assert float(jnp.max(jnp.abs(a - b))) > 0.5
+    # The bend's angle: the tangent turns by `bend` about the joint's axis on a straight base.
+    line = fj.BentSpine(fj.Line(3.0), joint=0.5, bend=1.0, direction=0.3)
+    assert np.degrees(np.arccos(float(line.tangent(3.0) @ line.tangent(0.5)))) == pytest.approx(
+        np.degrees(1.0), abs=1e-9)
+
+
+def test_bent_spine_fleshing_has_unit_jacobian_and_gradients():
+    base = _straight([0, 0, 0], [3, 0, 0])
+    bent = fj.BentSpine(base, joint=0.5, bend=0.9, direction=1.0, twist=0.4)
+    points = np.random.default_rng(0).uniform([0.2, -0.25, -0.25], [2.8, 0.25, 0.25], (64, 3))
+    det = fj.jacobian_determinant(fj.Fleshing(base, bent), points)
+    assert np.all(np.isfinite(det)) and float(jnp.max(jnp.abs(det - 1))) < 1e-12
+
+    def image(angles):
+        spine = fj.BentSpine(base, joint=0.5, bend=angles[0], twist=angles[1])
+        return spine(2.5)
+
+    check_grads(image, (jnp.asarray([0.9, 0.4]),), order=2, modes=["fwd", "rev"])
+
+
+def test_bent_spine_bad_input():
+    base = fj.Line(2.0)
+    with pytest.raises(TypeError, match="`base`"):
+        fj.BentSpine("line", joint=0.5)
+    with pytest.raises(ValueError, match="`joint`"):
+        fj.BentSpine(base, joint=2.5)
+    with pytest.raises(ValueError, match="`stop`"):
+        fj.BentSpine(base, joint=1.0, stop=0.5)
+    with pytest.raises(ValueError, match="`bend`"):
+        fj.BentSpine(base, joint=1.0, bend=np.nan)
+
+
+def test_rest_pose_and_unposed_parts_stay_bit_for_bit(tube, skeleton, registration):
+    rest = np.asarray(tube.vertices)
+    region = np.asarray(skeleton.region)
+    vertices, valid = _pose(registration, skeleton, {0: fj.LimbPose()})
+    assert valid.all()
+    np.testing.assert_allclose(vertices, rest, atol=1e-12)  # zero pose: the identity
+    vertices, valid = _pose(registration, skeleton, {0: fj.LimbPose(60, 90, 20)})
+    still = region != 0
+    still &= region != 1
+    np.testing.assert_array_equal(vertices[still], rest[still])  # body and the left limb
+    assert np.max(np.abs(vertices[region == 1] - rest[region == 1])) > 0.5
+
+
+def test_a_child_follows_its_parent_rigidly_then_bends(tube, skeleton, registration):
+    rest = np.asarray(tube.vertices)
+    child = np.asarray(skeleton.region) == 1
+    carried, _ = _pose(registration, skeleton, {0: fj.LimbPose(60, 90)})
+
+    def distances(v):
+        return np.linalg.norm(v[child][:, None] - v[child][None], axis=-1)
+
+    np.testing.assert_allclose(distances(carried), distances(rest), atol=1e-12)
+    both, valid = _pose(registration, skeleton, {0: fj.LimbPose(60, 90), 1: fj.LimbPose(45, 0)})
+    assert valid.all()
+    assert np.max(np.abs(distances(both) - distances(rest))) > 0.05  # bent, not rigid
+    # The child's own bend starts at its joint: the part of it before the joint is carried.
+    x = rest[:, 0]
+    near = child & (x < 4.8 + 0.4 - 0.05)
+    np.testing.assert_allclose(both[near], carried[near], atol=1e-12)
+
+
+def test_volume_kept_and_no_crack(tube, skeleton, registration):
+    rest = np.asarray(tube.vertices)
+    poses = {0: fj.LimbPose(60, 90, 30), 1: fj.LimbPose(45, 180), 2: fj.LimbPose(50, 0)}
+    vertices, valid = _pose(registration, skeleton, poses)
+    assert valid.all()
+    change = float(fj.volume_change(rest, vertices, tube.faces))
+    assert abs(change) < 5e-4  # flat faces only
+    region = np.asarray(skeleton.region)
+    edges = tube.edges_unique
+    across = region[edges[:, 0]] != region[edges[:, 1]]
+    assert np.max(_stretch(tube, rest, vertices, edges[across])) < 1.01
+    assert np.max(_stretch(tube, rest, vertices)) < 1.5
+
+
+def test_gradients_of_the_angles(skeleton, registration):
+    tip = int(np.argmax(np.asarray(skeleton.vertices)[:, 0]))
+
+    def loss(angles):
+        poses = {0: fj.LimbPose(angles[0], 90.0, angles[1]), 1: fj.LimbPose(angles[2])}
+        return fj.pose_skeleton(registration, skeleton, poses).vertices[tip]
+
+    angles = jnp.asarray([40.0, 10.0, 20.0])
+    check_grads(jax.jit(loss), (angles,), order=1, modes=["rev"], eps=1e-3)
+
+
+def test_bad_poses(tube, skeleton, registration):
+    with pytest.raises(ValueError, match="not a limb index"):
+        fj.pose_skeleton(registration, skeleton, {7: fj.LimbPose(10)})
+    with pytest.raises(TypeError, match="`poses`"):
+        fj.pose_skeleton(registration, skeleton, [fj.LimbPose(10)])
+    with pytest.raises(TypeError, match=r"`poses\[0\]`"):
+        fj.pose_skeleton(registration, skeleton, {0: 30.0})
+    with pytest.raises(ValueError, match="`bend`"):
+        fj.LimbPose(np.nan)
+    other = fj.Skeleton(skeleton.limbs, np.full(10, -1), np.zeros((10, 3)))
+    with pytest.raises(ValueError, match="another mesh"):
+        fj.register_skeleton(tube, other)
+
+
+def test_a_bend_beyond_the_limb_s_reach_is_flagged(skeleton, registration):
+    # The left limb folded back on itself within its short ramp: its inner side crosses.
+    _, valid = _pose(registration, skeleton, {2: fj.LimbPose(175, 0)})
+    region = np.asarray(skeleton.region)
+    assert not valid[region == 2].all()
+    assert valid[region != 2].all()
