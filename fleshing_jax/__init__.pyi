@@ -47,6 +47,7 @@ from ._mesh.volume import (
     volume as volume,
     volume_change as volume_change,
 )
+from ._skeleton.build import skeleton as skeleton
 from ._skeleton.rest_spine import rest_spine as rest_spine
 from ._skeleton.skeleton import Limb as Limb, Skeleton as Skeleton
 from ._spines.analytic import Arc as Arc, Helix as Helix, Line as Line

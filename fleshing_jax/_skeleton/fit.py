@@ -68,25 +68,29 @@ def extend_beyond(inward: np.ndarray, r: float, surface) -> np.ndarray:
     return p + reach * direction
 
 
-def fit_bspline(points, radii, control_points=None, degree=5) -> BSpline:
+def fit_bspline(points, radii, control_points=None, degree=5, *, bounded=None,
+                subdivisions=None) -> BSpline:  # fmt: skip
     """A B-spline through `points` ((k, 3), in order) in least squares, its ends nearly at the
     first and last point.
 
     **Arguments:** `points`; `radii`: (k,) the local medial radius at each point;
     `control_points`: of the B-spline (default: about one per two radii, between `degree + 1`
-    and 16; given, no curvature bound is imposed); `degree`.
+    and 16); `degree`; `bounded`: whether to bound the curvature (default: unless
+    `control_points` is given); `subdivisions`: passed to `fj.BSpline` (given, with the same
+    `control_points`, spines share their compiled programs).
 
     **Returns:** an `fj.BSpline` (float64) whose curvature stays below
-    `CURVATURE_MARGIN / r` (`r` the radii interpolated along it) unless `control_points` is
-    given: the smoothing penalty grows until it does (a straight line is the limit).
+    `CURVATURE_MARGIN / r` (`r` the radii interpolated along it) when `bounded`: the smoothing
+    penalty grows until it does (a straight line is the limit).
     """
     chord = np.r_[0, np.cumsum(np.linalg.norm(np.diff(points, axis=0), axis=1))]
     keep = np.r_[True, np.diff(chord) > 1e-12 * chord[-1]]
     points, chord, radii = points[keep], chord[keep], radii[keep]
     u = np.linspace(0, chord[-1], RESAMPLED)
     resampled = np.stack([np.interp(u, chord, points[:, k]) for k in range(3)], axis=1)
-    given = control_points is not None
-    if not given:
+    if bounded is None:
+        bounded = control_points is None
+    if control_points is None:
         typical = max(float(np.median(radii)), 1e-12)
         control_points = int(round(chord[-1] / (2 * typical))) + 1
     count = int(np.clip(control_points, degree + 1, MAX_CONTROL_POINTS))
@@ -107,9 +111,9 @@ def fit_bspline(points, radii, control_points=None, degree=5) -> BSpline:
     for smoothing in (0.0, *(scale * 4.0 ** np.arange(-12, 12))):
         coefficients = np.linalg.solve(normal + smoothing * penalty, right)
         curve = ScipyBSpline(knots, coefficients, degree)
-        if given or np.all(curvature(curve, at) < bound):
+        if not bounded or np.all(curvature(curve, at) < bound):
             break
-    return BSpline(coefficients, degree=degree)
+    return BSpline(coefficients, degree=degree, subdivisions=subdivisions)
 
 
 def curvature(curve, at: np.ndarray) -> np.ndarray:

@@ -1,0 +1,186 @@
+"""The limbs of a medial mesh: its elongated branches, thinner than what they leave.
+
+Our own construction (neither paper gives one). On each level (the body, then each limb for
+its child limbs):
+
+1. The *core*: the spheres at least `CORE` times as thick as the thickest one of the level,
+   connected to it through such spheres (the torso; a limb's thick part). A sphere whose
+   centre lies inside a core sphere is *covered*: it is inside the parent.
+2. The shortest-path tree of the medial graph from the level's root (the thickest sphere for
+   the body; where the limb leaves its parent for a limb), and its branches by *reach*
+   (geodesic distance plus radius: how far the surface lies along the tree), each branch
+   running from a tip (the sphere reaching farthest in its subtree) towards the root.
+3. A tip's limb: the spheres from the tip inwards up to the first covered one (excluded),
+   with everything that hangs below them in the tree. It is kept when it protrudes (its length
+   and its tip's radius at least `ELONGATION` times its thickest radius) and is clearly thinner
+   than the core (`THINNER`). A chain of cones and a strip of slabs are both branches of the
+   tree: the strip's spheres hang below its path.
+
+A shape without a core to leave (a tube: every sphere as thick as its neighbours) gets its
+body at one end of its longest path (`tube`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+from scipy.sparse import csgraph
+
+from .fit import medial_graph
+
+CORE = 0.6  # a core sphere is at least this fraction of the thickest sphere's radius
+THINNER = 0.7  # a limb's thickest sphere is at most this fraction of the core's
+ELONGATION = 1.5  # a limb protrudes at least this many of its thickest radii
+MAX_DEPTH = 3  # body, limbs, their children, grandchildren
+
+
+@dataclasses.dataclass(frozen=True)
+class LimbPath:
+    """A limb found on the medial graph: `path` the sphere indices from the first one outside
+    its parent to the tip, `inside` the last sphere inside the parent (the path's
+    continuation), `core` the parent's spheres that this one is inside, `spheres` every
+    sphere of the limb (its strip and spikes too), `parent` the parent limb's index in the
+    list, −1 for the body."""
+
+    path: np.ndarray
+    inside: int
+    core: np.ndarray
+    spheres: np.ndarray
+    parent: int
+
+
+def find_limbs(centers: np.ndarray, radii: np.ndarray, edges: np.ndarray) -> list[LimbPath]:
+    """The limbs of the medial graph `(centers, radii, edges)`, parents before children.
+
+    **Returns:** a list of `LimbPath`s; for a tube, one limb from a body at one end.
+    """
+    graph = medial_graph(centers, edges)
+    _, labels = csgraph.connected_components(graph, directed=False)
+    largest = np.flatnonzero(labels == np.argmax(np.bincount(labels)))
+    root = int(largest[np.argmax(radii[largest])])
+    limbs: list[LimbPath] = []
+    _split(graph, centers, radii, largest, root, -1, limbs, depth=1)
+    if not limbs:
+        limbs = tube(graph, centers, radii, largest)
+    return limbs
+
+
+def _split(graph, centers, radii, nodes, root, parent, limbs, depth):
+    """Appends to `limbs` the limbs among `nodes` (the level's spheres) that leave the level's
+    core around `root`, then recursively their children."""
+    inside = np.zeros(len(centers), bool)
+    inside[nodes] = True
+    sub = graph.multiply(inside[:, None]).multiply(inside[None, :]).tocsr()
+    distance, predecessors = csgraph.dijkstra(sub, directed=False, indices=root,
+                                              return_predecessors=True)  # fmt: skip
+    reach = np.where(np.isfinite(distance), distance + radii, -np.inf)
+    owner = np.full(len(centers), -1)  # the index in `found` of the limb holding a sphere
+    found = []
+    for tip in _tips(nodes, reach, predecessors, distance):
+        if owner[tip] >= 0:
+            continue
+        chain = _ancestors(tip, predecessors)  # tip … root
+        covered, core = _covered(centers, radii, chain, radii[root])
+        cut = np.flatnonzero(covered)
+        if len(cut) == 0 or cut[0] == 0:
+            continue
+        path, last_inside = chain[: cut[0]][::-1], int(chain[cut[0]])  # path: out … tip
+        spheres = _subtree(path[0], predecessors, distance, nodes)
+        spheres = spheres[owner[spheres] < 0]
+        held = np.flatnonzero(owner >= 0)
+        gaps = np.linalg.norm(centers[spheres, None] - centers[None, held], axis=-1)
+        touching = owner[held[np.any(gaps < radii[spheres, None] + radii[held], axis=0)]]
+        if len(touching):
+            # Another route to a limb found already (a head reached through two strips of
+            # the neck, an ear's second tip): the same limb, where their spheres overlap.
+            merged = int(touching[touching >= 0].min())
+            owner[spheres] = merged
+            found[merged] = (*found[merged][:3], np.union1d(found[merged][3], spheres))
+            continue
+        # How far the limb reaches beyond the last sphere inside the parent.
+        length = distance[tip] - distance[last_inside] + radii[tip] - radii[last_inside]
+        if length < ELONGATION * radii[spheres].max():
+            continue
+        owner[spheres] = len(found)
+        found.append((path, last_inside, core, spheres))
+    for path, last_inside, core, spheres in found:
+        index = len(limbs)
+        limbs.append(LimbPath(path, last_inside, core, spheres, parent))
+        if depth < MAX_DEPTH and len(spheres) > 2:
+            _split(graph, centers, radii, spheres, int(path[0]), index, limbs, depth + 1)
+        # The spine runs to the limb's own farthest sphere, not into a child (an ear).
+        own = np.setdiff1d(spheres, [v for c in limbs[index + 1 :] for v in c.spheres])
+        tip = own[np.argmax(reach[own])]
+        chain = _ancestors(int(tip), predecessors)[::-1]  # root … tip, through path[0]
+        path = chain[np.flatnonzero(chain == path[0])[0] :]
+        limbs[index] = LimbPath(path, last_inside, core, spheres, parent)
+
+
+def tube(graph, centers, radii, nodes) -> list[LimbPath]:
+    """One limb along the longest path of a shape with no core (a tube, a capsule), its body
+    the sphere at the path's first end: a limb needs a still part to leave."""
+    start = _farthest(graph, int(nodes[0]), radii)
+    end = _farthest(graph, start, radii)
+    distance, predecessors = csgraph.dijkstra(graph, directed=False, indices=start,
+                                              return_predecessors=True)  # fmt: skip
+    chain = _ancestors(end, predecessors)[::-1]  # start … end
+    gap = np.linalg.norm(centers[chain] - centers[start], axis=1)
+    out = np.flatnonzero(gap >= radii[start])
+    if len(out) < 2:
+        return []
+    path = chain[out[0] :]
+    spheres = _subtree(path[0], predecessors, distance, nodes)
+    return [LimbPath(path, int(chain[out[0] - 1]), np.array([start]), spheres, -1)]
+
+
+def _farthest(graph, start: int, radii: np.ndarray) -> int:
+    """The sphere farthest from `start` through the graph *and then to the surface* (its
+    radius added): the end of a spike of the medial axis (a small sphere near the surface)
+    loses to the end of the shape's main axis, whose sphere reaches farther."""
+    distance = csgraph.dijkstra(graph, directed=False, indices=start)
+    distance[~np.isfinite(distance)] = -np.inf
+    return int(np.argmax(distance + radii))
+
+
+def _covered(centers, radii, chain, thickness) -> tuple[np.ndarray, np.ndarray]:
+    """(len(chain),) bool: the spheres of `chain` (tip … root) whose centres lie inside the
+    core part of the chain: its spheres from the root outwards as long as they are at least
+    `CORE × thickness` thick (the root's radius: the torso, a limb's own thickness); and the
+    core part's sphere indices."""
+    thin = np.flatnonzero(radii[chain[::-1]] < CORE * thickness)
+    core = chain[::-1][: thin[0] if len(thin) else len(chain)]
+    gaps = np.linalg.norm(centers[chain, None] - centers[None, core], axis=-1)
+    return np.any(gaps < radii[core], axis=1), core
+
+
+def _tips(nodes, reach, predecessors, distance) -> np.ndarray:
+    """The tips of the tree's branches (each the sphere that reaches farthest in the subtree of
+    the branch's top), by decreasing reach."""
+    best = np.arange(len(reach))
+    for v in nodes[np.argsort(-distance[nodes])]:
+        p = predecessors[v]
+        if p >= 0 and reach[best[v]] > reach[best[p]]:
+            best[p] = best[v]
+    tips = np.unique(best[nodes])
+    tips = tips[np.isfinite(reach[tips])]
+    return tips[np.argsort(-reach[tips], kind="stable")]
+
+
+def _ancestors(node: int, predecessors: np.ndarray) -> np.ndarray:
+    """`node` and its ancestors in the shortest-path tree, up to the root."""
+    chain = [node]
+    while predecessors[chain[-1]] >= 0:
+        chain.append(int(predecessors[chain[-1]]))
+    return np.asarray(chain)
+
+
+def _subtree(top: int, predecessors, distance, nodes) -> np.ndarray:
+    """The `nodes` at or below `top` in the shortest-path tree."""
+    below = np.zeros(len(predecessors), bool)
+    below[top] = True
+    for v in nodes[np.argsort(distance[nodes])]:
+        p = predecessors[v]
+        if p >= 0 and below[p]:
+            below[v] = True
+    return np.flatnonzero(below & np.isin(np.arange(len(predecessors)), nodes))
