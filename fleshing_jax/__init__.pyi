@@ -48,6 +48,7 @@ from ._mesh.volume import (
     volume_change as volume_change,
 )
 from ._skeleton.build import skeleton as skeleton
+from ._skeleton.files import load_skeleton as load_skeleton, save_skeleton as save_skeleton
 from ._skeleton.rest_spine import rest_spine as rest_spine
 from ._skeleton.skeleton import Limb as Limb, Skeleton as Skeleton
 from ._spines.analytic import Arc as Arc, Helix as Helix, Line as Line
