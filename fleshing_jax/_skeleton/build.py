@@ -16,6 +16,7 @@ from .skeleton import Limb, Skeleton
 # span), so that one compiled program serves all (here and when posing them).
 LIMB_CONTROL_POINTS = 8
 LIMB_SUBDIVISIONS = 32
+REFITS = 3  # straighter fits, at most, until the region lies within the spine's reach
 # A medial mesh belongs to a mesh when its centres lie in the mesh's bounding box (up to this
 # fraction of its diagonal), its spheres reach no farther than twice the nearest vertex, and
 # every vertex lies within this fraction of the diagonal from a sphere.
@@ -43,8 +44,9 @@ def skeleton(mesh, *, medial: MedialMesh | None = None, spheres: int = 200,
     bends it from its joint as Fleshing bends a tube from its base; one limb and no body would
     leave nothing still to pose against.
 
-    On spot (`fj.data.spot()`): the head and neck (its ears and horns as child limbs), four
-    legs and the tail (a single cone of the medial mesh: a short, straight limb).
+    On spot (`fj.data.spot()`): the head and neck (its ears and horns as child limbs) and
+    four legs. Its tail is a tuft on the rump: the medial mesh ends it with one small sphere,
+    which leaves less than its radius to bend beyond the rump, so it stays in the body.
 
     **Arguments:**
 
@@ -82,8 +84,17 @@ def skeleton(mesh, *, medial: MedialMesh | None = None, spheres: int = 200,
         parent = index.get(found.parent, -1) if found.parent >= 0 else -1
         if found.parent >= 0 and found.parent not in index:
             continue  # its parent had no region: neither has it
+        allowed = region == parent
         spine, cut, tip, arc, local = _limb_spine(found, centers, radii, vertices)
-        part = limb_region(spine, cut, tip, arc, local, vertices, adjacency, region == parent)
+        part = limb_region(spine, cut, tip, arc, local, vertices, adjacency, allowed)
+        for _ in range(REFITS):
+            # The region's far vertices (the back of a head, beyond its medial spheres) may
+            # lie beyond the spine's reach: a straighter fit where they are.
+            far = _reach_needed(spine, part, vertices, arc) if part is not None else None
+            if far is None:
+                break
+            spine, cut, tip, arc, local = _limb_spine(found, centers, radii, vertices, far)
+            part = limb_region(spine, cut, tip, arc, local, vertices, adjacency, allowed)
         if part is None:
             continue
         index[number] = len(limbs)
@@ -96,9 +107,27 @@ def skeleton(mesh, *, medial: MedialMesh | None = None, spheres: int = 200,
     return Skeleton(tuple(limbs), region.astype(np.int32), given)
 
 
-def _limb_spine(found: LimbPath, centers, radii, vertices):
+def _reach_needed(spine, part, vertices, arc):
+    """`None` when every vertex of the region `part` lies within the reach of `spine` (nearer
+    than the radius of curvature where it projects), else (k,) the largest distance of the
+    region's vertices around the arc lengths `arc`."""
+    s, points, curvature = map(np.asarray, spine_samples(spine))
+    distance, foot = cKDTree(points).query(vertices[part.vertices])
+    if np.all(distance * curvature[foot] < 1.0):
+        return None
+    far = np.zeros(len(s))
+    np.maximum.at(far, foot, distance)
+    # Over a window of arc lengths: the refitted spine's feet move a little.
+    window = len(s) // 16
+    padded = np.pad(far, window, mode="edge")
+    far = np.max(np.lib.stride_tricks.sliding_window_view(padded, 2 * window + 1), axis=1)
+    return np.interp(arc, s, far)
+
+
+def _limb_spine(found: LimbPath, centers, radii, vertices, far=None):
     """The limb's rest spine, the arc length where it leaves its parent, the point at its
-    tip, and the medial radius at arc lengths along it."""
+    tip, and the medial radius at arc lengths along it (at least `far` at each path point, when
+    given: the curvature bound then keeps those distances within reach)."""
     path = centers[found.path]
     inside = centers[found.inside]
     # s = 0 a little inside the parent: towards the last sphere inside it, at most two
@@ -109,7 +138,11 @@ def _limb_spine(found: LimbPath, centers, radii, vertices):
     tip = extend_beyond(np.concatenate([path[::-1], inside[None]]), radii[found.path[-1]],
                         vertices)  # fmt: skip
     points = np.concatenate([start[None], path, tip[None]])
-    local = radii[np.r_[found.path[0], found.path, found.path[-1]]]
+    # At the start, the parent's radius: the spine may not turn there tighter than the
+    # parent is thick (an ear's spine, from inside the head).
+    local = radii[np.r_[found.inside, found.path, found.path[-1]]]
+    if far is not None:
+        local = np.maximum(local, far)
     spine = fit_bspline(
         points, local, LIMB_CONTROL_POINTS, bounded=True, subdivisions=LIMB_SUBDIVISIONS
     )

@@ -1,20 +1,21 @@
-"""The limbs of a medial mesh: its elongated branches, thinner than what they leave.
+"""The limbs of a medial mesh: the elongated branches that leave a thicker part.
 
 Our own construction (neither paper gives one). On each level (the body, then each limb for
 its child limbs):
 
-1. The *core*: the spheres at least `CORE` times as thick as the thickest one of the level,
-   connected to it through such spheres (the torso; a limb's thick part). A sphere whose
-   centre lies inside a core sphere is *covered*: it is inside the parent.
-2. The shortest-path tree of the medial graph from the level's root (the thickest sphere for
+1. The shortest-path tree of the medial graph from the level's root (the thickest sphere for
    the body; where the limb leaves its parent for a limb), and its branches by *reach*
    (geodesic distance plus radius: how far the surface lies along the tree), each branch
    running from a tip (the sphere reaching farthest in its subtree) towards the root.
-3. A tip's limb: the spheres from the tip inwards up to the first covered one (excluded),
-   with everything that hangs below them in the tree. It is kept when it protrudes (its length
-   and its tip's radius at least `ELONGATION` times its thickest radius) and is clearly thinner
-   than the core (`THINNER`). A chain of cones and a strip of slabs are both branches of the
-   tree: the strip's spheres hang below its path.
+2. Along the path from the root to a tip, the *core*: its spheres up to the end of their
+   first run at least `CORE` times as thick as the level's thickest (the torso; a limb's
+   thick part). A sphere whose centre lies inside a core sphere is *covered*: it is inside
+   the parent. The tip's limb: the spheres from the tip inwards up to the first covered one
+   (excluded), with everything that hangs below them in the tree (a strip of slabs hangs
+   below its path). It is kept when it protrudes: beyond the last covered sphere's surface
+   by at least `ELONGATION` times its thickest radius. A limb overlapping one found before
+   (the same head reached through two strips of the neck) is merged into it.
+3. The limb's spine path runs to its own farthest sphere (not into a child: an ear).
 
 A shape without a core to leave (a tube: every sphere as thick as its neighbours) gets its
 body at one end of its longest path (`tube`).
@@ -30,7 +31,6 @@ from scipy.sparse import csgraph
 from .fit import medial_graph
 
 CORE = 0.6  # a core sphere is at least this fraction of the thickest sphere's radius
-THINNER = 0.7  # a limb's thickest sphere is at most this fraction of the core's
 ELONGATION = 1.5  # a limb protrudes at least this many of its thickest radii
 MAX_DEPTH = 3  # body, limbs, their children, grandchildren
 
@@ -81,7 +81,7 @@ def _split(graph, centers, radii, nodes, root, parent, limbs, depth):
         if owner[tip] >= 0:
             continue
         chain = _ancestors(tip, predecessors)  # tip … root
-        covered, core = _covered(centers, radii, chain, radii[root])
+        covered, core = _covered(centers, radii, chain, radii[nodes].max())
         cut = np.flatnonzero(covered)
         if len(cut) == 0 or cut[0] == 0:
             continue
@@ -111,6 +111,7 @@ def _split(graph, centers, radii, nodes, root, parent, limbs, depth):
             _split(graph, centers, radii, spheres, int(path[0]), index, limbs, depth + 1)
         # The spine runs to the limb's own farthest sphere, not into a child (an ear).
         own = np.setdiff1d(spheres, [v for c in limbs[index + 1 :] for v in c.spheres])
+        own = np.intersect1d(own, _subtree(path[0], predecessors, distance, spheres))
         tip = own[np.argmax(reach[own])]
         chain = _ancestors(int(tip), predecessors)[::-1]  # root … tip, through path[0]
         path = chain[np.flatnonzero(chain == path[0])[0] :]
@@ -145,11 +146,16 @@ def _farthest(graph, start: int, radii: np.ndarray) -> int:
 
 def _covered(centers, radii, chain, thickness) -> tuple[np.ndarray, np.ndarray]:
     """(len(chain),) bool: the spheres of `chain` (tip … root) whose centres lie inside the
-    core part of the chain: its spheres from the root outwards as long as they are at least
-    `CORE × thickness` thick (the root's radius: the torso, a limb's own thickness); and the
-    core part's sphere indices."""
-    thin = np.flatnonzero(radii[chain[::-1]] < CORE * thickness)
-    core = chain[::-1][: thin[0] if len(thin) else len(chain)]
+    core part of the chain: its spheres from the root outwards up to the end of their first
+    run at least `CORE × thickness` thick (the level's thickest radius: the torso's, a
+    limb's own); and the core part's sphere indices."""
+    outwards = chain[::-1]
+    thick = radii[outwards] >= CORE * thickness
+    # Up to the end of the first thick run: a limb's first spheres may be thinner than its
+    # thickest (a neck before a head), and belong to it all the same.
+    first = int(np.argmax(thick)) if thick.any() else len(chain)
+    thin = np.flatnonzero(~thick[first:])
+    core = outwards[: first + thin[0] if len(thin) else len(chain)]
     gaps = np.linalg.norm(centers[chain, None] - centers[None, core], axis=-1)
     return np.any(gaps < radii[core], axis=1), core
 

@@ -8,7 +8,8 @@ belly next to a leg projects beyond the leg's cut too, but far from its spine); 
 of the parent's region that this cuts off from its largest part join the limb. Limbs are
 cut from their parents' regions in topological order, children out of their parent's.
 The joint is then the largest arc length of the region's border vertices (at least the cut),
-so that a bend starting there leaves the border still.
+so that a bend starting there leaves the border still; a limb with less than its radius left
+to bend beyond its joint is none (a knob).
 """
 
 from __future__ import annotations
@@ -52,7 +53,7 @@ def mesh_adjacency(vertices: np.ndarray, faces: np.ndarray) -> sparse.csr_matrix
 
 
 def limb_region(spine, cut: float, tip: np.ndarray, arc, radius, vertices, adjacency, allowed):
-    """The region of one limb, or `None` when no vertex qualifies.
+    """The region of one limb, or `None` when no vertex qualifies or it is a knob.
 
     **Arguments:** `spine`: the limb's rest spine; `cut`: the arc length where it leaves its
     parent; `tip`: (3,) the point its region grows from; `arc`, `radius`: (k,) the local medial
@@ -83,6 +84,6 @@ def limb_region(spine, cut: float, tip: np.ndarray, arc, radius, vertices, adjac
     joint = max(cut, float(along[border].max()) if len(border) else cut)
     # Just beyond the border's last vertex (a bend from there leaves them all still).
     joint += 1e-9 * float(s[-1])
-    if not joint < float(s[-1]):
-        return None
+    if float(s[-1]) - joint < np.interp(joint, arc, radius):
+        return None  # less than a radius left to bend: a knob (spot's tail tuft), no limb
     return LimbRegion(region, joint)

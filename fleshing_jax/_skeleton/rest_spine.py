@@ -66,8 +66,7 @@ def rest_spine(
 
         # No fit of the spheres (`refine=0`): a least-squares spline through the path
         # smooths them anyway, and `deform` without `--from` stays as fast as before.
-        medial = medial_mesh(mesh_or_medial, spheres=spheres, seed=seed, refine=0,
-                             progress=False)
+        medial = medial_mesh(mesh_or_medial, spheres=spheres, seed=seed, refine=0, progress=False)
         surface = closed_mesh_arrays(mesh_or_medial)[0]
     centers, radii, edges, _ = medial.numpy()
     path = _medial_path(centers, radii, edges, _check_ends(ends))
@@ -114,8 +113,9 @@ def _medial_path(centers: np.ndarray, radii: np.ndarray, edges: np.ndarray, ends
                 "`ends`: the spheres nearest to the two points are not connected in the "
                 "medial graph."
             )
-    distance, predecessors = csgraph.dijkstra(graph, directed=False, indices=b,
-                                              return_predecessors=True)
+    distance, predecessors = csgraph.dijkstra(
+        graph, directed=False, indices=b, return_predecessors=True
+    )
     path = [a]
     while path[-1] != b:
         path.append(int(predecessors[path[-1]]))
