@@ -15,7 +15,8 @@ its child limbs):
    below its path). It is kept when it protrudes: beyond the last covered sphere's surface
    by at least `ELONGATION` times its thickest radius. A limb overlapping one found before
    (the same head reached through two strips of the neck) is merged into it.
-3. The limb's spine path runs to its own farthest sphere (not into a child: an ear).
+3. The limb's spine path runs to its own farthest sphere (not into a child, an ear; far
+   counted with twice the radius, which prefers a head's snout to the base of its ears).
 
 A shape without a core to leave (a tube: every sphere as thick as its neighbours) gets its
 body at one end of its longest path (`tube`).
@@ -109,10 +110,17 @@ def _split(graph, centers, radii, nodes, root, parent, limbs, depth):
         limbs.append(LimbPath(path, last_inside, core, spheres, parent))
         if depth < MAX_DEPTH and len(spheres) > 2:
             _split(graph, centers, radii, spheres, int(path[0]), index, limbs, depth + 1)
-        # The spine runs to the limb's own farthest sphere, not into a child (an ear).
-        own = np.setdiff1d(spheres, [v for c in limbs[index + 1 :] for v in c.spheres])
+        # The spine runs to the limb's own farthest sphere, not into a child (an ear): none
+        # of the children's, none inside them, and far counted with twice the radius, so
+        # that a head's runs to its snout, not to the base of an ear.
+        children = np.array([v for c in limbs[index + 1 :] for v in c.spheres], int)
+        own = np.setdiff1d(spheres, children)
         own = np.intersect1d(own, _subtree(path[0], predecessors, distance, spheres))
-        tip = own[np.argmax(reach[own])]
+        if len(children):
+            gaps = np.linalg.norm(centers[own, None] - centers[None, children], axis=-1)
+            outside = ~np.any(gaps < radii[children], axis=1)
+            own = own[outside] if outside.any() else own
+        tip = own[np.argmax(distance[own] + 2 * radii[own])]
         chain = _ancestors(int(tip), predecessors)[::-1]  # root … tip, through path[0]
         path = chain[np.flatnonzero(chain == path[0])[0] :]
         limbs[index] = LimbPath(path, last_inside, core, spheres, parent)
