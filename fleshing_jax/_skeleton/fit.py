@@ -19,6 +19,7 @@ from __future__ import annotations
 import numpy as np
 from scipy import sparse
 from scipy.interpolate import BSpline as ScipyBSpline
+from scipy.sparse import csgraph
 
 from .._spines.bspline import BSpline
 
@@ -38,6 +39,15 @@ def medial_graph(centers: np.ndarray, edges: np.ndarray) -> sparse.csr_matrix:
     lengths = np.linalg.norm(centers[edges[:, 0]] - centers[edges[:, 1]], axis=1)
     lengths = np.maximum(lengths, 1e-12 * (np.ptp(centers, axis=0).max() + 1e-300))
     return sparse.coo_matrix((lengths, (edges[:, 0], edges[:, 1])), shape=(n, n)).tocsr()
+
+
+def farthest(graph, start: int, radii: np.ndarray) -> int:
+    """The sphere farthest from `start` through the graph *and then to the surface* (its
+    radius added): the end of a spike of the medial axis (a small sphere near the surface)
+    loses to the end of the shape's main axis, whose sphere reaches farther."""
+    distance = csgraph.dijkstra(graph, directed=False, indices=start)
+    distance[~np.isfinite(distance)] = -np.inf
+    return int(np.argmax(distance + radii))
 
 
 def end_direction(inward: np.ndarray, r: float) -> np.ndarray:

@@ -29,7 +29,7 @@ import dataclasses
 import numpy as np
 from scipy.sparse import csgraph
 
-from .fit import medial_graph
+from .fit import farthest, medial_graph
 
 CORE = 0.6  # a core sphere is at least this fraction of the thickest sphere's radius
 ELONGATION = 1.5  # a limb protrudes at least this many of its thickest radii
@@ -129,8 +129,8 @@ def _split(graph, centers, radii, nodes, root, parent, limbs, depth):
 def tube(graph, centers, radii, nodes) -> list[LimbPath]:
     """One limb along the longest path of a shape with no core (a tube, a capsule), its body
     the sphere at the path's first end: a limb needs a still part to leave."""
-    start = _farthest(graph, int(nodes[0]), radii)
-    end = _farthest(graph, start, radii)
+    start = farthest(graph, int(nodes[0]), radii)
+    end = farthest(graph, start, radii)
     distance, predecessors = csgraph.dijkstra(graph, directed=False, indices=start,
                                               return_predecessors=True)  # fmt: skip
     chain = _ancestors(end, predecessors)[::-1]  # start … end
@@ -141,15 +141,6 @@ def tube(graph, centers, radii, nodes) -> list[LimbPath]:
     path = chain[out[0] :]
     spheres = _subtree(path[0], predecessors, distance, nodes)
     return [LimbPath(path, int(chain[out[0] - 1]), np.array([start]), spheres, -1)]
-
-
-def _farthest(graph, start: int, radii: np.ndarray) -> int:
-    """The sphere farthest from `start` through the graph *and then to the surface* (its
-    radius added): the end of a spike of the medial axis (a small sphere near the surface)
-    loses to the end of the shape's main axis, whose sphere reaches farther."""
-    distance = csgraph.dijkstra(graph, directed=False, indices=start)
-    distance[~np.isfinite(distance)] = -np.inf
-    return int(np.argmax(distance + radii))
 
 
 def _covered(centers, radii, chain, thickness) -> tuple[np.ndarray, np.ndarray]:

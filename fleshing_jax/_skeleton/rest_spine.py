@@ -16,7 +16,7 @@ from scipy.sparse import csgraph
 
 from .._medial_axis.medial_mesh import MedialMesh
 from .._spines.bspline import BSpline
-from .fit import extend_beyond, fit_bspline, medial_graph
+from .fit import extend_beyond, farthest, fit_bspline, medial_graph
 
 
 def rest_spine(
@@ -104,8 +104,8 @@ def _medial_path(centers: np.ndarray, radii: np.ndarray, edges: np.ndarray, ends
     if ends is None:
         largest = np.argmax(np.bincount(labels))
         start = int(np.flatnonzero(labels == largest)[0])
-        a = _farthest(graph, start, radii)
-        b = _farthest(graph, a, radii)
+        a = farthest(graph, start, radii)
+        b = farthest(graph, a, radii)
     else:
         a, b = (int(np.argmin(np.linalg.norm(centers - e, axis=1))) for e in ends)
         if labels[a] != labels[b]:
@@ -120,12 +120,3 @@ def _medial_path(centers: np.ndarray, radii: np.ndarray, edges: np.ndarray, ends
     while path[-1] != b:
         path.append(int(predecessors[path[-1]]))
     return np.asarray(path)
-
-
-def _farthest(graph, start: int, radii: np.ndarray) -> int:
-    """The sphere farthest from `start` through the graph *and then to the surface* (its
-    radius added): the end of a spike of the medial axis (a small sphere near the surface)
-    loses to the end of the shape's main axis, whose sphere reaches farther."""
-    distance = csgraph.dijkstra(graph, directed=False, indices=start)
-    distance[~np.isfinite(distance)] = -np.inf
-    return int(np.argmax(distance + radii))
