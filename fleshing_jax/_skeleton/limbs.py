@@ -13,7 +13,8 @@ its child limbs):
    the parent. The tip's limb: the spheres from the tip inwards up to the first covered one
    (excluded), with everything that hangs below them in the tree (a strip of slabs hangs
    below its path). It is kept when it protrudes: beyond the last covered sphere's surface
-   by at least `ELONGATION` times its thickest radius. A limb overlapping one found before
+   by at least `ELONGATION` times its thickest radius (and, a child limb, when it is at most
+   `THINNER` times as thick as its parent). A limb overlapping one found before
    (the same head reached through two strips of the neck) is merged into it.
 3. The limb's spine path runs to its own farthest sphere (not into a child, an ear; far
    counted with twice the radius, which prefers a head's snout to the base of its ears).
@@ -33,6 +34,9 @@ from .fit import farthest, medial_graph
 
 CORE = 0.6  # a core sphere is at least this fraction of the thickest sphere's radius
 ELONGATION = 1.5  # a limb protrudes at least this many of its thickest radii
+# A child limb is at most this fraction of its parent's thickest radius: it grows from the
+# parent's thick part (a horn on a head), where a limb that tapers (a tail) has none.
+THINNER = 0.5
 MAX_DEPTH = 3  # body, limbs, their children, grandchildren
 
 
@@ -76,13 +80,14 @@ def _split(graph, centers, radii, nodes, root, parent, limbs, depth):
     distance, predecessors = csgraph.dijkstra(sub, directed=False, indices=root,
                                               return_predecessors=True)  # fmt: skip
     reach = np.where(np.isfinite(distance), distance + radii, -np.inf)
+    level = radii[nodes].max()
     owner = np.full(len(centers), -1)  # the index in `found` of the limb holding a sphere
     found = []
     for tip in _tips(nodes, reach, predecessors, distance):
         if owner[tip] >= 0:
             continue
         chain = _ancestors(tip, predecessors)  # tip … root
-        covered, core = _covered(centers, radii, chain, radii[nodes].max())
+        covered, core = _covered(centers, radii, chain, level)
         cut = np.flatnonzero(covered)
         if len(cut) == 0 or cut[0] == 0:
             continue
@@ -91,17 +96,22 @@ def _split(graph, centers, radii, nodes, root, parent, limbs, depth):
         spheres = spheres[owner[spheres] < 0]
         held = np.flatnonzero(owner >= 0)
         gaps = np.linalg.norm(centers[spheres, None] - centers[None, held], axis=-1)
-        touching = owner[held[np.any(gaps < radii[spheres, None] + radii[held], axis=0)]]
+        deep = gaps < np.maximum(radii[spheres, None], radii[held])
+        tip_inside = np.linalg.norm(centers[held] - centers[tip], axis=1) < radii[held]
+        touching = owner[held[np.any(deep, axis=0) & (owner[held] >= 0)]]
+        touching = touching[np.isin(touching, owner[held[tip_inside]])]
         if len(touching):
             # Another route to a limb found already (a head reached through two strips of
-            # the neck, an ear's second tip): the same limb, where their spheres overlap.
+            # the neck, an ear's second tip): the same limb, where a sphere of one holds a
+            # centre of the other and the tip lies in it (legs side by side are two limbs).
             merged = int(touching[touching >= 0].min())
             owner[spheres] = merged
             found[merged] = (*found[merged][:3], np.union1d(found[merged][3], spheres))
             continue
         # How far the limb reaches beyond the last sphere inside the parent.
         length = distance[tip] - distance[last_inside] + radii[tip] - radii[last_inside]
-        if length < ELONGATION * radii[spheres].max():
+        thickest = radii[spheres].max()
+        if length < ELONGATION * thickest or (depth > 1 and thickest > THINNER * level):
             continue
         owner[spheres] = len(found)
         found.append((path, last_inside, core, spheres))
