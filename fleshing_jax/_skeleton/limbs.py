@@ -95,16 +95,15 @@ def _split(graph, centers, radii, nodes, root, parent, limbs, depth):
         spheres = _subtree(path[0], predecessors, distance, nodes)
         spheres = spheres[owner[spheres] < 0]
         held = np.flatnonzero(owner >= 0)
-        gaps = np.linalg.norm(centers[spheres, None] - centers[None, held], axis=-1)
-        deep = gaps < np.maximum(radii[spheres, None], radii[held])
-        tip_inside = np.linalg.norm(centers[held] - centers[tip], axis=1) < radii[held]
-        touching = owner[held[np.any(deep, axis=0) & (owner[held] >= 0)]]
-        touching = touching[np.isin(touching, owner[held[tip_inside]])]
-        if len(touching):
-            # Another route to a limb found already (a head reached through two strips of
-            # the neck, an ear's second tip): the same limb, where a sphere of one holds a
-            # centre of the other and the tip lies in it (legs side by side are two limbs).
-            merged = int(touching[touching >= 0].min())
+        # Another route to a limb found already (a head reached through two strips of the
+        # neck, an ear's second tip) is the same limb: where half its path (or its tip)
+        # lies in that limb's spheres. Legs side by side, touching at the top, are two.
+        inside = np.linalg.norm(centers[path, None] - centers[None, held], axis=-1) < radii[held]
+        share = [np.mean(np.any(inside[:, owner[held] == k], axis=1)) for k in range(len(found))]
+        tip_in = [np.any(inside[-1, owner[held] == k]) for k in range(len(found))]
+        touching = [k for k in range(len(found)) if share[k] >= 0.5 or tip_in[k]]
+        if touching:
+            merged = touching[0]
             owner[spheres] = merged
             found[merged] = (*found[merged][:3], np.union1d(found[merged][3], spheres))
             continue
