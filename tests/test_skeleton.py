@@ -265,3 +265,13 @@ def test_data_classes_check_their_fields(spot):
         fj.Skeleton(skeleton.limbs, skeleton.region[:-1], skeleton.vertices)
     with pytest.raises(TypeError, match="region"):
         fj.Skeleton(skeleton.limbs, np.zeros(len(skeleton.region)), skeleton.vertices)
+
+
+def test_unwelded_mesh_copies_share_their_region(spot):
+    mesh, medial, welded = spot
+    unwelded = fj.data.spot(weld=False)
+    with pytest.warns(UserWarning, match="unwelded"):
+        skeleton = fj.skeleton(unwelded, medial=medial)
+    assert np.array_equal(np.asarray(skeleton.vertices), np.asarray(unwelded.vertices))
+    copy_of = cKDTree(np.asarray(mesh.vertices)).query(np.asarray(unwelded.vertices))[1]
+    assert np.array_equal(np.asarray(skeleton.region), np.asarray(welded.region)[copy_of])
