@@ -81,39 +81,43 @@ def _split(graph, centers, radii, nodes, root, parent, limbs, depth):
                                               return_predecessors=True)  # fmt: skip
     reach = np.where(np.isfinite(distance), distance + radii, -np.inf)
     level = radii[nodes].max()
-    owner = np.full(len(centers), -1)  # the index in `found` of the limb holding a sphere
-    found = []
+    groups = []  # per limb: its paths (the first one the main), last sphere inside, core
+    hangs = []  # per limb: (n,) bool, the spheres below its first one in the tree
     for tip in _tips(nodes, reach, predecessors, distance):
-        if owner[tip] >= 0:
-            continue
         chain = _ancestors(tip, predecessors)  # tip … root
         covered, core = _covered(centers, radii, chain, level)
         cut = np.flatnonzero(covered)
         if len(cut) == 0 or cut[0] == 0:
             continue
         path, last_inside = chain[: cut[0]][::-1], int(chain[cut[0]])  # path: out … tip
-        spheres = _subtree(path[0], predecessors, distance, nodes)
-        spheres = spheres[owner[spheres] < 0]
-        held = np.flatnonzero(owner >= 0)
-        # Another route to a limb found already (a head reached through two strips of the
-        # neck, an ear's second tip) is the same limb: where half its path (or its tip)
-        # lies in that limb's spheres. Legs side by side, touching at the top, are two.
-        inside = np.linalg.norm(centers[path, None] - centers[None, held], axis=-1) < radii[held]
-        share = [np.mean(np.any(inside[:, owner[held] == k], axis=1)) for k in range(len(found))]
-        tip_in = [np.any(inside[-1, owner[held] == k]) for k in range(len(found))]
-        touching = [k for k in range(len(found)) if share[k] >= 0.5 or tip_in[k]]
-        if touching:
-            merged = touching[0]
-            owner[spheres] = merged
-            found[merged] = (*found[merged][:3], np.union1d(found[merged][3], spheres))
+        group_spheres = [np.concatenate(g[0]) for g in groups]
+        same = _same_limb(centers, radii, path, group_spheres)
+        if same is not None:
+            groups[same][0].append(path)
             continue
+        below = [k for k, mask in enumerate(hangs) if mask[tip]]
+        if below:
+            # Below a limb found already: a child (an ear on a head), left to that limb's
+            # level, unless it is as thick as that limb (a leg hanging from the top of the
+            # leg beside it in the tree): then a limb of its own.
+            k = below[0]
+            own = np.setdiff1d(path, group_spheres[k])
+            if len(own) == 0 or radii[own].max() <= THINNER * radii[group_spheres[k]].max():
+                continue
         # How far the limb reaches beyond the last sphere inside the parent.
         length = distance[tip] - distance[last_inside] + radii[tip] - radii[last_inside]
-        thickest = radii[spheres].max()
+        thickest = radii[path].max()
         if length < ELONGATION * thickest or (depth > 1 and thickest > THINNER * level):
             continue
-        owner[spheres] = len(found)
-        found.append((path, last_inside, core, spheres))
+        groups.append(([path], last_inside, core))
+        hangs.append(np.isin(np.arange(len(centers)),
+                             _subtree(path[0], predecessors, distance, nodes)))  # fmt: skip
+    found = [
+        (paths[0], last_inside, core, spheres)
+        for (paths, last_inside, core), spheres in zip(
+            groups, _assign(centers, radii, [g[0] for g in groups], predecessors, distance, nodes)
+        )
+    ]
     for path, last_inside, core, spheres in found:
         index = len(limbs)
         limbs.append(LimbPath(path, last_inside, core, spheres, parent))
@@ -129,10 +133,45 @@ def _split(graph, centers, radii, nodes, root, parent, limbs, depth):
             gaps = np.linalg.norm(centers[own, None] - centers[None, children], axis=-1)
             outside = ~np.any(gaps < radii[children], axis=1)
             own = own[outside] if outside.any() else own
-        tip = own[np.argmax(distance[own] + 2 * radii[own])]
-        chain = _ancestors(int(tip), predecessors)[::-1]  # root … tip, through path[0]
-        path = chain[np.flatnonzero(chain == path[0])[0] :]
-        limbs[index] = LimbPath(path, last_inside, core, spheres, parent)
+        if len(own):
+            tip = own[np.argmax(distance[own] + 2 * radii[own])]
+            chain = _ancestors(int(tip), predecessors)[::-1]  # root … tip, through path[0]
+            path = chain[np.flatnonzero(chain == path[0])[0] :]
+            limbs[index] = LimbPath(path, last_inside, core, spheres, parent)
+
+
+def _same_limb(centers, radii, path, limbs) -> int | None:
+    """The index of the limb in `limbs` (each the spheres of its paths) that `path` is
+    another route to (a head reached through two strips of the neck, a strip's second tip):
+    the first one whose spheres hold half of the path's centres, or its tip. Legs side by
+    side, touching at the top, are two limbs."""
+    for k, spheres in enumerate(limbs):
+        held = np.linalg.norm(centers[path, None] - centers[None, spheres], axis=-1)
+        held = np.any(held < radii[spheres], axis=1)
+        if held.mean() >= 0.5 or held[-1]:
+            return k
+    return None
+
+
+def _assign(centers, radii, paths, predecessors, distance, nodes) -> list[np.ndarray]:
+    """The spheres of each limb (given by its `paths`): those hanging below a limb's first
+    sphere in the tree, each to the limb whose path spheres' surfaces are nearest (two legs
+    side by side may hang one from the other's top in the tree)."""
+    if not paths:
+        return []
+    hanging = np.unique(np.concatenate(
+        [_subtree(p[0], predecessors, distance, nodes) for group in paths for p in group]
+    ))  # fmt: skip
+    gaps = np.stack([
+        np.min(np.linalg.norm(centers[hanging, None] - centers[None, np.concatenate(group)],
+                              axis=-1) - radii[np.concatenate(group)], axis=1)
+        for group in paths
+    ])  # fmt: skip
+    nearest = np.argmin(gaps, axis=0)
+    # Each limb keeps its main path (the first limb a shared top sphere).
+    for k in range(len(paths) - 1, -1, -1):
+        nearest[np.isin(hanging, paths[k][0])] = k
+    return [hanging[nearest == k] for k in range(len(paths))]
 
 
 def tube(graph, centers, radii, nodes) -> list[LimbPath]:
