@@ -10,12 +10,16 @@ its child limbs):
 2. Along the path from the root to a tip, the *core*: its spheres up to the end of their
    first run at least `CORE` times as thick as the level's thickest (the torso; a limb's
    thick part). A sphere whose centre lies inside a core sphere is *covered*: it is inside
-   the parent. The tip's limb: the spheres from the tip inwards up to the first covered one
-   (excluded), with everything that hangs below them in the tree (a strip of slabs hangs
-   below its path). It is kept when it protrudes: beyond the last covered sphere's surface
-   by at least `ELONGATION` times its thickest radius (and, a child limb, when it is at most
-   `THINNER` times as thick as its parent). A limb overlapping one found before
-   (the same head reached through two strips of the neck) is merged into it.
+   the parent. The tip's path: its spheres from the tip inwards up to the first covered one
+   (excluded). It is a limb when it protrudes: beyond the last covered sphere's surface by
+   at least `ELONGATION` times its thickest radius (and, a child limb, when it is at most
+   `THINNER` times as thick as its parent). A path half inside a limb's path spheres (or
+   whose tip is) is another route to that limb (the same head reached through two strips
+   of the neck, a strip's second tip); one hanging below a limb in the tree is a child left
+   to that limb's level, unless it is as thick as that limb (two legs side by side, one
+   hanging from the other's top in the tree: a limb of its own). The spheres hanging below
+   the limbs' first spheres go to the limb whose path is nearest (a strip of slabs hangs
+   below its path).
 3. The limb's spine path runs to its own farthest sphere (not into a child, an ear; far
    counted with twice the radius, which prefers a head's snout to the base of its ears).
 
