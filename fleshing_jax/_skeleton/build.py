@@ -84,17 +84,7 @@ def skeleton(mesh, *, medial: MedialMesh | None = None, spheres: int = 200,
         parent = index.get(found.parent, -1) if found.parent >= 0 else -1
         if found.parent >= 0 and found.parent not in index:
             continue  # its parent had no region: neither has it
-        allowed = region == parent
-        spine, cut, tip, arc, local = _limb_spine(found, centers, radii, vertices)
-        part = limb_region(spine, cut, tip, arc, local, vertices, adjacency, allowed)
-        for _ in range(REFITS):
-            # The region's far vertices (the back of a head, beyond its medial spheres) may
-            # lie beyond the spine's reach: a straighter fit where they are.
-            far = _reach_needed(spine, part, vertices, arc) if part is not None else None
-            if far is None:
-                break
-            spine, cut, tip, arc, local = _limb_spine(found, centers, radii, vertices, far)
-            part = limb_region(spine, cut, tip, arc, local, vertices, adjacency, allowed)
+        spine, part = _fit_limb(found, centers, radii, vertices, adjacency, region == parent)
         if part is None:
             continue
         index[number] = len(limbs)
@@ -105,6 +95,21 @@ def skeleton(mesh, *, medial: MedialMesh | None = None, spheres: int = 200,
         # Welded or with unused vertices dropped: each given vertex takes its copy's region.
         region = region[cKDTree(vertices).query(given)[1]]
     return Skeleton(tuple(limbs), region.astype(np.int32), given)
+
+
+def _fit_limb(found: LimbPath, centers, radii, vertices, adjacency, allowed):
+    """The limb's rest spine and its region among the `allowed` vertices (`None` if none)."""
+    spine, cut, tip, arc, local = _limb_spine(found, centers, radii, vertices)
+    part = limb_region(spine, cut, tip, arc, local, vertices, adjacency, allowed)
+    for _ in range(REFITS):
+        # The region's far vertices (the back of a head, beyond its medial spheres) may lie
+        # beyond the spine's reach: a straighter fit where they are.
+        far = _reach_needed(spine, part, vertices, arc) if part is not None else None
+        if far is None:
+            break
+        spine, cut, tip, arc, local = _limb_spine(found, centers, radii, vertices, far)
+        part = limb_region(spine, cut, tip, arc, local, vertices, adjacency, allowed)
+    return spine, part
 
 
 def _reach_needed(spine, part, vertices, arc):
