@@ -47,6 +47,8 @@ from ._mesh.volume import (
     volume as volume,
     volume_change as volume_change,
 )
+from ._skeleton.build import skeleton as skeleton
+from ._skeleton.files import load_skeleton as load_skeleton, save_skeleton as save_skeleton
 from ._skeleton.limb_pose import LimbPose as LimbPose
 from ._skeleton.posing import (
     PosedSkeleton as PosedSkeleton,

@@ -7,6 +7,7 @@
     fleshing-jax medial IN OUT.ma [--spheres N] [--envelope ENV.obj] [--list]
     fleshing-jax medial-deform IN OUT --medial IN.ma --handles H.json [--method M]
                                       [--no-implicit]
+    fleshing-jax skeleton IN OUT.json [--spheres N] [--seed S]
     fleshing-jax demo [--out DIR]
     fleshing-jax --version
 
@@ -172,6 +173,20 @@ def _parser() -> argparse.ArgumentParser:
         "--no-implicit", action="store_true", help="skip the implicit-skinning correction"
     )
     medial_deform.add_argument("--cap-holes", action="store_true", help="close IN's holes first")
+    skeleton = commands.add_parser(
+        "skeleton",
+        help="find the limbs of a closed mesh on its medial mesh (JSON skeleton)",
+        description="Find the limbs of IN (a closed mesh) on its medial mesh, each with its "
+        "rest spine, its parent and the vertices it moves; print them (index, parent, spine "
+        "length, joint, region size, the spine's end point) and write the skeleton to OUT.json "
+        "(fj.load_skeleton reads it).",
+    )
+    skeleton.add_argument("input", metavar="IN", help="input mesh (closed)")
+    skeleton.add_argument("output", metavar="OUT.json", help="output skeleton (JSON)")
+    skeleton.add_argument(
+        "--spheres", type=int, default=200, metavar="N", help="spheres of the medial mesh (200)"
+    )
+    skeleton.add_argument("--seed", type=int, default=0, help="seed of the surface samples")
     demo = commands.add_parser(
         "demo",
         help="bend a built-in creature with the four methods; write meshes, a figure, a table",
@@ -449,6 +464,39 @@ def _medial_deform(args) -> int:
     return 0
 
 
+def _skeleton(args) -> int:
+    import numpy as np
+
+    from ._mesh.files import check_output_path
+    from ._skeleton.build import skeleton
+    from ._skeleton.files import save_skeleton
+    from ._skeleton.regions import spine_samples
+
+    check_output_path(args.output, extensions=("json",))
+    if args.spheres < 2:
+        raise ValueError(f"--spheres must be an integer >= 2, got {args.spheres}")
+    if args.seed < 0:
+        raise ValueError(f"--seed must be an integer >= 0, got {args.seed}")
+    mesh = _load_input(args.input, False)
+    started = time.perf_counter()
+    try:
+        found = skeleton(mesh, spheres=args.spheres, seed=args.seed)
+    except (ValueError, TypeError) as error:
+        raise ValueError(f"{args.input}: {error}") from None
+    elapsed = time.perf_counter() - started
+    region = np.asarray(found.region)
+    print(f"{'limb':>4} {'parent':>6} {'length':>10} {'joint':>10} {'vertices':>8}  end point")
+    for i, limb in enumerate(found.limbs):
+        end = np.asarray(spine_samples(limb.spine, 2)[1])[-1]
+        print(f"{i:>4} {limb.parent:>6} {float(limb.spine.length):>10.5g} "
+              f"{float(limb.joint):>10.5g} {int(np.sum(region == i)):>8}  "
+              f"{end[0]:.5g},{end[1]:.5g},{end[2]:.5g}")  # fmt: skip
+    print(f"body: {int(np.sum(region == -1))} vertices")
+    save_skeleton(found, args.output)
+    print(f"wrote {args.output} ({len(found.limbs)} limbs, {elapsed:.1f} s)")
+    return 0
+
+
 def _demo(args) -> int:
     from ._demo import format_table, run_demo
 
@@ -463,6 +511,7 @@ COMMANDS = {
     "deform": _deform,
     "medial": _medial,
     "medial-deform": _medial_deform,
+    "skeleton": _skeleton,
     "demo": _demo,
 }
 

@@ -115,7 +115,13 @@ def save_medial(medial: MedialMesh, path) -> None:
                                                                      radii.tolist())]
     lines += [f"e {i} {j}" for i, j in edges.tolist()]
     lines += [f"f {i} {j} {k}" for i, j, k in faces.tolist()]
-    text = "\n".join(lines) + "\n"
+    write_atomic(target, "\n".join(lines) + "\n")
+
+
+def write_atomic(target: Path, text: str) -> None:
+    """Writes `text` to a temporary file beside `target` (checked by `check_medial_path`),
+    which then replaces it, with a plain `open`'s permissions; removes the temporary files
+    that killed writers left there."""
     _remove_stale(target)
     # The writer's process id in the name tells a later writer whether the file is stale.
     handle, temporary = tempfile.mkstemp(dir=target.parent,

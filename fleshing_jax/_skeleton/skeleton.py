@@ -43,7 +43,9 @@ class Limb(eqx.Module):
         if parent < -1:
             raise ValueError(f"`parent` must be a limb index or -1 (the body), got {parent}.")
         self.spine = spine
-        self.joint = jnp.asarray(joint, dtype=jnp.result_type(spine.length))
+        # The spine's float type, without computing its length (a compiled program).
+        floats = [x for x in jax.tree.leaves(spine) if jnp.issubdtype(x.dtype, jnp.floating)]
+        self.joint = jnp.asarray(joint, dtype=floats[0].dtype if floats else None)
         self.parent = int(parent)
 
     def __check_init__(self):

@@ -1,0 +1,185 @@
+"""`skeleton`: a shape's tree of limbs, found on its medial mesh."""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from .._checks import check_number
+from .._medial_axis.medial_mesh import MedialMesh
+from .fit import extend_beyond, fit_bspline
+from .limbs import LimbPath, find_limbs
+from .regions import limb_region, mesh_adjacency, spine_samples
+from .skeleton import Limb, Skeleton
+
+# Every limb's spine has one static structure (count of control points, subdivisions per
+# span), so that one compiled program serves all (here and when posing them).
+LIMB_CONTROL_POINTS = 8
+LIMB_SUBDIVISIONS = 32
+REFITS = 3  # straighter fits, at most, until the region lies within the spine's reach
+# A medial mesh belongs to a mesh when its centres lie in the mesh's bounding box (up to this
+# fraction of its diagonal), its spheres reach no farther than twice the nearest vertex, and
+# every vertex lies within this fraction of the diagonal from a sphere.
+BELONGS = 0.1
+
+
+def skeleton(mesh, *, medial: MedialMesh | None = None, spheres: int = 200,
+             seed: int = 0) -> Skeleton:  # fmt: skip
+    """The limbs of a closed mesh, found on its medial mesh, and the part of the surface each
+    one moves.
+
+    Each elongated branch of the medial mesh (a chain of cones, or a strip of slabs) that
+    leaves a thicker part becomes a limb (`skeleton.limbs`, see `_skeleton.limbs`): the thick
+    rest is the body (region −1), and a branch leaving a limb's thick part (a horn on a head)
+    is that limb's child. A limb's rest spine is an `fj.BSpline` (float64 under
+    `jax_enable_x64`), exactly arc-length, its curvature below `0.8 / r` (`r` the local
+    medial radius: see `fit.fit_bspline`), from a little inside its parent (`s = 0`, at most
+    one radius in) to where it meets the surface beyond its tip. Its region (see
+    `_skeleton.regions`) is contiguous on the surface, within the spine's reach, and its
+    border vertices project on the spine at arc lengths ≤ `joint`.
+
+    A shape with no thicker part for a branch to leave (a tube, a capsule) is a body and one
+    limb: the body the end sphere of the medial axis's longest path (a cap one radius deep),
+    the limb the rest, along that path. A limb needs a still part to leave, so that a pose
+    bends it from its joint as Fleshing bends a tube from its base; one limb and no body would
+    leave nothing still to pose against.
+
+    On spot (`fj.data.spot()`): the head and neck (its ears and horns as child limbs) and
+    four legs. Its tail is a tuft on the rump: the medial mesh ends it with one small sphere,
+    which leaves less than its radius to bend beyond the rump, so it stays in the body.
+
+    **Arguments:**
+
+    - `mesh`: a closed `trimesh.Trimesh` or `(vertices (n, 3), faces (f, 3))`; an unwelded
+      mesh (texture seams) is welded for the medial mesh and its copies of a vertex share
+      a region.
+    - `medial`: the mesh's `MedialMesh` (default: `fj.medial_mesh(mesh, spheres, seed=seed,
+      refine=0)`, computed: the spines are fitted to the spheres anyway).
+    - `spheres`: integer ≥ 2, the medial mesh's sphere count when it is computed.
+    - `seed`: integer, the seed of its surface samples.
+
+    **Returns:** an `fj.Skeleton` whose `vertices` are the mesh's (n, 3), in its order.
+
+    **Raises:** `TypeError`/`ValueError` naming the argument: a `mesh` that is not a closed
+    triangle mesh (see `fj.medial_mesh`), `spheres` < 2, a `medial` that is not a
+    `MedialMesh` or does not belong to `mesh`.
+    """
+    from .._medial_axis.construct import medial_mesh
+    from .._medial_axis.surface import closed_mesh_arrays
+
+    spheres = check_number(spheres, "spheres", 2, 1e6, integer=True)
+    seed = check_number(seed, "seed", 0, 2**63 - 1, integer=True)
+    given = mesh.vertices if hasattr(mesh, "vertices") else None
+    vertices, faces = closed_mesh_arrays(mesh)
+    if medial is None:
+        medial = medial_mesh((vertices, faces), spheres, seed=seed, refine=0, progress=False)
+    elif not isinstance(medial, MedialMesh):
+        raise TypeError(f"`medial` must be a MedialMesh or None, got {type(medial).__name__}.")
+    centers, radii, edges, _ = medial.numpy()
+    _check_belongs(centers, radii, vertices)
+    adjacency = mesh_adjacency(vertices, faces)
+    region = np.full(len(vertices), -1)
+    limbs, index = [], {}  # index: a found limb's number → its index in `limbs` (kept ones)
+    for number, found in enumerate(find_limbs(centers, radii, edges)):
+        parent = index.get(found.parent, -1) if found.parent >= 0 else -1
+        if found.parent >= 0 and found.parent not in index:
+            continue  # its parent had no region: neither has it
+        spine, part = _fit_limb(found, centers, radii, vertices, adjacency, region == parent)
+        if part is None:
+            continue
+        index[number] = len(limbs)
+        region[part.vertices] = len(limbs)
+        limbs.append(Limb(spine, part.joint, parent))
+    given = np.asarray(mesh.vertices if given is not None else mesh[0], np.float64)
+    if len(given) != len(vertices) or not np.array_equal(given, vertices):
+        # Welded or with unused vertices dropped: each given vertex takes its copy's region.
+        region = region[cKDTree(vertices).query(given)[1]]
+    return Skeleton(tuple(limbs), region.astype(np.int32), given)
+
+
+def _fit_limb(found: LimbPath, centers, radii, vertices, adjacency, allowed):
+    """The limb's rest spine and its region among the `allowed` vertices (`None` if none)."""
+    spine, cut, tip, arc, local = _limb_spine(found, centers, radii, vertices)
+    part = limb_region(spine, cut, tip, arc, local, vertices, adjacency, allowed)
+    for _ in range(REFITS):
+        # The region's far vertices (the back of a head, beyond its medial spheres) may lie
+        # beyond the spine's reach: a straighter fit where they are.
+        far = _reach_needed(spine, part, vertices, arc) if part is not None else None
+        if far is None:
+            break
+        spine, cut, tip, arc, local = _limb_spine(found, centers, radii, vertices, far)
+        part = limb_region(spine, cut, tip, arc, local, vertices, adjacency, allowed)
+    return spine, part
+
+
+def _reach_needed(spine, part, vertices, arc):
+    """`None` when every vertex of the region `part` lies within the reach of `spine` (nearer
+    than the radius of curvature where it projects), else (k,) the largest distance of the
+    region's vertices around the arc lengths `arc`."""
+    s, points, curvature = map(np.asarray, spine_samples(spine))
+    distance, foot = cKDTree(points).query(vertices[part.vertices])
+    if np.all(distance * curvature[foot] < 1.0):
+        return None
+    far = np.zeros(len(s))
+    np.maximum.at(far, foot, distance)
+    # Over a window of arc lengths: the refitted spine's feet move a little.
+    window = len(s) // 16
+    padded = np.pad(far, window, mode="edge")
+    far = np.max(np.lib.stride_tricks.sliding_window_view(padded, 2 * window + 1), axis=1)
+    return np.interp(arc, s, far)
+
+
+def _limb_spine(found: LimbPath, centers, radii, vertices, far=None):
+    """The limb's rest spine, the arc length where it leaves its parent, the point at its
+    tip, and the medial radius at arc lengths along it (at least `far` at each path point, when
+    given: the curvature bound then keeps those distances within reach)."""
+    path = centers[found.path]
+    inside = centers[found.inside]
+    # s = 0 a little inside the parent: towards the last sphere inside it, at most two
+    # radii (a thick limb's first sphere, a head's, may lie far beyond its parent's surface).
+    back = inside - path[0]
+    gap = np.linalg.norm(back)
+    start = path[0] + back * (min(gap, 2 * radii[found.path[0]]) / gap)
+    tip = extend_beyond(np.concatenate([path[::-1], inside[None]]), radii[found.path[-1]],
+                        vertices)  # fmt: skip
+    points = np.concatenate([start[None], path, tip[None]])
+    # At the start, the parent's radius: the spine may not turn there tighter than the
+    # parent is thick (an ear's spine, from inside the head).
+    local = radii[np.r_[found.inside, found.path, found.path[-1]]]
+    if far is not None:
+        local = np.maximum(local, far)
+    spine = fit_bspline(
+        points, local, LIMB_CONTROL_POINTS, bounded=True, subdivisions=LIMB_SUBDIVISIONS
+    )
+    s, samples, _ = map(np.asarray, spine_samples(spine))
+    chord = np.r_[0, np.cumsum(np.linalg.norm(np.diff(points, axis=0), axis=1))]
+    arc = chord * (s[-1] / chord[-1])
+    # Where the spine leaves the parent's spheres that held the limb's last inner one.
+    gaps = np.linalg.norm(samples[:, None] - centers[found.core], axis=-1)
+    held = np.flatnonzero(np.any(gaps < radii[found.core], axis=1))
+    cut = float(s[held[-1]]) if len(held) else 0.0
+    return spine, cut, tip, arc, local
+
+
+def _check_belongs(centers, radii, vertices):
+    """Raises `ValueError` unless the medial mesh `(centers, radii)` fits inside `vertices`."""
+    if len(centers) < 2:
+        raise ValueError(f"`medial` must have at least 2 spheres, got {len(centers)}.")
+    low, high = vertices.min(axis=0), vertices.max(axis=0)
+    diagonal = float(np.linalg.norm(high - low))
+    slack = BELONGS * diagonal
+    outside = np.any((centers < low - slack) | (centers > high + slack), axis=1)
+    clearance = cKDTree(vertices).query(centers)[0]
+    # The largest gap between a vertex and the nearest sphere's surface.
+    uncovered = max(
+        float(np.min(np.linalg.norm(chunk[:, None] - centers, axis=-1) - radii, axis=1).max())
+        for chunk in np.array_split(vertices, 16)
+    )
+    if outside.any() or np.any(radii > 2 * clearance + 1e-9 * diagonal) or uncovered > slack:
+        raise ValueError(
+            "`medial` does not belong to `mesh`: its spheres must lie inside the mesh and reach "
+            f"its surface ({int(outside.sum())} centres outside the mesh's box, largest radius "
+            f"{float(np.max(radii / np.maximum(clearance, 1e-300))):.3g} times the distance to "
+            f"the nearest vertex, a vertex {uncovered:.3g} from every sphere; diagonal "
+            f"{diagonal:.3g})."
+        )

@@ -1,0 +1,243 @@
+"""The limbs of a medial mesh: the elongated branches that leave a thicker part.
+
+Our own construction (neither paper gives one). On each level (the body, then each limb for
+its child limbs):
+
+1. The shortest-path tree of the medial graph from the level's root (the thickest sphere for
+   the body; where the limb leaves its parent for a limb), and its branches by *reach*
+   (geodesic distance plus radius: how far the surface lies along the tree), each branch
+   running from a tip (the sphere reaching farthest in its subtree) towards the root.
+2. Along the path from the root to a tip, the *core*: its spheres up to the end of their
+   first run at least `CORE` times as thick as the level's thickest (the torso; a limb's
+   thick part). A sphere whose centre lies inside a core sphere is *covered*: it is inside
+   the parent. The tip's path: its spheres from the tip inwards up to the first covered one
+   (excluded). It is a limb when it protrudes: beyond the last covered sphere's surface by
+   at least `ELONGATION` times its thickest radius (and, a child limb, when it is at most
+   `THINNER` times as thick as its parent). A path half inside a limb's path spheres (or
+   whose tip is) is another route to that limb (the same head reached through two strips
+   of the neck, a strip's second tip); one hanging below a limb in the tree is a child left
+   to that limb's level, unless it is as thick as that limb (two legs side by side, one
+   hanging from the other's top in the tree: a limb of its own). The spheres hanging below
+   the limbs' first spheres go to the limb whose path is nearest (a strip of slabs hangs
+   below its path).
+3. The limb's spine path runs to its own farthest sphere (not into a child, an ear; far
+   counted with twice the radius, which prefers a head's snout to the base of its ears).
+
+A shape without a core to leave (a tube: every sphere as thick as its neighbours) gets its
+body at one end of its longest path (`tube`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+from scipy.sparse import csgraph
+
+from .fit import farthest, medial_graph
+
+CORE = 0.6  # a core sphere is at least this fraction of the thickest sphere's radius
+ELONGATION = 1.5  # a limb protrudes at least this many of its thickest radii
+# A child limb is at most this fraction of its parent's thickest radius: it grows from the
+# parent's thick part (a horn on a head), where a limb that tapers (a tail) has none.
+THINNER = 0.5
+MAX_DEPTH = 3  # body, limbs, their children, grandchildren
+
+
+@dataclasses.dataclass(frozen=True)
+class LimbPath:
+    """A limb found on the medial graph: `path` the sphere indices from the first one outside
+    its parent to the tip, `inside` the last sphere inside the parent (the path's
+    continuation), `core` the parent's spheres that this one is inside, `spheres` every
+    sphere of the limb (its strip and spikes too), `parent` the parent limb's index in the
+    list, −1 for the body."""
+
+    path: np.ndarray
+    inside: int
+    core: np.ndarray
+    spheres: np.ndarray
+    parent: int
+
+
+def find_limbs(centers: np.ndarray, radii: np.ndarray, edges: np.ndarray) -> list[LimbPath]:
+    """The limbs of the medial graph `(centers, radii, edges)`, parents before children.
+
+    **Returns:** a list of `LimbPath`s; for a tube, one limb from a body at one end.
+    """
+    graph = medial_graph(centers, edges)
+    _, labels = csgraph.connected_components(graph, directed=False)
+    largest = np.flatnonzero(labels == np.argmax(np.bincount(labels)))
+    root = int(largest[np.argmax(radii[largest])])
+    limbs: list[LimbPath] = []
+    _split(graph, centers, radii, largest, root, -1, limbs, depth=1)
+    if not limbs:
+        limbs = tube(graph, centers, radii, largest)
+    return limbs
+
+
+def _split(graph, centers, radii, nodes, root, parent, limbs, depth):
+    """Appends to `limbs` the limbs among `nodes` (the level's spheres) that leave the level's
+    core around `root`, then recursively their children."""
+    inside = np.zeros(len(centers), bool)
+    inside[nodes] = True
+    sub = graph.multiply(inside[:, None]).multiply(inside[None, :]).tocsr()
+    distance, predecessors = csgraph.dijkstra(sub, directed=False, indices=root,
+                                              return_predecessors=True)  # fmt: skip
+    reach = np.where(np.isfinite(distance), distance + radii, -np.inf)
+    level = radii[nodes].max()
+    groups = []  # per limb: its paths (the first one the main), last sphere inside, core
+    hangs = []  # per limb: (n,) bool, the spheres below its first one in the tree
+    for tip in _tips(nodes, reach, predecessors, distance):
+        chain = _ancestors(tip, predecessors)  # tip … root
+        covered, core = _covered(centers, radii, chain, level)
+        cut = np.flatnonzero(covered)
+        if len(cut) == 0 or cut[0] == 0:
+            continue
+        path, last_inside = chain[: cut[0]][::-1], int(chain[cut[0]])  # path: out … tip
+        group_spheres = [np.concatenate(g[0]) for g in groups]
+        same = _same_limb(centers, radii, path, group_spheres)
+        if same is not None:
+            groups[same][0].append(path)
+            continue
+        below = [k for k, mask in enumerate(hangs) if mask[tip]]
+        if below:
+            # Below a limb found already: a child (an ear on a head), left to that limb's
+            # level, unless it is as thick as that limb (a leg hanging from the top of the
+            # leg beside it in the tree): then a limb of its own.
+            k = below[0]
+            own = np.setdiff1d(path, group_spheres[k])
+            if len(own) == 0 or radii[own].max() <= THINNER * radii[group_spheres[k]].max():
+                continue
+        # How far the limb reaches beyond the last sphere inside the parent.
+        length = distance[tip] - distance[last_inside] + radii[tip] - radii[last_inside]
+        thickest = radii[path].max()
+        if length < ELONGATION * thickest or (depth > 1 and thickest > THINNER * level):
+            continue
+        groups.append(([path], last_inside, core))
+        hangs.append(np.isin(np.arange(len(centers)),
+                             _subtree(path[0], predecessors, distance, nodes)))  # fmt: skip
+    found = [
+        (paths[0], last_inside, core, spheres)
+        for (paths, last_inside, core), spheres in zip(
+            groups, _assign(centers, radii, [g[0] for g in groups], predecessors, distance, nodes)
+        )
+    ]
+    for path, last_inside, core, spheres in found:
+        index = len(limbs)
+        limbs.append(LimbPath(path, last_inside, core, spheres, parent))
+        if depth < MAX_DEPTH and len(spheres) > 2:
+            _split(graph, centers, radii, spheres, int(path[0]), index, limbs, depth + 1)
+        # The spine runs to the limb's own farthest sphere, not into a child (an ear): none
+        # of the children's, none inside them, and far counted with twice the radius, so
+        # that a head's runs to its snout, not to the base of an ear.
+        children = np.array([v for c in limbs[index + 1 :] for v in c.spheres], int)
+        own = np.setdiff1d(spheres, children)
+        own = np.intersect1d(own, _subtree(path[0], predecessors, distance, spheres))
+        if len(children):
+            gaps = np.linalg.norm(centers[own, None] - centers[None, children], axis=-1)
+            outside = ~np.any(gaps < radii[children], axis=1)
+            own = own[outside] if outside.any() else own
+        if len(own):
+            tip = own[np.argmax(distance[own] + 2 * radii[own])]
+            chain = _ancestors(int(tip), predecessors)[::-1]  # root … tip, through path[0]
+            path = chain[np.flatnonzero(chain == path[0])[0] :]
+            limbs[index] = LimbPath(path, last_inside, core, spheres, parent)
+
+
+def _same_limb(centers, radii, path, limbs) -> int | None:
+    """The index of the limb in `limbs` (each the spheres of its paths) that `path` is
+    another route to (a head reached through two strips of the neck, a strip's second tip):
+    the first one whose spheres hold half of the path's centres, or its tip. Legs side by
+    side, touching at the top, are two limbs."""
+    for k, spheres in enumerate(limbs):
+        held = np.linalg.norm(centers[path, None] - centers[None, spheres], axis=-1)
+        held = np.any(held < radii[spheres], axis=1)
+        if held.mean() >= 0.5 or held[-1]:
+            return k
+    return None
+
+
+def _assign(centers, radii, paths, predecessors, distance, nodes) -> list[np.ndarray]:
+    """The spheres of each limb (given by its `paths`): those hanging below a limb's first
+    sphere in the tree, each to the limb whose path spheres' surfaces are nearest (two legs
+    side by side may hang one from the other's top in the tree)."""
+    if not paths:
+        return []
+    hanging = np.unique(np.concatenate(
+        [_subtree(p[0], predecessors, distance, nodes) for group in paths for p in group]
+    ))  # fmt: skip
+    gaps = np.stack([
+        np.min(np.linalg.norm(centers[hanging, None] - centers[None, np.concatenate(group)],
+                              axis=-1) - radii[np.concatenate(group)], axis=1)
+        for group in paths
+    ])  # fmt: skip
+    nearest = np.argmin(gaps, axis=0)
+    # Each limb keeps its main path (the first limb a shared top sphere).
+    for k in range(len(paths) - 1, -1, -1):
+        nearest[np.isin(hanging, paths[k][0])] = k
+    return [hanging[nearest == k] for k in range(len(paths))]
+
+
+def tube(graph, centers, radii, nodes) -> list[LimbPath]:
+    """One limb along the longest path of a shape with no core (a tube, a capsule), its body
+    the sphere at the path's first end: a limb needs a still part to leave."""
+    start = farthest(graph, int(nodes[0]), radii)
+    end = farthest(graph, start, radii)
+    distance, predecessors = csgraph.dijkstra(graph, directed=False, indices=start,
+                                              return_predecessors=True)  # fmt: skip
+    chain = _ancestors(end, predecessors)[::-1]  # start … end
+    gap = np.linalg.norm(centers[chain] - centers[start], axis=1)
+    out = np.flatnonzero(gap >= radii[start])
+    if len(out) < 2:
+        return []
+    path = chain[out[0] :]
+    spheres = _subtree(path[0], predecessors, distance, nodes)
+    return [LimbPath(path, int(chain[out[0] - 1]), np.array([start]), spheres, -1)]
+
+
+def _covered(centers, radii, chain, thickness) -> tuple[np.ndarray, np.ndarray]:
+    """(len(chain),) bool: the spheres of `chain` (tip … root) whose centres lie inside the
+    core part of the chain: its spheres from the root outwards up to the end of their first
+    run at least `CORE × thickness` thick (the level's thickest radius: the torso's, a
+    limb's own); and the core part's sphere indices."""
+    outwards = chain[::-1]
+    thick = radii[outwards] >= CORE * thickness
+    # Up to the end of the first thick run: a limb's first spheres may be thinner than its
+    # thickest (a neck before a head), and belong to it all the same.
+    first = int(np.argmax(thick)) if thick.any() else len(chain)
+    thin = np.flatnonzero(~thick[first:])
+    core = outwards[: first + thin[0] if len(thin) else len(chain)]
+    gaps = np.linalg.norm(centers[chain, None] - centers[None, core], axis=-1)
+    return np.any(gaps < radii[core], axis=1), core
+
+
+def _tips(nodes, reach, predecessors, distance) -> np.ndarray:
+    """The tips of the tree's branches (each the sphere that reaches farthest in the subtree of
+    the branch's top), by decreasing reach."""
+    best = np.arange(len(reach))
+    for v in nodes[np.argsort(-distance[nodes])]:
+        p = predecessors[v]
+        if p >= 0 and reach[best[v]] > reach[best[p]]:
+            best[p] = best[v]
+    tips = np.unique(best[nodes])
+    tips = tips[np.isfinite(reach[tips])]
+    return tips[np.argsort(-reach[tips], kind="stable")]
+
+
+def _ancestors(node: int, predecessors: np.ndarray) -> np.ndarray:
+    """`node` and its ancestors in the shortest-path tree, up to the root."""
+    chain = [node]
+    while predecessors[chain[-1]] >= 0:
+        chain.append(int(predecessors[chain[-1]]))
+    return np.asarray(chain)
+
+
+def _subtree(top: int, predecessors, distance, nodes) -> np.ndarray:
+    """The `nodes` at or below `top` in the shortest-path tree."""
+    below = np.zeros(len(predecessors), bool)
+    below[top] = True
+    for v in nodes[np.argsort(distance[nodes])]:
+        p = predecessors[v]
+        if p >= 0 and below[p]:
+            below[v] = True
+    return np.flatnonzero(below & np.isin(np.arange(len(predecessors)), nodes))

@@ -1,0 +1,89 @@
+"""The part of the surface that each limb moves: its region, cut where it leaves its parent.
+
+Our own construction. A limb's region is grown over the mesh's edges from the vertex nearest
+to its tip, through the vertices of its parent's region that project on the limb's spine
+beyond the cut (the arc length where the spine leaves the parent) and lie within the spine's
+reach (nearer than the radius of curvature, and than `REACH` local medial radii: a flat
+belly next to a leg projects beyond the leg's cut too, but far from its spine); the pieces
+of the parent's region that this cuts off from its largest part join the limb. Limbs are
+cut from their parents' regions in topological order, children out of their parent's.
+The joint is then the largest arc length of the region's border vertices (at least the cut),
+so that a bend starting there leaves the border still; a limb with less than its radius left
+to bend beyond its joint is none (a knob).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+from scipy import sparse
+from scipy.sparse import csgraph
+from scipy.spatial import cKDTree
+
+SAMPLES = 512  # arc-length samples of a spine for the vertices' projections
+REACH = 1.5  # a region vertex lies within this many local medial radii of its spine
+
+
+@dataclasses.dataclass(frozen=True)
+class LimbRegion:
+    """A limb's `vertices` (indices) and its `joint` (arc length) on its spine."""
+
+    vertices: np.ndarray
+    joint: float
+
+
+@eqx.filter_jit
+def spine_samples(spine, count: int = SAMPLES):
+    """`count` arc lengths evenly spaced on `spine`, its points there and its curvature."""
+    s = jnp.linspace(0.0, spine.length, count)
+    curvature = jnp.linalg.norm(jax.vmap(spine.curvature_vector)(s), axis=1)
+    return s, jax.vmap(spine)(s), curvature
+
+
+def mesh_adjacency(vertices: np.ndarray, faces: np.ndarray) -> sparse.csr_matrix:
+    """The mesh's edges as a symmetric sparse graph on its vertices."""
+    n = len(vertices)
+    pairs = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
+    graph = sparse.coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(n, n))
+    return (graph + graph.T).tocsr()
+
+
+def limb_region(spine, cut: float, tip: np.ndarray, arc, radius, vertices, adjacency, allowed):
+    """The region of one limb, or `None` when no vertex qualifies or it is a knob.
+
+    **Arguments:** `spine`: the limb's rest spine; `cut`: the arc length where it leaves its
+    parent; `tip`: (3,) the point its region grows from; `arc`, `radius`: (k,) the local medial
+    radius at arc lengths `arc` along the spine; `vertices`: (n, 3) the mesh's;
+    `adjacency`: `mesh_adjacency`; `allowed`: (n,) bool, the parent's region.
+    """
+    s, points, curvature = map(np.asarray, spine_samples(spine))
+    distance, nearest = cKDTree(points).query(vertices)
+    along = s[nearest]
+    local = np.interp(along, arc, radius)
+    reach = np.minimum(REACH * local, 1.0 / np.maximum(curvature[nearest], 1e-300))
+    candidate = allowed & (along > cut) & (distance < reach)
+    seed = int(np.argmin(np.where(candidate, np.linalg.norm(vertices - tip, axis=1), np.inf)))
+    if not candidate[seed]:
+        return None
+    inside = sparse.diags(candidate.astype(float))
+    _, labels = csgraph.connected_components(inside @ adjacency @ inside, directed=False)
+    member = candidate & (labels == labels[seed])
+    # The parent keeps the largest part of what is left; pieces cut off from it (vertices
+    # beyond the spine's reach, enclosed by the limb) go with the limb, or they would tear.
+    rest = allowed & ~member
+    outside = sparse.diags(rest.astype(float))
+    _, labels = csgraph.connected_components(outside @ adjacency @ outside, directed=False)
+    kept = rest & (labels == np.argmax(np.bincount(labels[rest])))
+    member = allowed & ~kept
+    region = np.flatnonzero(member)
+    border = region[adjacency[region] @ kept.astype(float) > 0]
+    joint = max(cut, float(along[border].max()) if len(border) else cut)
+    # Just beyond the border's last vertex (a bend from there leaves them all still).
+    joint += 1e-9 * float(s[-1])
+    if float(s[-1]) - joint < np.interp(joint, arc, radius):
+        return None  # less than a radius left to bend: a knob (spot's tail tuft), no limb
+    return LimbRegion(region, joint)

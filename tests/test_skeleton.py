@@ -1,0 +1,277 @@
+"""The skeleton found on the medial axis (`fj.skeleton`): limbs, spines, regions, files."""
+
+import json
+
+import jax
+import numpy as np
+import pytest
+import trimesh
+from scipy.sparse import csgraph
+from scipy.spatial import cKDTree
+
+import fleshing_jax as fj
+from fleshing_jax._medial_axis.table import table
+from fleshing_jax._skeleton.regions import mesh_adjacency, spine_samples
+
+# Few spheres and samples: seconds per medial mesh (the default takes 5–10 s on spot).
+FEW = dict(refine=0, progress=False)
+
+
+@pytest.fixture(scope="module")
+def spot():
+    mesh = fj.data.spot()
+    medial = fj.medial_mesh(mesh, 60, samples=5000, **FEW)
+    return mesh, medial, fj.skeleton(mesh, medial=medial)
+
+
+@pytest.fixture(scope="module")
+def table_case():
+    mesh = table()
+    medial = fj.medial_mesh(mesh, 40, samples=4000, **FEW)
+    return mesh, medial, fj.skeleton(mesh, medial=medial)
+
+
+@pytest.fixture(scope="module")
+def capsule_case():
+    mesh = trimesh.creation.capsule(height=4.0, radius=0.5, count=[16, 16])
+    mesh = mesh.subdivide_to_size(0.25)
+    medial = fj.medial_mesh(mesh, 30, samples=4000, **FEW)
+    return mesh, medial, fj.skeleton(mesh, medial=medial)
+
+
+CASES = ["spot", "table_case", "capsule_case"]
+
+
+def _tips(skeleton):
+    return np.array([np.asarray(spine_samples(limb.spine, 2)[1])[-1] for limb in skeleton.limbs])
+
+
+def test_spot_has_a_head_with_ears_and_horns_and_four_legs(spot):
+    mesh, _, skeleton = spot
+    tips = _tips(skeleton)
+    body = [i for i, limb in enumerate(skeleton.limbs) if limb.parent == -1]
+    legs = [i for i in body if tips[i, 1] < -0.6]  # y up: hooves at the bottom
+    heads = [i for i in body if tips[i, 2] < -0.4 and tips[i, 1] > 0]  # head towards −z
+    assert len(legs) == 4 and len(heads) == 1 and len(body) == 5
+    # One leg per quarter: left/right (x) × front/back (z).
+    assert {(bool(tips[i, 0] > 0), bool(tips[i, 2] > 0.4)) for i in legs} == {
+        (a, b) for a in (False, True) for b in (False, True)
+    }
+    head = heads[0]
+    assert len(skeleton.children(head)) == 4  # two ears, two horns, all above the snout
+    assert all(tips[c, 1] > 0.6 for c in skeleton.children(head))
+    # The tail is a tuft on the rump: no limb (the body holds it).
+    assert skeleton.limb_at([0.0, -0.05, 1.05]) == -1
+    assert skeleton.limb_at([0.0, 0.3, 0.6]) == -1  # the back
+    # Leg regions are the legs: every vertex near the floor is in one.
+    region = np.asarray(skeleton.region)
+    low = np.asarray(mesh.vertices)[:, 1] < -0.65
+    assert np.isin(region[low], legs).all()
+
+
+def test_table_has_four_legs(table_case):
+    mesh, _, skeleton = table_case
+    tips = _tips(skeleton)
+    assert [limb.parent for limb in skeleton.limbs] == [-1] * 4
+    assert sorted(map(tuple, np.sign(tips[:, :2]).astype(int).tolist())) == [
+        (-1, -1), (-1, 1), (1, -1), (1, 1)
+    ]  # fmt: skip
+    assert np.all(tips[:, 2] < 0.05)  # down to the floor
+    vertices, region = np.asarray(mesh.vertices), np.asarray(skeleton.region)
+    assert np.all(region[vertices[:, 2] < 0.5] >= 0)  # the legs below the top
+    assert np.all(region[vertices[:, 2] > 0.8] == -1)  # the top is the body
+
+
+def test_capsule_is_a_body_at_one_end_and_one_limb(capsule_case):
+    mesh, _, skeleton = capsule_case
+    assert len(skeleton.limbs) == 1 and skeleton.limbs[0].parent == -1
+    z = np.asarray(mesh.vertices)[:, 2]
+    body = np.asarray(skeleton.region) == -1
+    # The body is a cap at one end (its sphere: a radius 0.5 beyond the hemisphere at most).
+    end = np.sign(np.mean(z[body]))
+    assert body.any() and np.all(end * z[body] > 2.5 - 1.6)
+    points = np.asarray(spine_samples(skeleton.limbs[0].spine)[1])
+    assert np.abs(points[:, :2]).max() < 0.05  # along the axis
+    assert abs(points[-1, 2] + end * 2.5) < 0.05  # to the far end's surface
+
+
+@pytest.mark.parametrize("case", CASES)
+def test_limbs_order_joints_and_arc_length(case, request):
+    _, _, skeleton = request.getfixturevalue(case)
+    for i, limb in enumerate(skeleton.limbs):
+        assert -1 <= limb.parent < i
+        assert isinstance(limb.spine, fj.BSpline) and limb.spine.control_points.dtype == np.float64
+        assert 0 < float(limb.joint) < float(limb.spine.length)
+        s, points, _ = map(np.asarray, spine_samples(limb.spine, 257))
+        steps = np.linalg.norm(np.diff(points, axis=0), axis=1)
+        np.testing.assert_allclose(steps, s[1] - s[0], rtol=1e-3)  # unit speed
+    assert skeleton.children(-1) == tuple(
+        i for i, limb in enumerate(skeleton.limbs) if limb.parent == -1
+    )
+
+
+@pytest.mark.parametrize("case", CASES)
+def test_regions_are_contiguous_and_cut_at_the_joint(case, request):
+    mesh, _, skeleton = request.getfixturevalue(case)
+    welded = mesh.copy()
+    welded.merge_vertices(merge_tex=True, merge_norm=True)
+    region = np.asarray(skeleton.region)
+    # On the welded mesh (copies of a vertex share their region).
+    index = cKDTree(np.asarray(welded.vertices)).query(np.asarray(mesh.vertices))[1]
+    labels = np.full(len(welded.vertices), -2)
+    labels[index] = region
+    adjacency = mesh_adjacency(np.asarray(welded.vertices), np.asarray(welded.faces))
+    for i in range(-1, len(skeleton.limbs)):
+        member = labels == i
+        assert member.any()
+        inside = adjacency[member][:, member]
+        assert csgraph.connected_components(inside, directed=False)[0] == 1, f"region {i}"
+    vertices = np.asarray(welded.vertices)
+    for i, limb in enumerate(skeleton.limbs):
+        member = labels == i
+        parent = labels == limb.parent
+        border = np.flatnonzero(member & (adjacency @ parent.astype(float) > 0))
+        assert len(border)
+        s, points, _ = map(np.asarray, spine_samples(limb.spine))
+        along = s[cKDTree(points).query(vertices[border])[1]]
+        assert along.max() <= float(limb.joint)
+
+
+@pytest.mark.parametrize("case", CASES)
+def test_curvature_below_the_medial_radius_and_regions_in_reach(case, request):
+    mesh, medial, skeleton = request.getfixturevalue(case)
+    centers, radii, _, _ = medial.numpy()
+    vertices, region = np.asarray(skeleton.vertices), np.asarray(skeleton.region)
+    for i, limb in enumerate(skeleton.limbs):
+        _, points, curvature = map(np.asarray, spine_samples(limb.spine))
+        nearest = cKDTree(centers).query(points)[1]
+        assert np.max(curvature * radii[nearest]) < 1.0
+        distance, foot = cKDTree(points).query(vertices[region == i])
+        assert np.all(distance * curvature[foot] < 1.0), f"limb {i}: a vertex beyond reach"
+
+
+def test_limb_at_and_children(spot):
+    _, _, skeleton = spot
+    vertices, region = np.asarray(skeleton.vertices), np.asarray(skeleton.region)
+    for i in range(len(skeleton.limbs)):
+        assert skeleton.limb_at(vertices[region == i][0] + 1e-9) == i
+    assert skeleton.limb_at(vertices[region == -1][0]) == -1
+    head = skeleton.limbs[skeleton.children(-1)[0]]
+    assert head.parent == -1
+    for c in skeleton.children(0):
+        assert skeleton.limbs[c].parent == 0
+    with pytest.raises(ValueError, match="index"):
+        skeleton.children(len(skeleton.limbs))
+    with pytest.raises(ValueError, match="point"):
+        skeleton.limb_at([np.nan, 0, 0])
+
+
+def test_json_round_trip_is_bit_identical(spot, tmp_path):
+    _, _, skeleton = spot
+    path = tmp_path / "spot.json"
+    fj.save_skeleton(skeleton, path)
+    loaded = fj.load_skeleton(path)
+    assert len(loaded.limbs) == len(skeleton.limbs)
+    for a, b in zip(skeleton.limbs, loaded.limbs):
+        assert a.parent == b.parent and float(a.joint) == float(b.joint)
+        for x, y in zip(jax.tree.leaves(a.spine), jax.tree.leaves(b.spine)):
+            assert np.array_equal(np.asarray(x), np.asarray(y))
+        assert (a.spine.degree, a.spine.subdivisions) == (b.spine.degree, b.spine.subdivisions)
+    assert np.array_equal(loaded.region, skeleton.region) and loaded.region.dtype == np.int32
+    assert np.array_equal(loaded.vertices, skeleton.vertices)
+    assert not list(tmp_path.glob(".*.tmp"))  # the temporary file was renamed
+
+
+def test_bad_skeleton_files(spot, tmp_path):
+    _, _, skeleton = spot
+    good = tmp_path / "good.json"
+    fj.save_skeleton(skeleton, good)
+    data = json.loads(good.read_text())
+
+    def write(name, value):
+        path = tmp_path / name
+        path.write_text(value if isinstance(value, str) else json.dumps(value))
+        return path
+
+    with pytest.raises(FileNotFoundError):
+        fj.load_skeleton(tmp_path / "missing.json")
+    with pytest.raises(ValueError, match="not valid JSON"):
+        fj.load_skeleton(write("broken.json", "{"))
+    with pytest.raises(ValueError, match="'vertices'"):
+        fj.load_skeleton(write("no_vertices.json", {k: v for k, v in data.items()
+                                                     if k != "vertices"}))  # fmt: skip
+    child = next(i for i, limb in enumerate(skeleton.limbs) if limb.parent >= 0)
+    late = json.loads(json.dumps(data))
+    late["limbs"][child]["parent"] = child
+    with pytest.raises(ValueError, match="parent"):
+        fj.load_skeleton(write("late_parent.json", late))
+    far = json.loads(json.dumps(data))
+    far["limbs"][0]["joint"] = 1e3
+    with pytest.raises(ValueError, match="joint"):
+        fj.load_skeleton(write("far_joint.json", far))
+    wrong = json.loads(json.dumps(data))
+    wrong["region"][0] = len(skeleton.limbs)
+    with pytest.raises(ValueError, match="region"):
+        fj.load_skeleton(write("region.json", wrong))
+    from fleshing_jax._skeleton import files
+
+    original, files.MAX_FILE_BYTES = files.MAX_FILE_BYTES, 1000
+    try:
+        with pytest.raises(ValueError, match="bytes"):
+            fj.load_skeleton(good)
+    finally:
+        files.MAX_FILE_BYTES = original
+    with pytest.raises(TypeError, match="Skeleton"):
+        fj.save_skeleton("not a skeleton", tmp_path / "x.json")
+    with pytest.raises(ValueError, match="folder"):
+        fj.save_skeleton(skeleton, tmp_path / "no" / "x.json")
+
+
+def test_bad_input(table_case, spot):
+    mesh, medial, _ = table_case
+    with pytest.raises(TypeError, match="mesh"):
+        fj.skeleton("not a mesh")
+    bad = mesh.copy()
+    bad.vertices[0] = np.nan
+    with pytest.raises(ValueError, match="finite"):
+        fj.skeleton(bad, medial=medial)
+    with pytest.raises(ValueError, match="spheres"):
+        fj.skeleton(mesh, spheres=1)
+    with pytest.raises(TypeError, match="spheres"):
+        fj.skeleton(mesh, spheres="200")
+    with pytest.raises(TypeError, match="seed"):
+        fj.skeleton(mesh, seed=0.5)
+    with pytest.raises(TypeError, match="medial"):
+        fj.skeleton(mesh, medial="medial.ma")
+    with pytest.raises(ValueError, match="does not belong"):
+        fj.skeleton(mesh, medial=spot[1])  # spot's medial mesh on the table
+    moved = fj.MedialMesh(medial.centers * 0.3, medial.radii * 0.3, medial.edges, medial.faces)
+    with pytest.raises(ValueError, match="does not belong"):
+        fj.skeleton(mesh, medial=moved)
+
+
+def test_data_classes_check_their_fields(spot):
+    _, _, skeleton = spot
+    limb = skeleton.limbs[0]
+    with pytest.raises(ValueError, match="joint"):
+        fj.Limb(limb.spine, float(limb.spine.length) + 1.0, -1)
+    with pytest.raises(ValueError, match="joint"):
+        fj.Limb(limb.spine, 0.0, -1)
+    with pytest.raises(TypeError, match="spine"):
+        fj.Limb("spine", 0.1, -1)
+    with pytest.raises(ValueError, match="parent"):
+        fj.Skeleton((fj.Limb(limb.spine, limb.joint, 0),), skeleton.region * 0, skeleton.vertices)
+    with pytest.raises(ValueError, match="vertices"):
+        fj.Skeleton(skeleton.limbs, skeleton.region[:-1], skeleton.vertices)
+    with pytest.raises(TypeError, match="region"):
+        fj.Skeleton(skeleton.limbs, np.zeros(len(skeleton.region)), skeleton.vertices)
+
+
+def test_unwelded_mesh_copies_share_their_region(spot):
+    mesh, medial, welded = spot
+    unwelded = fj.data.spot(weld=False)
+    with pytest.warns(UserWarning, match="unwelded"):
+        skeleton = fj.skeleton(unwelded, medial=medial)
+    assert np.array_equal(np.asarray(skeleton.vertices), np.asarray(unwelded.vertices))
+    copy_of = cKDTree(np.asarray(mesh.vertices)).query(np.asarray(unwelded.vertices))[1]
+    assert np.array_equal(np.asarray(skeleton.region), np.asarray(welded.region)[copy_of])
