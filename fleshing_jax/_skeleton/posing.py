@@ -125,12 +125,14 @@ def register_skeleton(mesh, skeleton: Skeleton, *, margin: float | None = None,
     lineage = _lineage(skeleton)
     edges = _edges(faces)
     registrations, rests, indices, joints, stops = [], [], [], [], []
+    # Every limb's region padded to the largest's bucket: one compiled program for all.
+    size = bucket(max([int(np.sum(region == k)) for k in range(len(skeleton.limbs))], default=0))
     for k, limb in enumerate(skeleton.limbs):
         ids = np.flatnonzero(region == k)
         spine = cast_floats(limb.spine, points.dtype)._bucketed()
-        reg = register(points[ids], spine, margin=margin)
+        reg = register(pad_batch(points[ids], size), spine, margin=margin)
         arc = np.full(len(vertices), np.nan)
-        arc[ids] = np.asarray(reg.arc_length)
+        arc[ids] = np.asarray(reg.arc_length)[: len(ids)]
         # The bend starts past the border with the parent (or any region not below this limb).
         outside = ~np.isin(region, [k, *lineage[k]])
         border = _border(edges, region == k, outside)
@@ -144,7 +146,7 @@ def register_skeleton(mesh, skeleton: Skeleton, *, margin: float | None = None,
                 f"`skeleton`: limb {k}'s region meets its child limbs (arc length {stop:.4g}) "
                 f"before it leaves its parent ({joint:.4g}): there is no room to bend it."
             )
-        registrations.append(pad_batch(reg, bucket(len(ids))))
+        registrations.append(reg)
         rests.append(spine)
         indices.append(jnp.asarray(ids, jnp.int32))
         joints.append(jnp.asarray(joint, points.dtype))
@@ -275,7 +277,7 @@ def posed(registration: SkeletonRegistration, skeleton: Skeleton, poses: dict,
         images, ok, motion = reg.vertices[ids], jnp.ones(n, bool), None
         if pose is not None:
             images, ok, motion = _pose_limb(reg.registrations[k], reg.rests[k], pose,
-                                            reg.joints[k], reg.stops[k], method, reg.margin)
+                                            reg.joints[k], reg.stops[k], method)
             images, ok = images[:n], ok[:n]
         if carry is not None:
             images = carry(images)
@@ -285,19 +287,22 @@ def posed(registration: SkeletonRegistration, skeleton: Skeleton, poses: dict,
     return PosedSkeleton(vertices, valid)
 
 
-def _pose_limb(registration, rest, pose, joint, stop, method, margin):
+def _pose_limb(registration, rest, pose, joint, stop, method):
     """One limb's region posed: `(images, valid, end motion)`. Called eagerly, the fleshing
     runs in two phases (its sampled fallback compiled only if needed: `_fleshing.eager`)
     with programs shared by every limb of a bucket; traced, in one program."""
     dtype = registration.points.dtype
     target = pose if isinstance(pose, AbstractSpine) else pose.spine(rest, joint, stop)
     target = cast_floats(target, dtype)
+    zero = jnp.zeros((), dtype)
+    # The margin keeps edges whole on the rest side (the registration's); the images are
+    # checked to project back onto the bent spine (margin 0): with the margin there too, the
+    # region's bounds on a bend's changing curvature flagged most of a thin leg bent 60°.
     if is_concrete(target):
-        images, ok = pose_registration(registration, target, method=method, margin=margin,
+        images, ok = pose_registration(registration, target, method=method, margin=zero,
                                        beyond="rigid")
     else:
-        zero = jnp.zeros((), dtype)
-        images, ok = pose_points(registration, target, method, zero, True, margin, "rigid")
+        images, ok = pose_points(registration, target, method, zero, True, zero, "rigid")
     return images, ok, _end_motion(rest, target)
 
 

@@ -8,8 +8,9 @@ is up to arc length `j`, turned beyond it by a rotation that grows smoothly from
 
 where `t = T₀(j)` is the tangent at the joint, `a = t × (cos φ I + sin φ J)` with `(I, J)` the
 base's normals there (the bend turns the limb towards the normal at angle `φ` from `I`), and
-`r(u) = u³(10 − 15u + 6u²)`, whose first two derivatives vanish at both ends. So the curvature
-starts changing from nothing at the joint (a ramp, not a kink: what lies at the joint does not
+`r` rises from 0 to 1 with a slope that rises smoothly from 0 to a plateau and falls back to 0
+(`ramp`: its first two derivatives vanish at both ends). So the curvature starts changing from
+nothing at the joint (a ramp, not a kink: what lies at the joint does not
 move, nor does anything before it), and past `e` the spine is the base moved rigidly (a hoof
 follows its leg). Both rotations have fixed axes, so that past `e` the whole frame is the rest
 frame turned by one rotation. The normals turn with the tangent, `(I₁, J₁) = Q (I₀, J₀)`: the
@@ -40,14 +41,26 @@ INTERVALS = 32  # uniform intervals on [0, length], besides the base's own break
 _NODES, _WEIGHTS = np.polynomial.legendre.leggauss(GAUSS)
 
 
-def ramp(u: Array) -> Array:
-    """`r(u) = u³(10 − 15u + 6u²)`: 0 at 0, 1 at 1, first two derivatives 0 at both."""
-    return u**3 * (10 - 15 * u + 6 * u**2)
+EDGE = 0.25  # the fraction of the ramp over which its slope rises (and then falls)
 
 
-def ramp_slope(u: Array) -> Array:
-    """`r′(u) = 30 u²(1 − u)²`."""
-    return 30 * u**2 * (1 - u) ** 2
+def _rise(v: Array) -> tuple[Array, Array]:
+    """`(∫₀ᵛ S, S(v))` of the smoothstep `S(v) = 3v² − 2v³` on `[0, 1]`."""
+    return v**3 - v**4 / 2, 3 * v**2 - 2 * v**3
+
+
+def ramp(u: Array) -> tuple[Array, Array]:
+    """`(r(u), r′(u))` on `[0, 1]`: `r` goes from 0 to 1, its slope rises from 0 to a plateau
+    over the first `EDGE` of the way (a smoothstep: no jump in the slope's derivative either)
+    and falls back to 0 over the last. The plateau is `1/(1 − EDGE)` (4/3), where a single
+    smooth bump would peak at 15/8: the largest curvature a bend needs is that much lower."""
+    e, scale = EDGE, 1 / (1 - EDGE)
+    first, first_slope = _rise(jnp.where(u < e, u, e) / e)
+    last, last_slope = _rise(jnp.where(u > 1 - e, 1 - u, e) / e)
+    value = jnp.where(u < e, scale * e * first,
+                      jnp.where(u > 1 - e, 1 - scale * e * last, scale * (u - e / 2)))
+    slope = jnp.where(u < e, first_slope, jnp.where(u > 1 - e, last_slope, 1))
+    return value, scale * slope
 
 
 def rotate(axis: Array, angle: Array, v: Array) -> Array:
@@ -166,7 +179,8 @@ class PreparedBent(AbstractSpine):
         width = self.stop - self.joint
         u = (s - self.joint) / width
         u = jnp.where(u < 0, 0, jnp.where(u > 1, 1, u))
-        return ramp(u), ramp_slope(u) / width
+        value, slope = ramp(u)
+        return value, slope / width
 
     def _turn(self, r: Array, v: Array) -> Array:
         """`Q v` for the ramp value `r`."""
@@ -231,7 +245,10 @@ def _prepared(spine: BentSpine) -> PreparedBent:
     axis = jnp.cross(t, jnp.cos(spine.direction) * i + jnp.sin(spine.direction) * j)
     length = base.length
     uniform = jnp.linspace(0, 1, INTERVALS + 1, dtype=length.dtype) * length
-    cuts = jnp.concatenate([base._breaks(), uniform, jnp.stack([spine.joint, spine.stop])])
+    # (The ramp is analytic between the joint, the ends of its edges and the stop.)
+    width = spine.stop - spine.joint
+    ends = [spine.joint, spine.joint + EDGE * width, spine.stop - EDGE * width, spine.stop]
+    cuts = jnp.concatenate([base._breaks(), uniform, jnp.stack(ends)])
     breaks = jnp.sort(jnp.where(cuts < spine.joint, spine.joint,
                                 jnp.where(cuts > spine.stop, spine.stop, cuts)))
     partial = PreparedBent(base, spine.joint, spine.stop, spine.bend, spine.twist, axis, t,
