@@ -8,6 +8,9 @@
     fleshing-jax medial-deform IN OUT --medial IN.ma --handles H.json [--method M]
                                       [--no-implicit]
     fleshing-jax skeleton IN OUT.json [--spheres N] [--seed S]
+    fleshing-jax pose IN OUT [--skeleton S.json] ((--limb K | --at X,Y,Z) --bend DEG
+                             [--direction DEG] [--twist DEG])... | --poses P.json)
+                             [--method M] [--allow-invalid] [--spheres N]
     fleshing-jax demo [--out DIR]
     fleshing-jax --version
 
@@ -40,6 +43,30 @@ Without --from, the rest spine is found on the medial axis of IN (IN must be clo
 --cap-holes), between the points --ends names (else along the medial axis's longest path), on
 the medial mesh --medial reads (from `fleshing-jax medial`; else computed), and printed as
 JSON; --save-spine FILE writes it, to reuse with --from."""
+
+
+POSES_FORMAT = """\
+poses files (JSON): a list of limbs, each named by its index or a point, e.g.
+  [{"limb": 7, "bend": 30, "direction": 90},
+   {"at": [0.1, 0.9, -0.3], "bend": 20, "twist": 10}]
+angles in degrees; "direction" and "twist" default to 0."""
+
+
+class _LimbGroup(argparse.Action):
+    """Collects `--limb`/`--at` and the angles after it into one group per limb (`args.limbs`:
+    a list of dicts); an angle before any `--limb`/`--at` is a usage error."""
+
+    def __call__(self, parser, namespace, value, option_string=None):
+        groups = getattr(namespace, "limbs", None) or []
+        if self.dest in ("limb", "at"):
+            groups.append({self.dest: value})
+        elif not groups:
+            parser.error(f"{option_string} must follow --limb K or --at X,Y,Z")
+        elif self.dest in groups[-1]:
+            parser.error(f"{option_string} given twice for one limb")
+        else:
+            groups[-1][self.dest] = value
+        namespace.limbs = groups
 
 
 def _point(text: str) -> tuple[float, float, float]:
@@ -187,6 +214,41 @@ def _parser() -> argparse.ArgumentParser:
         "--spheres", type=int, default=200, metavar="N", help="spheres of the medial mesh (200)"
     )
     skeleton.add_argument("--seed", type=int, default=0, help="seed of the surface samples")
+    pose = commands.add_parser(
+        "pose",
+        help="pose a closed mesh limb by limb on its skeleton (each limb bent, the rest still)",
+        description="Bend limbs of IN, each along its own spine from its joint (its child limbs "
+        "follow; the body and the other limbs stay exactly still), and write OUT in the format "
+        "of its extension. Each limb is named by --limb K (its index in the skeleton) or --at "
+        "X,Y,Z (the limb holding the vertex nearest to that point), followed by its --bend "
+        "(and optionally --direction and --twist), in degrees; or all of them in --poses.",
+        epilog=POSES_FORMAT,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    pose.add_argument("input", metavar="IN", help="input mesh (closed)")
+    pose.add_argument("output", metavar="OUT", help="output file; its extension sets the format")
+    pose.add_argument("--skeleton", metavar="S.json",
+                      help="skeleton (from `skeleton`; default: found on IN's medial mesh)")
+    pose.add_argument("--spheres", type=int, default=200, metavar="N",
+                      help="without --skeleton: spheres of the medial mesh (200)")
+    group = pose.add_argument_group("limbs (repeat the group for each limb)")
+    group.add_argument("--limb", type=int, metavar="K", action=_LimbGroup, help="limb index")
+    group.add_argument("--at", type=_point, metavar="X,Y,Z", action=_LimbGroup,
+                       help="the limb holding the vertex nearest to this point")
+    for name, what in (("bend", "the bend from the joint"), ("direction", "the direction of the "
+                       "bend about the limb's tangent at its joint (default 0)"),
+                       ("twist", "the twist about that tangent (default 0)")):
+        group.add_argument(f"--{name}", type=float, metavar="DEG", action=_LimbGroup,
+                           help=f"{what}, in degrees")
+    pose.add_argument("--poses", metavar="P.json", help="the limbs' poses in a file (below)")
+    pose.add_argument("--method", choices=METHODS[:3], default="radial",
+                      help="fleshing method (default: radial)")
+    pose.add_argument(
+        "--allow-invalid",
+        action="store_true",
+        help="write OUT even when vertices are invalid (left where they were: the mesh may be "
+        "torn around them); without it such a pose is not written and the status is 3",
+    )
     demo = commands.add_parser(
         "demo",
         help="bend a built-in creature with the four methods; write meshes, a figure, a table",
@@ -497,6 +559,115 @@ def _skeleton(args) -> int:
     return 0
 
 
+POSES_LIMIT = 1 << 20  # bytes of a poses file
+POSE_KEYS = {"limb", "at", "bend", "direction", "twist"}
+
+
+def _read_poses(path) -> list[dict]:
+    """The limbs' groups of a poses file (`POSES_FORMAT`), checked."""
+    import json
+    from pathlib import Path
+
+    from ._checks import check_readable_file
+
+    path = Path(path)
+    check_readable_file(path, "poses file", POSES_LIMIT)
+    try:
+        groups = json.loads(path.read_text(encoding="utf-8"))
+    except (json.JSONDecodeError, UnicodeDecodeError) as error:
+        raise ValueError(f"{path}: not a JSON poses file ({error})") from None
+    if not isinstance(groups, list) or not all(isinstance(g, dict) for g in groups):
+        raise ValueError(f"{path}: a poses file is a list of objects (see --help)")
+    for g in groups:
+        unknown = set(g) - POSE_KEYS
+        if unknown or ("limb" in g) == ("at" in g) or "bend" not in g:
+            raise ValueError(f"{path}: each pose names its limb by \"limb\" or \"at\" and has "
+                             f"a \"bend\"; got {json.dumps(g)}")
+    return groups
+
+
+def _limb_poses(groups: list[dict], skeleton, source: str) -> dict:
+    """`{limb: LimbPose}` from the groups (a limb named by index or by a point)."""
+    from ._skeleton.limb_pose import LimbPose
+
+    poses = {}
+    for g in groups:
+        if "bend" not in g:
+            raise ValueError(f"{source}: limb {g.get('limb', g.get('at'))} has no --bend")
+        if "at" in g:
+            at = g["at"]
+            limb = skeleton.limb_at(at)
+            if limb < 0:
+                raise ValueError(f"{source}: the point {at} lies on the body, not on a limb")
+        else:
+            limb = g["limb"]
+            if isinstance(limb, bool) or not isinstance(limb, int) or not (
+                0 <= limb < len(skeleton.limbs)
+            ):
+                raise ValueError(f"{source}: no limb {limb!r}; the skeleton has limbs 0 to "
+                                 f"{len(skeleton.limbs) - 1}")
+        if limb in poses:
+            raise ValueError(f"{source}: limb {limb} is posed twice")
+        angles = [g.get(name, 0.0) for name in ("bend", "direction", "twist")]
+        if not all(isinstance(a, int | float) and abs(a) < float("inf") for a in angles):
+            raise ValueError(f"{source}: limb {limb}'s angles must be finite numbers of degrees")
+        poses[limb] = LimbPose(*(float(a) for a in angles))
+    return poses
+
+
+def _pose(args) -> int:
+    import numpy as np
+    import trimesh
+
+    from ._mesh.files import check_output_path, write_mesh_atomic
+    from ._mesh.volume import volume
+    from ._skeleton.posing import limb_causes, pose_skeleton, register_skeleton
+
+    check_output_path(args.output)
+    groups = getattr(args, "limbs", None) or []
+    if bool(groups) == (args.poses is not None):
+        raise ValueError("give the limbs' poses with --limb/--at groups or with --poses (one)")
+    if args.poses is not None:
+        groups = _read_poses(args.poses)
+    mesh = _load_input(args.input, False)
+    if not (isinstance(mesh, trimesh.Trimesh) and len(mesh.faces)):
+        raise ValueError(f"{args.input}: posing needs a triangle mesh")
+    started = time.perf_counter()
+    if args.skeleton is not None:
+        from ._skeleton.files import load_skeleton
+
+        skeleton = load_skeleton(args.skeleton)
+    else:
+        from ._skeleton.build import skeleton as find_skeleton
+
+        skeleton = find_skeleton(mesh, spheres=args.spheres)
+        print(f"skeleton (medial axis): {len(skeleton.limbs)} limbs")
+    poses = _limb_poses(groups, skeleton, args.poses or "--limb/--at")
+    registration = register_skeleton(mesh, skeleton)
+    posed = pose_skeleton(registration, skeleton, poses, method=args.method)
+    bent = mesh.copy()
+    bent.vertices = np.asarray(posed.vertices)
+    valid = np.asarray(posed.valid)
+    _print_volumes(mesh, bent, volume)
+    for limb, pose in poses.items():
+        print(f"limb {limb}: bend {float(pose.bend):g}, direction {float(pose.direction):g}, "
+              f"twist {float(pose.twist):g} degrees")
+    print(f"invalid vertices: {int(np.sum(~valid))} of {len(valid)}")
+    if not valid.all():
+        for limb, causes in limb_causes(registration, skeleton, poses, args.method).items():
+            if causes.invalid:
+                print(f" limb {limb}:")
+                _print_causes(causes)
+        if not args.allow_invalid:
+            print(f"not written: {int(np.sum(~valid))} vertices are invalid and would be left in "
+                  "place, tearing the mesh around them; bend less, or pass --allow-invalid to "
+                  "write it anyway", file=sys.stderr)
+            return 3
+    write_mesh_atomic(bent, args.output)
+    print(f"wrote {args.output} ({args.method}, {time.perf_counter() - started:.1f} s)")
+    return 0
+
+
 def _demo(args) -> int:
     from ._demo import format_table, run_demo
 
@@ -512,6 +683,7 @@ COMMANDS = {
     "medial": _medial,
     "medial-deform": _medial_deform,
     "skeleton": _skeleton,
+    "pose": _pose,
     "demo": _demo,
 }
 

@@ -195,3 +195,57 @@ def test_a_bend_beyond_the_limb_s_reach_is_flagged(skeleton, registration):
     region = np.asarray(skeleton.region)
     assert not valid[region == 2].all()
     assert valid[region != 2].all()
+
+
+def test_pose_command(tube, skeleton, tmp_path, capsys):
+    from fleshing_jax._cli import main
+
+    mesh, saved = tmp_path / "tube.obj", tmp_path / "tube.json"
+    tube.export(mesh)
+    fj.save_skeleton(skeleton, saved)
+    out = tmp_path / "posed.obj"
+    arguments = ["pose", str(mesh), str(out), "--skeleton", str(saved)]
+    assert main([*arguments, "--limb", "0", "--bend", "40", "--direction", "90",
+                 "--at", "0.2,0,0", "--bend", "30"]) == 0
+    printed = capsys.readouterr().out
+    assert "volume after" in printed and "invalid vertices: 0 of" in printed
+    posed = fj.load_mesh(out)
+    rest, region = np.asarray(tube.vertices), np.asarray(skeleton.region)
+    np.testing.assert_allclose(posed.vertices[region == -1], rest[region == -1], atol=1e-6)
+    moved = np.linalg.norm(posed.vertices - rest, axis=1)
+    assert moved[region == 2].max() > 0.3 and moved[region == 1].max() > 0.3  # --at: limb 2
+    # The same poses from a file.
+    poses = tmp_path / "poses.json"
+    poses.write_text('[{"limb": 0, "bend": 40, "direction": 90}, {"at": [0.2, 0, 0], "bend": 30}]')
+    again = tmp_path / "again.obj"
+    assert main(["pose", str(mesh), str(again), "--skeleton", str(saved),
+                 "--poses", str(poses)]) == 0
+    np.testing.assert_array_equal(fj.load_mesh(again).vertices, posed.vertices)
+    # Too far: not written, status 3, the causes printed.
+    folded = tmp_path / "folded.obj"
+    assert main([*arguments[:2], str(folded), *arguments[3:], "--limb", "2", "--bend", "175"]) == 3
+    captured = capsys.readouterr()
+    assert "limb 2:" in captured.out and "not written" in captured.err and not folded.exists()
+
+
+@pytest.mark.parametrize(
+    "options, message",
+    [
+        (["--bend", "30"], "must follow --limb"),
+        (["--limb", "9", "--bend", "30"], "no limb 9"),
+        (["--limb", "0"], "has no --bend"),
+        (["--limb", "0", "--bend", "10", "--bend", "20"], "given twice"),
+        (["--at", "3,0,0", "--bend", "10"], "on the body"),
+        (["--limb", "0", "--bend", "10", "--limb", "0", "--bend", "5"], "posed twice"),
+        ([], "--limb/--at groups or with --poses"),
+    ],
+)
+def test_pose_command_refuses_bad_poses(tube, skeleton, tmp_path, capsys, options, message):
+    from fleshing_jax._cli import main
+
+    mesh, saved = tmp_path / "tube.obj", tmp_path / "tube.json"
+    tube.export(mesh)
+    fj.save_skeleton(skeleton, saved)
+    out = tmp_path / "out.obj"
+    assert main(["pose", str(mesh), str(out), "--skeleton", str(saved), *options]) == 2
+    assert message in capsys.readouterr().err and not out.exists()

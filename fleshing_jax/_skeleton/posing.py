@@ -31,7 +31,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float
 
-from .._batching.buckets import bucket, pad_batch
+from .._batching.buckets import bucket, pad_batch, unpad_batch
 from .._checks import as_margin, is_concrete
 from .._fleshing.ends import EndFrames, aligned_twist, target_ends
 from .._fleshing.methods import check_method
@@ -307,3 +307,21 @@ def _pose_limb(registration, rest, pose, joint, stop, method):
 
 
 _end_motion = eqx.filter_jit(end_motion)
+
+
+def limb_causes(registration: SkeletonRegistration, skeleton: Skeleton, poses: dict,
+                method: str = "radial") -> dict:
+    """The invalid vertices of each posed limb's region, by cause (`fj.diagnose`'s `Causes`):
+    dict limb index → `Causes`, for the limbs posed with a `LimbPose` or a spine."""
+    from .._fleshing.diagnose import diagnose
+
+    poses = _check_poses(poses, skeleton)
+    causes = {}
+    for k, pose in poses.items():
+        reg = registration
+        n = reg.indices[k].shape[0]
+        target = pose if isinstance(pose, AbstractSpine) else pose.spine(
+            reg.rests[k], reg.joints[k], reg.stops[k])
+        causes[k] = diagnose(unpad_batch(reg.registrations[k], n), target,
+                             method=check_method(method), beyond="rigid")
+    return causes
