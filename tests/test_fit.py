@@ -147,6 +147,7 @@ def test_loss_gradient_matches_finite_differences_arc_twist():
 
 
 @needs_bspline
+@pytest.mark.slow  # (`python -m pytest -m slow`: the longest compile of the suite)
 def test_bspline_gradient_and_recovery_from_straight_with_fixed_root_and_noise():
     # One test, so that the B-spline compilations are shared.
     rest, truth, init = _bsplines()

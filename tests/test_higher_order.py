@@ -131,6 +131,7 @@ def test_check_grads_of_flesh_to_second_order():
     check_grads(_images, args, order=2, modes=("rev",), eps=1e-4, atol=1e-6, rtol=1e-6)
 
 
+@pytest.mark.slow  # (`python -m pytest -m slow`; second order stays checked above)
 def test_hessian_of_a_fitting_loss():
     """`jax.hessian` (forward over reverse) of a least-squares fitting loss in the target's
     control points against central differences of its gradient."""

@@ -238,8 +238,9 @@ PAIRS = {
     [
         ("line-arc", "radial"),
         ("arc-line", "radial"),
-        ("helix-helix", "normal"),
-        ("bspline-bspline", "binormal"),
+        # (The free-form cases with `python -m pytest -m slow`: the longest compiles.)
+        pytest.param("helix-helix", "normal", marks=pytest.mark.slow),
+        pytest.param("bspline-bspline", "binormal", marks=pytest.mark.slow),
     ],
 )
 def test_float32_batched_paths_agree_with_exact_float64(pair, method):
