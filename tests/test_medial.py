@@ -8,9 +8,9 @@ import os
 import numpy as np
 import pytest
 import trimesh
-from fleshing_jax._medial import construct, primitives, simplify
 
 import fleshing_jax as fj
+from fleshing_jax._medial_axis import construct, primitives, simplify
 from fleshing_jax._medial_axis.construct import medial_mesh
 from fleshing_jax._medial_axis.distance import medial_distance
 from fleshing_jax._medial_axis.files import load_medial, save_medial

@@ -17,12 +17,13 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 import trimesh
-from fleshing_jax._medial import construct, deform, distance, files
 
 import fleshing_jax as fj
 from fleshing_jax._cli import main
+from fleshing_jax._medial_axis import construct, distance, files
 from fleshing_jax._medial_axis.medial_mesh import MedialMesh
 from fleshing_jax._medial_axis.surface import closed_mesh_arrays
+from fleshing_jax._medial_deform import deform
 from fleshing_jax._medial_deform.handle_files import load_handles
 from fleshing_jax._medial_deform.pose import MedialPose
 from fleshing_jax._medial_deform.rig import MedialRig

@@ -10,9 +10,10 @@ a sphere) with a chain of cones hanging off it and a lone sphere; 1500 points ar
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from fleshing_jax._medial import footprint, primitives
 
+from fleshing_jax._medial_axis import primitives
 from fleshing_jax._medial_axis.primitives import _Cones, _Slabs
+from fleshing_jax._medial_deform import footprint
 from fleshing_jax._medial_deform.footprint import _nearest_k, bind, slab_distance
 from fleshing_jax._medial_deform.implicit import cone_table, pack_rows, slab_table, unpack_rows
 

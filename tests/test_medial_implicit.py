@@ -12,10 +12,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from fleshing_jax._medial import implicit
 from jax.test_util import check_grads
 
 from fleshing_jax._medial_axis.medial_mesh import MedialMesh
+from fleshing_jax._medial_deform import implicit
 from fleshing_jax._medial_deform.implicit import (
     cone_field,
     cone_table,

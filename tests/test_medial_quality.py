@@ -8,8 +8,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 import trimesh
-from fleshing_jax._medial import simplify
 
+from fleshing_jax._medial_axis import simplify
 from fleshing_jax._medial_axis.animal import animal, animal_medial
 from fleshing_jax._medial_axis.connect import components, join_pieces
 from fleshing_jax._medial_axis.construct import medial_mesh
