@@ -219,7 +219,8 @@ def test_envelope_is_closed_and_manifold_where_it_is_a_cell_thin(resolution):
 
 def test_uncovered_in_blocks_matches_one_pass(monkeypatch):
     """The worst uncovered samples of every edge, computed in blocks of a small budget, are
-    those of one pass."""
+    those of one pass, and measuring first the samples of highest bound (one per edge)
+    gives what measuring every sample does."""
     rng = np.random.default_rng(0)
     n = 30
     spheres = np.concatenate([rng.normal(size=(n, 3)), rng.uniform(0.2, 0.5, (n, 1))], 1)
@@ -237,3 +238,9 @@ def test_uncovered_in_blocks_matches_one_pass(monkeypatch):
     blocks = simplify._uncovered(spheres, edges, faces, edges, optimum, samples, points)
     np.testing.assert_array_equal(whole, blocks)
     assert (whole > 0).any()
+    monkeypatch.setattr(simplify, "TOP", 10**6)  # every sample measured exactly first
+    every = simplify._uncovered(spheres, edges, faces, edges, optimum, samples, points)
+    monkeypatch.setattr(simplify, "TOP", 1)
+    np.testing.assert_array_equal(every, simplify._uncovered(spheres, edges, faces, edges,
+                                                             optimum, samples, points))
+    np.testing.assert_array_equal(every, blocks)
