@@ -291,6 +291,15 @@ def test_candidate_search_and_pruning_keep_every_closest_pair(monkeypatch):
     for a, b in zip(_closest(points, *kept, after), _closest(points, found.pts, found.prim,
                                                               after)):
         np.testing.assert_array_equal(a, b)
+    # Over the budget of pairs, the band narrows (the steps with it) and keeps each
+    # sample's closest pair.
+    assert len(found.pts) > 1000
+    monkeypatch.setattr(candidates, "PAIRS", 900)
+    narrow = candidates.search(points, union, params, margin=0.05, reach=0.1)
+    assert 0.05 / 8 < narrow.margin < 0.05 and len(narrow.pts) <= 901
+    assert (np.diff(narrow.prim) >= 0).all()
+    np.testing.assert_array_equal(_closest(points, narrow.pts, narrow.prim, union)[0],
+                                  _closest(points, found.pts, found.prim, union)[0])
 
 
 def test_union_closest_gives_the_distance_and_its_gradient():

@@ -35,15 +35,21 @@ BUDGET = 1 << 19  # (sample, primitive) distances that `ball_pairs` computes at 
 def ball_pairs(points, centre, radius):
     """Every pair `(pts, prim)` with `|points[pts] − centre[prim]| <= radius[prim]`, the
     primitives ascending (and the samples ascending within each), for `points (N, 3)`,
-    `centre (P, 3)`, `radius (P,)`; taken in blocks of about `BUDGET` pairs (a few MB: they
-    stay in the cache)."""
+    `centre (P, 3)`, `radius (P,)` (see `ball_blocks`)."""
+    blocks = list(ball_blocks(points, centre, radius))
+    return tuple(np.concatenate([np.zeros(0, np.int64)] + [block[k] for block in blocks])
+                 for k in range(2))
+
+
+def ball_blocks(points, centre, radius):
+    """`ball_pairs` in blocks of about `BUDGET` tested pairs (a few MB: they stay in the
+    cache), primitives ascending from block to block."""
     origin = points.mean(axis=0) if len(points) else np.zeros(3)
     p, c = points - origin, centre - origin  # near the origin: little cancellation below
     pp = np.einsum("ij,ij->i", p, p)
     minus_2p = np.ascontiguousarray(-2 * p.T)
     limit = radius**2 - np.einsum("ij,ij->i", c, c)
     rows = max(1, BUDGET // max(len(p), 1))
-    found_pts, found_prim = [np.zeros(0, np.int64)], [np.zeros(0, np.int64)]
     for start in range(0, len(c), rows):
         # |p − c|² <= r²  ⇔  |p|² − 2 c·p <= r² − |c|², by coordinates: a matrix product
         # with 3 columns gains nothing from BLAS, whose threads slowed it on a busy machine.
@@ -54,44 +60,76 @@ def ball_pairs(points, centre, radius):
         square += pp
         prim, pts = np.divmod(np.flatnonzero(square <= limit[start:start + rows, None]),
                               len(p))
-        found_pts.append(pts), found_prim.append(prim + start)
-    return np.concatenate(found_pts), np.concatenate(found_prim)
+        yield pts, prim + start
+
+
+PAIRS = 4_000_000  # the most candidate pairs `search` keeps (about 100 MB; see there)
 
 
 @dataclass
 class Candidates:
     """Candidate pairs `pts (M,)`, `prim (M,)` (primitives ascending), their distances
-    `value (M,)` at the spheres `anchor (n, 4)` where they were found."""
+    `value (M,)` at the spheres `anchor (n, 4)` where they were found, valid while no sphere
+    moves by more than `margin` from there."""
 
     pts: np.ndarray
     prim: np.ndarray
     value: np.ndarray
     anchor: np.ndarray
+    margin: float
 
 
 def search(points, union: UnionPrimitives, params, margin: float, reach: float) -> Candidates:
     """The pairs within `2 margin` of each sample's smallest distance to the `union` of
     the spheres `params (n, 4)`, among the primitives whose bounding sphere comes within
-    `reach` of it. Every sample gets one: the reach grows (×4) until it does."""
+    `reach` of it. Every sample gets one: the reach grows (×4) until it does.
+
+    At most about `PAIRS` pairs are kept: beyond, the margin is narrowed until they fit
+    (down to an eighth; the fit's steps shorten with it). On a sphere nearly every
+    primitive lies within `2 margin` of every sample (9.2M pairs, 358 a sample, at 100
+    spheres: 1.4 GB and 42 s for the fit); on spot at 200 spheres they are 1.2M."""
     best = np.full(len(points), np.inf)
     found_pts, found_prim, found_val = [], [], []
     todo = np.arange(len(points))
+    floor, held = margin / 8, 0
     while len(todo):
-        pts, prim = ball_pairs(points[todo], union.centre, union.radius + reach)
-        if len(pts):
+        for pts, prim in ball_blocks(points[todo], union.centre, union.radius + reach):
             pts = todo[pts]
             value = union.distance(points, pts, prim)
             np.minimum.at(best, pts, value)
-            found_pts.append(pts), found_prim.append(prim), found_val.append(value)
+            # Only the pairs within the band of the best so far (a superset of the final
+            # band): on a sphere, all pairs at once took 1.5 GB.
+            near = value <= best[pts] + 2 * margin
+            found_pts.append(pts[near]), found_prim.append(prim[near])
+            found_val.append(value[near])
+            held += near.sum()
+            if held > 2 * PAIRS and margin > floor:  # narrowed early: memory stays capped
+                pts, prim, value = (np.concatenate(x) for x in (found_pts, found_prim,
+                                                                found_val))
+                margin = _narrowed(value - best[pts], margin, floor)
+                near = value <= best[pts] + 2 * margin
+                found_pts, found_prim, found_val = [pts[near]], [prim[near]], [value[near]]
+                held = near.sum()
         # A sample whose best is beyond `reach` may have a closer primitive not yet searched.
         todo = todo[~(best[todo] <= reach)]
         reach *= 4
-    pts, prim, value = (np.concatenate(x) if len(x) > 1 else x[0]
-                        for x in (found_pts, found_prim, found_val))
-    keep = np.flatnonzero(value <= best[pts] + 2 * margin)
-    if len(found_pts) > 1:  # `UnionPrimitives.closest` wants the primitives ascending
+    pts, prim, value = (np.concatenate(x) for x in (found_pts, found_prim, found_val))
+    gap = value - best[pts]
+    keep = np.flatnonzero(gap <= 2 * margin)
+    if len(keep) > PAIRS:
+        margin = _narrowed(gap[keep], margin, floor)
+        keep = keep[gap[keep] <= 2 * margin]
+    if (np.diff(prim[keep]) < 0).any():  # after a second reach: sorted by primitive again
         keep = keep[np.argsort(prim[keep], kind="stable")]
-    return Candidates(pts[keep], prim[keep], value[keep], params)
+    return Candidates(pts[keep], prim[keep], value[keep], params, margin)
+
+
+def _narrowed(gap, margin: float, floor: float) -> float:
+    """The margin, at most `margin` and at least `floor`, that keeps about `PAIRS` of the
+    pairs at `gap` (M,) above their samples' best within twice it."""
+    if len(gap) <= PAIRS:
+        return margin
+    return min(margin, max(float(np.partition(gap, PAIRS)[PAIRS]) / 2 * (1 - 1e-9), floor))
 
 
 def _primitive_moves(union: UnionPrimitives, moved):

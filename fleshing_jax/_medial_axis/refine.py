@@ -221,6 +221,19 @@ def refine_spheres(points, targets, centers, radii, edges, faces, *, scale: floa
         """`iterations` damped Gauss-Newton steps from `params` (`pairs`: its candidates
         for `margin`, or None); `guard`: keep the centres inside `surface`."""
         damping = 1e-3
+        pairs = search(params, margin) if pairs is None else pairs
+
+        def trial_of(step, limit):
+            # No sphere moves by more than half of `limit` in one step, so that the
+            # candidates serve a few steps (see the module's notes).
+            move = np.linalg.norm(step[:, :3], axis=1) + np.abs(step[:, 3])
+            trial = params + step * np.minimum(1.0, limit / 2 / np.maximum(move, 1e-300))[:,
+                                                                                          None]
+            trial[:, 3] = np.maximum(trial[:, 3], 0.0)
+            if surface is not None and guard:
+                trial = _centres_kept_inside(surface, params, trial)
+            return trial
+
         for _ in range(iterations):
             weight = _weights(residual, len(points), power)
             hessian = (jac.T @ sparse.diags(weight) @ jac).tocsc()
@@ -232,16 +245,12 @@ def refine_spheres(points, targets, centers, radii, edges, faces, *, scale: floa
             for _ in range(8):
                 step = -sparse_linalg.spsolve((hessian + sparse.diags(damping * ridge)).tocsc(),
                                               gradient).reshape(-1, 4)
-                # No sphere moves by more than half of `margin` in one step, so that the
-                # candidates serve a few steps (see the module's notes).
-                move = np.linalg.norm(step[:, :3], axis=1) + np.abs(step[:, 3])
-                step *= np.minimum(1.0, margin / 2 / np.maximum(move, 1e-300))[:, None]
-                trial = params + step
-                trial[:, 3] = np.maximum(trial[:, 3], 0.0)
-                if surface is not None and guard:
-                    trial = _centres_kept_inside(surface, params, trial)
-                if pairs is None or _moved(trial, pairs.anchor).max() > margin:
+                trial = trial_of(step, pairs.margin)
+                if _moved(trial, pairs.anchor).max() > pairs.margin:
+                    limit = pairs.margin
                     pairs = search(params, margin)  # outside the candidates' validity
+                    if pairs.margin < limit:  # narrowed to the budget: shorter steps
+                        trial = trial_of(step, pairs.margin)
                 t_residual, t_jac = evaluate(trial, pairs)
                 if np.sum(weight * t_residual**2) < current:
                     params, residual, jac = trial, t_residual, t_jac
