@@ -271,6 +271,9 @@ def simplify(centers, radii, edges, faces, quadrics, target: int, *, scale: floa
     cost = np.full(len(edges), np.nan)
     optimum = np.zeros((len(edges), 4))
     member = np.arange(len(spheres))  # the sphere each initial sphere has gone into
+    # The pieces of the graph: a collapse merges two spheres of one piece, so they never
+    # split or join, and the labels are found once (not once per round).
+    piece = components(len(spheres), edges)[1]
     late_phase = False
     while len(spheres) > target and len(edges):
         n = len(spheres)
@@ -295,7 +298,6 @@ def simplify(centers, radii, edges, faces, quadrics, target: int, *, scale: floa
         # No collapse leaves a piece of the graph with one sphere (in no edge): the edges of
         # two-sphere pieces are out of the queue, and a piece of `s` spheres loses at most
         # `s - 2` in a round (below).
-        _, piece = components(n, edges)
         spare = np.bincount(piece, minlength=n) - 2
         queued = np.where(spare[piece[edges[:, 0]]] > 0, cost, np.inf)
         # The head of the queue: the `limit` cheapest edges, in order of cost.
@@ -340,7 +342,7 @@ def simplify(centers, radii, edges, faces, quadrics, target: int, *, scale: floa
         changed[keep] = True
         relabel = (np.cumsum(alive) - 1)[target_of]
         member = relabel[member]
-        spheres, A, b, c = spheres[alive], A[alive], b[alive], c[alive]
+        spheres, A, b, c, piece = spheres[alive], A[alive], b[alive], c[alive], piece[alive]
         touched = changed[edges].any(axis=1) | (~alive[edges]).any(axis=1)
         edges = np.sort(relabel[edges], axis=1)
         live = edges[:, 0] != edges[:, 1]
