@@ -24,6 +24,13 @@ import scipy.sparse.csgraph
 from scipy.spatial import cKDTree
 
 
+def distinct(values):
+    """The distinct values of an integer array, ascending: `np.unique(values)` by a sort
+    (NumPy 2's hash-based `np.unique` took 1.5 s for 1.5M keys, a sort 0.08 s)."""
+    values = np.sort(np.asarray(values).reshape(-1))
+    return values[np.r_[True, values[1:] != values[:-1]]] if len(values) else values
+
+
 def unique_rows(rows, n: int):
     """The distinct rows of `rows (m, k)` (indices below `n`), each sorted, in lexicographic
     order: as `np.unique(np.sort(rows, axis=1), axis=0)`, by one integer per row (a row sort
@@ -31,7 +38,7 @@ def unique_rows(rows, n: int):
     rows = np.sort(rows, axis=1)
     if float(n) ** rows.shape[1] >= 2.0**62:  # the keys would overflow
         return np.unique(rows, axis=0)
-    key = np.unique(rows @ (n ** np.arange(rows.shape[1] - 1, -1, -1, dtype=np.int64)))
+    key = distinct(rows @ (n ** np.arange(rows.shape[1] - 1, -1, -1, dtype=np.int64)))
     out = np.empty((len(key), rows.shape[1]), np.int64)
     for k in range(rows.shape[1] - 1, -1, -1):
         key, out[:, k] = np.divmod(key, n)

@@ -52,7 +52,7 @@ import functools
 
 import numpy as np
 
-from .connect import components
+from .connect import components, distinct
 from .primitives import _Cones, _Slabs
 
 
@@ -284,7 +284,7 @@ def simplify(centers, radii, edges, faces, quadrics, target: int, *, scale: floa
             points, initial = contacts
             # Each sphere's contact samples: those of the initial spheres gone into it (every
             # `sparse`-th sample only: enough for the worst one, at a fraction of the cost).
-            key = np.unique(member[:, None] * len(points) + initial)
+            key = distinct(member[:, None] * len(points) + initial)
             key = key[key % len(points) % sparse == 0]
             samples = (_groups(key // len(points), n), key % len(points))
             uncovered = functools.partial(_uncovered, spheres, edges, faces, samples=samples,

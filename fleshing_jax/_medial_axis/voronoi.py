@@ -26,7 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import Delaunay
 
-from .connect import join_pieces, unique_rows, volumes
+from .connect import distinct, join_pieces, unique_rows, volumes
 from .shells import shells
 from .surface import SurfaceQuery
 
@@ -107,7 +107,7 @@ def initial_medial_axis(query: SurfaceQuery, points, normals, weights, sample_fa
         for p, q in ((0, 1), (0, 2), (1, 2)):
             lo_, hi_ = np.minimum(facet[:, p], facet[:, q]), np.maximum(facet[:, p], facet[:, q])
             hull_keys.append(lo_ * n_points + hi_)
-    hull_keys = np.unique(np.concatenate(hull_keys))
+    hull_keys = distinct(np.concatenate(hull_keys))
     order = np.argsort(key, kind="stable")
     key, owner = key[order], owner[order]
     start = np.flatnonzero(np.r_[True, key[1:] != key[:-1]])
