@@ -79,8 +79,7 @@ class Candidates:
     margin: float
 
 
-def search(points, union: UnionPrimitives, params, margin: float, reach: float,
-           upper=None) -> Candidates:
+def search(points, union: UnionPrimitives, params, margin: float, reach: float) -> Candidates:
     """The pairs within `2 margin` of each sample's smallest distance to the `union` of
     the spheres `params (n, 4)`, among the primitives whose bounding sphere comes within
     `reach` of it. Every sample gets one: the reach grows (×4) until it does.
@@ -88,12 +87,7 @@ def search(points, union: UnionPrimitives, params, margin: float, reach: float,
     At most about `PAIRS` pairs are kept: beyond, the margin is narrowed until they fit
     (down to an eighth; the fit's steps shorten with it). On a sphere nearly every
     primitive lies within `2 margin` of every sample (9.2M pairs, 358 a sample, at 100
-    spheres: 1.4 GB and 42 s for the fit); on spot at 200 spheres they are 1.2M.
-
-    `upper (N,)`, when given, bounds each sample's distance from above (the fit's last
-    evaluation at `params`): a pair whose bounding sphere lies further than `2 margin`
-    beyond it is not measured (the samples inside the shape, deep in the union, lose most
-    of theirs)."""
+    spheres: 1.4 GB and 42 s for the fit); on spot at 200 spheres they are 1.2M."""
     best = np.full(len(points), np.inf)
     found_pts, found_prim, found_val = [], [], []
     todo = np.arange(len(points))
@@ -101,11 +95,6 @@ def search(points, union: UnionPrimitives, params, margin: float, reach: float,
     while len(todo):
         for pts, prim in ball_blocks(points[todo], union.centre, union.radius + reach):
             pts = todo[pts]
-            if upper is not None:
-                gap = points[pts] - union.centre[prim]
-                near = (np.sqrt(np.einsum("ij,ij->i", gap, gap)) - union.radius[prim]
-                        <= upper[pts] + 2 * margin)
-                pts, prim = pts[near], prim[near]
             value = union.distance(points, pts, prim)
             np.minimum.at(best, pts, value)
             # Only the pairs within the band of the best so far (a superset of the final

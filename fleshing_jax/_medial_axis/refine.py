@@ -185,12 +185,10 @@ def refine_spheres(points, targets, centers, radii, edges, faces, *, scale: floa
     # past each other (see the module's notes).
     rest = np.linalg.norm(params[edges[:, 0], :3] - params[edges[:, 1], :3], axis=1)
 
-    def search(params, margin, residual=None):
-        """The candidate pairs of `params`, valid while no sphere moves by over `margin`
-        (`residual`: that of `params`, whose samples' distances bound the search)."""
+    def search(params, margin):
+        """The candidate pairs of `params`, valid while no sphere moves by over `margin`."""
         union = UnionPrimitives(params[:, :3], params[:, 3], edges, faces)
-        upper = None if residual is None else residual[:len(points)] + targets
-        return _search(points, union, params, margin, 0.02 * scale, upper)
+        return _search(points, union, params, margin, 0.02 * scale)
 
     def evaluate(params, pairs):
         """Residuals and Jacobian of the samples, then of the spheres' containment."""
@@ -223,7 +221,7 @@ def refine_spheres(points, targets, centers, radii, edges, faces, *, scale: floa
         """`iterations` damped Gauss-Newton steps from `params` (`pairs`: its candidates
         for `margin`, or None); `guard`: keep the centres inside `surface`."""
         damping = 1e-3
-        pairs = search(params, margin, residual) if pairs is None else pairs
+        pairs = search(params, margin) if pairs is None else pairs
 
         def trial_of(step, limit):
             # No sphere moves by more than half of `limit` in one step, so that the
@@ -250,7 +248,7 @@ def refine_spheres(points, targets, centers, radii, edges, faces, *, scale: floa
                 trial = trial_of(step, pairs.margin)
                 if _moved(trial, pairs.anchor).max() > pairs.margin:
                     limit = pairs.margin
-                    pairs = search(params, margin, residual)  # outside their validity
+                    pairs = search(params, margin)  # outside the candidates' validity
                     if pairs.margin < limit:  # narrowed to the budget: shorter steps
                         trial = trial_of(step, pairs.margin)
                 t_residual, t_jac = evaluate(trial, pairs)
