@@ -93,14 +93,9 @@ class _Slabs:
         self.gram_inv = np.stack([g22 / det, -g12 / det, g11 / det], 1)
         self.ok = np.isfinite(self.gamma)
         self.g = np.nan_to_num(self.gamma, nan=1.0)
-        # One row per slab, gathered once per pair (`_parts`), with the barycentric
-        # coordinates' gradients `f1`, `f2` (the inverse Gram matrix folded in) and their
-        # products with `a`: each pair then costs four dot products.
-        gi = self.gram_inv
-        f1 = gi[:, :1] * self.e1 + gi[:, 1:2] * self.e2
-        f2 = gi[:, 1:2] * self.e1 + gi[:, 2:] * self.e2
-        self.table = np.concatenate([c0, self.m, f1, f2, self.a, np.stack(
-            [_dot(f1, self.a), _dot(f2, self.a), r0, self.g, self.ok], 1)], axis=1)
+        # One row per slab, gathered once per pair (`_parts`; see `_Cones`).
+        self.table = np.concatenate([c0, self.m, self.a, self.e1, self.e2, self.gram_inv,
+                                     np.stack([r0, self.g, self.ok], 1)], axis=1)
 
     def distance(self, p, i):
         """Signed distances of `p` (M, 3) to the tangent-plane parts of slabs `i` (M,), `inf`
@@ -116,23 +111,23 @@ class _Slabs:
     def _parts(self, p, i):
         """`distance`, and the foot's barycentric coordinates on `c1` and `c2`.
 
-        The tangent plane on the side of `p` has the normal `n = a ± γ m` (the sign of the
-        height `h = m·d`, `d = p − c0`); the foot `p − (|h|/γ) n` has the barycentric
-        coordinates `f·d − (|h|/γ) f·a` (`f·m = 0`) and the distance is `n·d − r0 =
-        a·d + γ |h| − r0`, computed only where the foot lies inside the triangle (on a
-        medial mesh, a few pairs in a thousand)."""
-        row = self.table[i]  # one gather per pair (see `_Cones`)
+        (The same arithmetic as on separate arrays, bit for bit: a shorter form, the inverse
+        Gram matrix folded in, changed the distances by 1e-16, which broke exact ties between
+        a capsule's primitives differently, and its fit at 200 spheres ended at 0.27 %
+        instead of 0.03 %.)"""
+        row = self.table[i]
+        r0, g, ok = row[:, 18:].T
         d = p - row[:, :3]
-        height, d1, d2 = np.einsum("ij,ikj->ki", d, row[:, 3:12].reshape(-1, 3, 3))
-        fa1, fa2, r0, g, ok = row[:, 15:].T
-        k = np.abs(height) / g
-        b1 = d1 - k * fa1
-        b2 = d2 - k * fa2
-        inside = np.flatnonzero((ok > 0) & (b1 >= 0) & (b2 >= 0) & (b1 + b2 <= 1))
-        value = np.full(len(p), np.inf)
-        value[inside] = (_dot(d[inside], row[inside, 12:15]) + g[inside] * np.abs(height[inside])
-                         - r0[inside])
-        return value, b1, b2
+        m = row[:, 3:6]
+        height = _dot(d, m)
+        n = row[:, 6:9] + (np.where(height >= 0, 1.0, -1.0) * g)[:, None] * m
+        w = d - (np.abs(height) / g)[:, None] * n  # the foot, relative to c0
+        w1, w2 = _dot(w, row[:, 9:12]), _dot(w, row[:, 12:15])
+        gi = row[:, 15:18]
+        b1 = gi[:, 0] * w1 + gi[:, 1] * w2
+        b2 = gi[:, 1] * w1 + gi[:, 2] * w2
+        inside = (ok > 0) & (b1 >= 0) & (b2 >= 0) & (b1 + b2 <= 1)
+        return np.where(inside, _dot(n, d) - r0, np.inf), b1, b2
 
 
 def cone_distance(p, c0, r0, c1, r1):
