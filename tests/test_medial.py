@@ -8,9 +8,10 @@ import os
 import numpy as np
 import pytest
 import trimesh
+from scipy.spatial import cKDTree
 
 import fleshing_jax as fj
-from fleshing_jax._medial_axis import construct, primitives, simplify
+from fleshing_jax._medial_axis import candidates, construct, primitives, simplify
 from fleshing_jax._medial_axis.construct import medial_mesh
 from fleshing_jax._medial_axis.distance import medial_distance
 from fleshing_jax._medial_axis.files import load_medial, save_medial
@@ -263,6 +264,42 @@ def test_pairs_evaluated_in_blocks_match_one_pass(monkeypatch):
     np.testing.assert_allclose(weights.sum(axis=1), 1.0)
     np.testing.assert_allclose(np.linalg.norm(points - foot, axis=1)
                                - np.einsum("ij,ij->i", weights, radii[spheres]), best, atol=1e-12)
+
+
+def test_candidate_search_and_pruning_keep_every_closest_pair(monkeypatch):
+    """The fit's candidates (`candidates`): `ball_pairs` in blocks finds exactly the pairs
+    of a k-d tree's ball queries, primitives ascending; after the spheres move, the pairs
+    that `prune` keeps give the same distances and closest spheres as all candidates."""
+    rng = np.random.default_rng(11)
+    centres, radii = rng.normal(size=(6, 3)), rng.uniform(0.2, 0.6, 6)
+    edges = np.array([[0, 1], [0, 2], [1, 2], [2, 3], [3, 4], [4, 5]])
+    faces = np.array([[0, 1, 2]])
+    union = UnionPrimitives(centres, radii, edges, faces)
+    points = 1.5 * rng.normal(size=(300, 3))
+    monkeypatch.setattr(candidates, "BUDGET", 700)  # blocks of two primitives
+    pts, prim = candidates.ball_pairs(points, union.centre, union.radius)
+    assert (np.diff(prim) >= 0).all()
+    lists = cKDTree(points).query_ball_point(union.centre, union.radius)
+    assert sorted(zip(prim.tolist(), pts.tolist())) == sorted(
+        (k, i) for k, found in enumerate(lists) for i in found)
+    params = np.concatenate([centres, radii[:, None]], axis=1)
+    found = candidates.search(points, union, params, margin=0.05, reach=0.1)
+    moved = params + rng.uniform(-0.02, 0.02, params.shape)  # at most 0.08 per sphere
+    after = UnionPrimitives(moved[:, :3], moved[:, 3], edges, faces)
+    kept = candidates.prune(found, after, moved, len(points), 1e-12)
+    assert len(kept[0]) < len(found.pts)
+    for a, b in zip(_closest(points, *kept, after), _closest(points, found.pts, found.prim,
+                                                              after)):
+        np.testing.assert_array_equal(a, b)
+    # Over the budget of pairs, the band narrows (the steps with it) and keeps each
+    # sample's closest pair.
+    assert len(found.pts) > 1000
+    monkeypatch.setattr(candidates, "PAIRS", 900)
+    narrow = candidates.search(points, union, params, margin=0.05, reach=0.1)
+    assert 0.05 / 8 < narrow.margin < 0.05 and len(narrow.pts) <= 901
+    assert (np.diff(narrow.prim) >= 0).all()
+    np.testing.assert_array_equal(_closest(points, narrow.pts, narrow.prim, union)[0],
+                                  _closest(points, found.pts, found.prim, union)[0])
 
 
 def test_union_closest_gives_the_distance_and_its_gradient():

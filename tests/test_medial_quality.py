@@ -11,7 +11,7 @@ import trimesh
 
 from fleshing_jax._medial_axis import simplify
 from fleshing_jax._medial_axis.animal import animal, animal_medial
-from fleshing_jax._medial_axis.connect import components, join_pieces
+from fleshing_jax._medial_axis.connect import components, join_pieces, unique_rows
 from fleshing_jax._medial_axis.construct import medial_mesh
 from fleshing_jax._medial_axis.distance import medial_distance
 from fleshing_jax._medial_axis.primitives import union_distance
@@ -92,6 +92,16 @@ def test_join_pieces_links_the_nearest_pieces_of_one_volume_only():
     lone = join_pieces(np.array([[0, 0, 0], [5, 0, 0], [0.5, 0, 0]], float),
                        np.zeros((0, 2), int), np.zeros(3, int))
     assert components(3, lone)[0] == 1 and len(lone) == 2
+
+
+def test_unique_rows_match_numpy_s_sorted_unique_rows():
+    """`unique_rows` (one integer key per row) gives `np.unique(np.sort(rows, 1), axis=0)`,
+    also where the keys would overflow (then it is that call)."""
+    rng = np.random.default_rng(2)
+    rows = rng.integers(0, 40, size=(500, 3))
+    expected = np.unique(np.sort(rows, axis=1), axis=0)
+    np.testing.assert_array_equal(unique_rows(rows, 40), expected)
+    np.testing.assert_array_equal(unique_rows(rows, 2**21), expected)
 
 
 def test_join_pieces_links_inside_the_shape_only():
@@ -209,7 +219,8 @@ def test_envelope_is_closed_and_manifold_where_it_is_a_cell_thin(resolution):
 
 def test_uncovered_in_blocks_matches_one_pass(monkeypatch):
     """The worst uncovered samples of every edge, computed in blocks of a small budget, are
-    those of one pass."""
+    those of one pass, and measuring first the samples of highest bound (one per edge)
+    gives what measuring every sample does."""
     rng = np.random.default_rng(0)
     n = 30
     spheres = np.concatenate([rng.normal(size=(n, 3)), rng.uniform(0.2, 0.5, (n, 1))], 1)
@@ -227,3 +238,9 @@ def test_uncovered_in_blocks_matches_one_pass(monkeypatch):
     blocks = simplify._uncovered(spheres, edges, faces, edges, optimum, samples, points)
     np.testing.assert_array_equal(whole, blocks)
     assert (whole > 0).any()
+    monkeypatch.setattr(simplify, "TOP", 10**6)  # every sample measured exactly first
+    every = simplify._uncovered(spheres, edges, faces, edges, optimum, samples, points)
+    monkeypatch.setattr(simplify, "TOP", 1)
+    np.testing.assert_array_equal(every, simplify._uncovered(spheres, edges, faces, edges,
+                                                             optimum, samples, points))
+    np.testing.assert_array_equal(every, blocks)

@@ -42,6 +42,10 @@ class _Cones:
         self.s = np.where(self.proper, (r0 - r1) / self.length, 0.0)
         self.co = np.sqrt(np.maximum(1 - self.s**2, 1e-300))
         self.c0, self.r0, self.c1, self.r1 = c0, r0, c1, r1
+        # One row per cone, gathered once per pair (`_parts`), not nine separate arrays.
+        self.table = np.concatenate([c0, self.u, c1, np.stack([r0, r1, self.s, self.co,
+                                                               self.length, self.proper], 1)],
+                                    axis=1)
 
     def distance(self, p, i):
         """Signed distances of points `p` (M, 3) to cones `i` (M,)."""
@@ -61,16 +65,17 @@ class _Cones:
     def _parts(self, p, i):
         """The distances to the two end spheres, to the lateral surface (`inf` where its
         minimiser is off the segment) and the minimiser's position `t` along the axis."""
-        c0, r0 = self.c0[i], self.r0[i]
-        d0 = p - c0
-        end0 = np.sqrt(_dot(d0, d0)) - r0
-        d1 = p - self.c1[i]
-        end1 = np.sqrt(_dot(d1, d1)) - self.r1[i]
-        x = _dot(d0, self.u[i])
-        y = np.sqrt(np.maximum(_dot(d0, d0) - x * x, 0))
-        s, co, length = self.s[i], self.co[i], self.length[i]
+        row = self.table[i]
+        r0, r1, s, co, length, proper = row[:, 9:].T
+        d0 = p - row[:, :3]
+        dd = _dot(d0, d0)
+        end0 = np.sqrt(dd) - r0
+        d1 = p - row[:, 6:9]  # (not |d0|² − 2 (c1 − c0)·d0 + |c1 − c0|²: it cancels near c1)
+        end1 = np.sqrt(_dot(d1, d1)) - r1
+        x = _dot(d0, row[:, 3:6])
+        y = np.sqrt(np.maximum(dd - x * x, 0))
         t = x - y * s / co
-        lateral = np.where(self.proper[i] & (t >= 0) & (t <= length), x * s + y * co - r0,
+        lateral = np.where((proper > 0) & (t >= 0) & (t <= length), x * s + y * co - r0,
                            np.inf)
         return end0, end1, lateral, t
 
@@ -88,6 +93,9 @@ class _Slabs:
         self.gram_inv = np.stack([g22 / det, -g12 / det, g11 / det], 1)
         self.ok = np.isfinite(self.gamma)
         self.g = np.nan_to_num(self.gamma, nan=1.0)
+        # One row per slab, gathered once per pair (`_parts`; see `_Cones`).
+        self.table = np.concatenate([c0, self.m, self.a, self.e1, self.e2, self.gram_inv,
+                                     np.stack([r0, self.g, self.ok], 1)], axis=1)
 
     def distance(self, p, i):
         """Signed distances of `p` (M, 3) to the tangent-plane parts of slabs `i` (M,), `inf`
@@ -101,19 +109,25 @@ class _Slabs:
         return value, np.stack([1 - b1 - b2, b1, b2], 1)
 
     def _parts(self, p, i):
-        """`distance`, and the foot's barycentric coordinates on `c1` and `c2`."""
-        d = p - self.c0[i]
-        m = self.m[i]
+        """`distance`, and the foot's barycentric coordinates on `c1` and `c2`.
+
+        (The same arithmetic as on separate arrays, bit for bit: a shorter form, the inverse
+        Gram matrix folded in, changed the distances by 1e-16, which broke exact ties between
+        a capsule's primitives differently, and its fit at 200 spheres ended at 0.27 %
+        instead of 0.03 %.)"""
+        row = self.table[i]
+        r0, g, ok = row[:, 18:].T
+        d = p - row[:, :3]
+        m = row[:, 3:6]
         height = _dot(d, m)
-        g = self.g[i]
-        n = self.a[i] + (np.where(height >= 0, 1.0, -1.0) * g)[:, None] * m
+        n = row[:, 6:9] + (np.where(height >= 0, 1.0, -1.0) * g)[:, None] * m
         w = d - (np.abs(height) / g)[:, None] * n  # the foot, relative to c0
-        w1, w2 = _dot(w, self.e1[i]), _dot(w, self.e2[i])
-        gi = self.gram_inv[i]
+        w1, w2 = _dot(w, row[:, 9:12]), _dot(w, row[:, 12:15])
+        gi = row[:, 15:18]
         b1 = gi[:, 0] * w1 + gi[:, 1] * w2
         b2 = gi[:, 1] * w1 + gi[:, 2] * w2
-        inside = self.ok[i] & (b1 >= 0) & (b2 >= 0) & (b1 + b2 <= 1)
-        return np.where(inside, _dot(n, d) - self.r0[i], np.inf), b1, b2
+        inside = (ok > 0) & (b1 >= 0) & (b2 >= 0) & (b1 + b2 <= 1)
+        return np.where(inside, _dot(n, d) - r0, np.inf), b1, b2
 
 
 def cone_distance(p, c0, r0, c1, r1):

@@ -16,7 +16,8 @@ cones and slabs, by damped Gauss-Newton (Levenberg-Marquardt) steps:
   by at most `δ`, so the (sample, primitive) pairs whose distance is within `2 margin` of
   the sample's best stay the only candidates while no sphere has moved more than `margin`
   since they were found: steps are clipped to that, and the candidates found again when a
-  step would leave it;
+  step would leave it (`candidates`: the search tests bounding spheres in blocks, and each
+  evaluation skips the pairs that the spheres' moves since the search prove too far);
 - samples that the union misses pull its boundary out; samples inside it (a bulge) push the
   primitive that covers them deepest back in;
 - points inside the shape are fitted too, to minus their depth, so that the union does not
@@ -54,68 +55,20 @@ cones and slabs, by damped Gauss-Newton (Levenberg-Marquardt) steps:
 
 from __future__ import annotations
 
-import itertools
-
 import numpy as np
 import scipy.sparse as sparse
 import scipy.sparse.linalg as sparse_linalg
-from scipy.spatial import cKDTree
 
+from .candidates import closest as _closest, prune, search as _search
 from .primitives import UnionPrimitives
 from .surface import SurfaceQuery
 
 
-def _candidates(tree, points, union: UnionPrimitives, margin: float, reach: float):
-    """(sample, primitive) pairs within `2 margin` of each sample's smallest distance.
-    Every sample gets one: the search radius grows from `reach` until it does."""
-    best = np.full(len(points), np.inf)
-    found_pts, found_prim, found_val = [], [], []
-    todo = np.arange(len(points))
-    while len(todo):
-        sub = tree if len(todo) == len(points) else cKDTree(points[todo])
-        # Unsorted, and read in one pass (not one array per list): the order of a primitive's
-        # samples does not matter (`_closest` breaks ties by primitive), and most of the
-        # search's time was spent sorting and converting millions of Python integers.
-        lists = sub.query_ball_point(union.centre, union.radius + reach, return_sorted=False)
-        sizes = np.fromiter(map(len, lists), dtype=np.int64, count=len(lists))
-        if sizes.sum():
-            pts = todo[np.fromiter(itertools.chain.from_iterable(lists), dtype=np.int64,
-                                   count=sizes.sum())]
-            prim = np.repeat(np.arange(len(lists)), sizes)
-            value = union.distance(points, pts, prim)
-            np.minimum.at(best, pts, value)
-            found_pts.append(pts), found_prim.append(prim), found_val.append(value)
-        # A sample whose best is beyond `reach` may have a closer primitive not yet searched.
-        todo = todo[~(best[todo] <= reach)]
-        reach *= 4
-    pts, prim, value = (np.concatenate(x) if len(x) > 1 else x[0]
-                        for x in (found_pts, found_prim, found_val))
-    keep = np.flatnonzero(value <= best[pts] + 2 * margin)
-    if len(found_pts) > 1:  # `UnionPrimitives.closest` wants the primitives ascending
-        keep = keep[np.argsort(prim[keep], kind="stable")]
-    return pts[keep], prim[keep]
-
-
-def _closest(points, pts, prim, union: UnionPrimitives):
-    """Each sample's distance to the union `(N,)`, and its closest primitive's spheres and
-    weights `(N, 3)`, from candidate pairs (every sample has one)."""
-    value = union.distance(points, pts, prim)
-    best = np.full(len(points), np.inf)
-    np.minimum.at(best, pts, value)
-    # One attaining pair per sample: of several, the last in the pairs' order (NumPy's
-    # assignment with repeated indices keeps the last write), i.e. the one of the largest
-    # primitive (a sample meets a primitive in at most one pair, or in equal duplicates),
-    # whatever the order of the samples within a primitive.
-    hit = np.flatnonzero(value == best[pts])
-    pick = np.empty(len(points), dtype=np.int64)
-    pick[pts[hit]] = hit
-    # Spheres and weights of the attaining pairs only (evaluated again: cheaper than filling
-    # them for every pair). `pick` follows the pairs' order, so its primitives ascend.
-    pick.sort()
-    _, spheres, weights = union.closest(points, pts[pick], prim[pick])
-    order = np.empty(len(points), dtype=np.int64)
-    order[pts[pick]] = np.arange(len(points))
-    return best, spheres[order], weights[order]
+def _moved(params, anchor):
+    """How far `(n,)` each sphere of `params (n, 4)` lies from `anchor (n, 4)`: the centre's
+    move plus the radius's."""
+    return np.linalg.norm(params[:, :3] - anchor[:, :3], axis=1) + np.abs(params[:, 3]
+                                                                          - anchor[:, 3])
 
 
 def _jacobian(points, spheres, weights, params):
@@ -222,7 +175,6 @@ def refine_spheres(points, targets, centers, radii, edges, faces, *, scale: floa
     params = np.concatenate([centers, radii[:, None]], axis=1).astype(np.float64)
     edges, faces = np.asarray(edges).reshape(-1, 2), np.asarray(faces).reshape(-1, 3)
     margin = margin * scale
-    tree = cKDTree(points)
     n = len(params)
     # A sphere's containment weighs a tenth of its share of the samples: more (1, 10) kept
     # the merged spheres, which overhang the surface a little by design, too small (the
@@ -236,11 +188,12 @@ def refine_spheres(points, targets, centers, radii, edges, faces, *, scale: floa
     def search(params, margin):
         """The candidate pairs of `params`, valid while no sphere moves by over `margin`."""
         union = UnionPrimitives(params[:, :3], params[:, 3], edges, faces)
-        return _candidates(tree, points, union, margin, 0.02 * scale)
+        return _search(points, union, params, margin, 0.02 * scale)
 
     def evaluate(params, pairs):
         """Residuals and Jacobian of the samples, then of the spheres' containment."""
         union = UnionPrimitives(params[:, :3], params[:, 3], edges, faces)
+        pairs = prune(pairs, union, params, len(points), 1e-9 * scale)
         value, spheres, weights = _closest(points, *pairs, union)
         residual, jac = value - targets, _jacobian(points, spheres, weights, params)
         if surface is not None:
@@ -267,8 +220,20 @@ def refine_spheres(points, targets, centers, radii, edges, faces, *, scale: floa
     def descend(params, pairs, residual, jac, iterations, margin, guard):
         """`iterations` damped Gauss-Newton steps from `params` (`pairs`: its candidates
         for `margin`, or None); `guard`: keep the centres inside `surface`."""
-        anchor = params
         damping = 1e-3
+        pairs = search(params, margin) if pairs is None else pairs
+
+        def trial_of(step, limit):
+            # No sphere moves by more than half of `limit` in one step, so that the
+            # candidates serve a few steps (see the module's notes).
+            move = np.linalg.norm(step[:, :3], axis=1) + np.abs(step[:, 3])
+            trial = params + step * np.minimum(1.0, limit / 2 / np.maximum(move, 1e-300))[:,
+                                                                                          None]
+            trial[:, 3] = np.maximum(trial[:, 3], 0.0)
+            if surface is not None and guard:
+                trial = _centres_kept_inside(surface, params, trial)
+            return trial
+
         for _ in range(iterations):
             weight = _weights(residual, len(points), power)
             hessian = (jac.T @ sparse.diags(weight) @ jac).tocsc()
@@ -280,18 +245,12 @@ def refine_spheres(points, targets, centers, radii, edges, faces, *, scale: floa
             for _ in range(8):
                 step = -sparse_linalg.spsolve((hessian + sparse.diags(damping * ridge)).tocsc(),
                                               gradient).reshape(-1, 4)
-                # No sphere moves by more than half of `margin` in one step, so that the
-                # candidates serve a few steps (see the module's notes).
-                move = np.linalg.norm(step[:, :3], axis=1) + np.abs(step[:, 3])
-                step *= np.minimum(1.0, margin / 2 / np.maximum(move, 1e-300))[:, None]
-                trial = params + step
-                trial[:, 3] = np.maximum(trial[:, 3], 0.0)
-                if surface is not None and guard:
-                    trial = _centres_kept_inside(surface, params, trial)
-                moved = np.linalg.norm(trial[:, :3] - anchor[:, :3], axis=1) + np.abs(
-                    trial[:, 3] - anchor[:, 3])
-                if pairs is None or moved.max() > margin:  # outside the candidates' validity
-                    pairs, anchor = search(params, margin), params
+                trial = trial_of(step, pairs.margin)
+                if _moved(trial, pairs.anchor).max() > pairs.margin:
+                    limit = pairs.margin
+                    pairs = search(params, margin)  # outside the candidates' validity
+                    if pairs.margin < limit:  # narrowed to the budget: shorter steps
+                        trial = trial_of(step, pairs.margin)
                 t_residual, t_jac = evaluate(trial, pairs)
                 if np.sum(weight * t_residual**2) < current:
                     params, residual, jac = trial, t_residual, t_jac

@@ -26,7 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import Delaunay
 
-from .connect import join_pieces, volumes
+from .connect import distinct, join_pieces, unique_rows, volumes
 from .shells import shells
 from .surface import SurfaceQuery
 
@@ -96,8 +96,9 @@ def initial_medial_axis(query: SurfaceQuery, points, normals, weights, sample_fa
 
     # Voronoi faces: Delaunay edges whose whole ring of tetrahedra is kept, off the hull.
     n_points = len(points)
-    ends = np.sort(tets[:, _PAIRS], axis=2)  # (T, 6, 2)
-    key = (ends[..., 0] * n_points + ends[..., 1]).reshape(-1)
+    ends = tets[:, _PAIRS]  # (T, 6, 2); min and max, not a sort of millions of pairs
+    key = (np.minimum(ends[..., 0], ends[..., 1]) * n_points
+           + np.maximum(ends[..., 0], ends[..., 1])).reshape(-1)
     owner = np.repeat(np.arange(len(tets)), 6)
     on_hull = neighbours < 0
     hull_keys = []
@@ -106,7 +107,7 @@ def initial_medial_axis(query: SurfaceQuery, points, normals, weights, sample_fa
         for p, q in ((0, 1), (0, 2), (1, 2)):
             lo_, hi_ = np.minimum(facet[:, p], facet[:, q]), np.maximum(facet[:, p], facet[:, q])
             hull_keys.append(lo_ * n_points + hi_)
-    hull_keys = np.unique(np.concatenate(hull_keys))
+    hull_keys = distinct(np.concatenate(hull_keys))
     order = np.argsort(key, kind="stable")
     key, owner = key[order], owner[order]
     start = np.flatnonzero(np.r_[True, key[1:] != key[:-1]])
@@ -138,8 +139,8 @@ def initial_medial_axis(query: SurfaceQuery, points, normals, weights, sample_fa
         fan = np.flatnonzero(rank >= 2)
         faces = np.stack([head[fan], owner[fan - 1], owner[fan]], 1)
         edges += [faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [0, 2]]]
-    edges = np.unique(np.sort(np.concatenate(edges), axis=1), axis=0)
-    faces = np.unique(np.sort(faces, axis=1), axis=0)
+    edges = unique_rows(np.concatenate(edges), len(tets))
+    faces = unique_rows(faces, len(tets))
 
     # Every kept sphere, renumbered; then the pieces of each volume joined.
     used = np.flatnonzero(keep)

@@ -1,0 +1,180 @@
+"""The fit's candidate (sample, primitive) pairs: found, pruned, and read for the closest.
+
+A sample's distance to a medial mesh's union is that of its closest primitive, and moving
+every sphere by at most `δ` (centre plus radius) changes every primitive's distance by at
+most `δ` (`refine`'s notes). So the fit searches, now and then, for the pairs within
+`2 margin` of each sample's best (`search`), valid while no sphere moves more than `margin`
+from where they were found (the *anchor*), and evaluates only those.
+
+Both steps cost in proportion to their pairs (millions: spot at 200 spheres searches 3.7M
+and keeps 1.2M, for 25,000 samples), so each does less than all of them:
+
+- the search tests the primitives' bounding spheres against all samples in blocks of
+  `BUDGET` (sample, primitive) pairs, a matrix product and a comparison, instead of a k-d
+  tree's ball queries, whose Python lists of millions of integers were most of its time;
+- an evaluation at spheres moved by `Δ_k` from the anchor (`prune`) skips the pairs that
+  cannot attain a sample's best: a pair's distance is now at least its distance at the
+  anchor minus the largest `Δ_k` of its spheres, and a cone's (or lone sphere's) at most
+  that plus it, so a pair whose lower bound exceeds the least upper bound of its sample's
+  cones is never the closest (a slab's closed form is `inf` where its foot leaves the
+  triangle, so slabs give lower bounds only). The pairs kept keep their order, so the
+  closest pair chosen, and every distance, are those of all the candidates.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .primitives import UnionPrimitives
+
+BUDGET = 1 << 19  # (sample, primitive) distances that `ball_pairs` computes at once
+
+
+def ball_pairs(points, centre, radius):
+    """Every pair `(pts, prim)` with `|points[pts] − centre[prim]| <= radius[prim]`, the
+    primitives ascending (and the samples ascending within each), for `points (N, 3)`,
+    `centre (P, 3)`, `radius (P,)` (see `ball_blocks`)."""
+    blocks = list(ball_blocks(points, centre, radius))
+    return tuple(np.concatenate([np.zeros(0, np.int64)] + [block[k] for block in blocks])
+                 for k in range(2))
+
+
+def ball_blocks(points, centre, radius):
+    """`ball_pairs` in blocks of about `BUDGET` tested pairs (a few MB: they stay in the
+    cache), primitives ascending from block to block."""
+    origin = points.mean(axis=0) if len(points) else np.zeros(3)
+    p, c = points - origin, centre - origin  # near the origin: little cancellation below
+    pp = np.einsum("ij,ij->i", p, p)
+    minus_2p = np.ascontiguousarray(-2 * p.T)
+    limit = radius**2 - np.einsum("ij,ij->i", c, c)
+    rows = max(1, BUDGET // max(len(p), 1))
+    for start in range(0, len(c), rows):
+        # |p − c|² <= r²  ⇔  |p|² − 2 c·p <= r² − |c|², by coordinates: a matrix product
+        # with 3 columns gains nothing from BLAS, whose threads slowed it on a busy machine.
+        block = c[start:start + rows]
+        square = block[:, :1] * minus_2p[0]
+        square += block[:, 1:2] * minus_2p[1]
+        square += block[:, 2:] * minus_2p[2]
+        square += pp
+        prim, pts = np.divmod(np.flatnonzero(square <= limit[start:start + rows, None]),
+                              len(p))
+        yield pts, prim + start
+
+
+PAIRS = 4_000_000  # the most candidate pairs `search` keeps (about 100 MB; see there)
+
+
+@dataclass
+class Candidates:
+    """Candidate pairs `pts (M,)`, `prim (M,)` (primitives ascending), their distances
+    `value (M,)` at the spheres `anchor (n, 4)` where they were found, valid while no sphere
+    moves by more than `margin` from there."""
+
+    pts: np.ndarray
+    prim: np.ndarray
+    value: np.ndarray
+    anchor: np.ndarray
+    margin: float
+
+
+def search(points, union: UnionPrimitives, params, margin: float, reach: float) -> Candidates:
+    """The pairs within `2 margin` of each sample's smallest distance to the `union` of
+    the spheres `params (n, 4)`, among the primitives whose bounding sphere comes within
+    `reach` of it. Every sample gets one: the reach grows (×4) until it does.
+
+    At most about `PAIRS` pairs are kept: beyond, the margin is narrowed until they fit
+    (down to an eighth; the fit's steps shorten with it). On a sphere nearly every
+    primitive lies within `2 margin` of every sample (9.2M pairs, 358 a sample, at 100
+    spheres: 1.4 GB and 42 s for the fit); on spot at 200 spheres they are 1.2M."""
+    best = np.full(len(points), np.inf)
+    found_pts, found_prim, found_val = [], [], []
+    todo = np.arange(len(points))
+    floor, held = margin / 8, 0
+    while len(todo):
+        for pts, prim in ball_blocks(points[todo], union.centre, union.radius + reach):
+            pts = todo[pts]
+            value = union.distance(points, pts, prim)
+            np.minimum.at(best, pts, value)
+            # Only the pairs within the band of the best so far (a superset of the final
+            # band): on a sphere, all pairs at once took 1.5 GB.
+            near = value <= best[pts] + 2 * margin
+            found_pts.append(pts[near]), found_prim.append(prim[near])
+            found_val.append(value[near])
+            held += near.sum()
+            if held > 2 * PAIRS and margin > floor:  # narrowed early: memory stays capped
+                pts, prim, value = (np.concatenate(x) for x in (found_pts, found_prim,
+                                                                found_val))
+                margin = _narrowed(value - best[pts], margin, floor)
+                near = value <= best[pts] + 2 * margin
+                found_pts, found_prim, found_val = [pts[near]], [prim[near]], [value[near]]
+                held = near.sum()
+        # A sample whose best is beyond `reach` may have a closer primitive not yet searched.
+        todo = todo[~(best[todo] <= reach)]
+        reach *= 4
+    pts, prim, value = (np.concatenate(x) for x in (found_pts, found_prim, found_val))
+    gap = value - best[pts]
+    keep = np.flatnonzero(gap <= 2 * margin)
+    if len(keep) > PAIRS:
+        margin = _narrowed(gap[keep], margin, floor)
+        keep = keep[gap[keep] <= 2 * margin]
+    if (np.diff(prim[keep]) < 0).any():  # after a second reach: sorted by primitive again
+        keep = keep[np.argsort(prim[keep], kind="stable")]
+    return Candidates(pts[keep], prim[keep], value[keep], params, margin)
+
+
+def _narrowed(gap, margin: float, floor: float) -> float:
+    """The margin, at most `margin` and at least `floor`, that keeps about `PAIRS` of the
+    pairs at `gap` (M,) above their samples' best within twice it."""
+    if len(gap) <= PAIRS:
+        return margin
+    return min(margin, max(float(np.partition(gap, PAIRS)[PAIRS]) / 2 * (1 - 1e-9), floor))
+
+
+def _primitive_moves(union: UnionPrimitives, moved):
+    """The largest move `(P,)` of the spheres of each primitive, from the spheres'
+    `moved (n,)`."""
+    out = np.empty(len(union.kind))
+    for kind, spheres in ((0, None), (1, union.edges), (2, union.faces)):
+        sel = union.kind == kind
+        index = union.index[sel]
+        out[sel] = moved[index] if spheres is None else moved[spheres[index]].max(axis=1)
+    return out
+
+
+def prune(candidates: Candidates, union: UnionPrimitives, params, n_points: int,
+          tolerance: float):
+    """`(pts, prim)`: the candidates that may attain a sample's distance to the `union` of
+    the spheres `params (n, 4)` (see the module's notes; `tolerance` absorbs round-off)."""
+    moved = np.linalg.norm(params[:, :3] - candidates.anchor[:, :3], axis=1) + np.abs(
+        params[:, 3] - candidates.anchor[:, 3])
+    pts, prim, value = candidates.pts, candidates.prim, candidates.value
+    change = _primitive_moves(union, moved)[prim]
+    upper = np.full(n_points, np.inf)
+    solid = union.kind[prim] != 2
+    np.minimum.at(upper, pts[solid], (value + change)[solid])
+    keep = value - change <= upper[pts] + tolerance
+    return pts[keep], prim[keep]
+
+
+def closest(points, pts, prim, union: UnionPrimitives):
+    """Each sample's distance to the union `(N,)`, and its closest primitive's spheres and
+    weights `(N, 3)`, from candidate pairs (every sample has one)."""
+    value = union.distance(points, pts, prim)
+    best = np.full(len(points), np.inf)
+    np.minimum.at(best, pts, value)
+    # One attaining pair per sample: of several, the last in the pairs' order (NumPy's
+    # assignment with repeated indices keeps the last write), i.e. the one of the largest
+    # primitive (a sample meets a primitive in at most one pair, or in equal duplicates),
+    # whatever the order of the samples within a primitive.
+    hit = np.flatnonzero(value == best[pts])
+    pick = np.empty(len(points), dtype=np.int64)
+    pick[pts[hit]] = hit
+    # Spheres and weights of the attaining pairs only (evaluated again: cheaper than filling
+    # them for every pair). `pick` follows the pairs' order, so its primitives ascend.
+    pick.sort()
+    _, spheres, weights = union.closest(points, pts[pick], prim[pick])
+    order = np.empty(len(points), dtype=np.int64)
+    order[pts[pick]] = np.arange(len(points))
+    return best, spheres[order], weights[order]
