@@ -182,20 +182,28 @@ def _border(edges: np.ndarray, inside: np.ndarray, other: np.ndarray) -> np.ndar
     return border
 
 
-def _check_poses(poses, skeleton: Skeleton) -> dict:
+def check_poses(poses, skeleton: Skeleton, name: str = "poses") -> dict:
+    """`poses` (the argument `name`) checked: a dict of limb index → `LimbPose` or spine,
+    returned with `int` keys in order."""
     if not isinstance(poses, dict):
         raise TypeError(
-            f"`poses` must be a dict of limb index → LimbPose or spine, got {type(poses)}."
+            f"`{name}` must be a dict of limb index → LimbPose or spine, got {type(poses)}."
         )
-    count = len(skeleton.limbs)
     for k, pose in poses.items():
-        if isinstance(k, bool) or not isinstance(k, int | np.integer) or not 0 <= k < count:
-            raise ValueError(
-                f"`poses`: {k!r} is not a limb index of this skeleton (0 to {count - 1})."
-            )
+        check_limb_index(k, skeleton, name)
         if not isinstance(pose, LimbPose | AbstractSpine):
-            raise TypeError(f"`poses[{k}]` must be a LimbPose or a spine, got {type(pose)}.")
+            raise TypeError(f"`{name}[{k}]` must be a LimbPose or a spine, got {type(pose)}.")
     return {int(k): v for k, v in sorted(poses.items())}
+
+
+def check_limb_index(k, skeleton: Skeleton, name: str) -> int:
+    """`k` as an `int`, else `ValueError` naming the argument `name`: not a limb index."""
+    count = len(skeleton.limbs)
+    if isinstance(k, bool) or not isinstance(k, int | np.integer) or not 0 <= k < count:
+        raise ValueError(
+            f"`{name}`: {k!r} is not a limb index of this skeleton (0 to {count - 1})."
+        )
+    return int(k)
 
 
 def pose_skeleton(
@@ -219,16 +227,21 @@ def pose_skeleton(
 
     **Returns:** a `PosedSkeleton` `(vertices (n, 3), valid (n,))`.
     """
-    if isinstance(mesh_or_registration, SkeletonRegistration):
-        registration = mesh_or_registration
-        if not isinstance(skeleton, Skeleton):
-            raise TypeError(f"`skeleton` must be an fj.Skeleton, got {type(skeleton)}.")
-        if len(registration.registrations) != len(skeleton.limbs):
-            raise ValueError("`skeleton` is not the one `mesh_or_registration` was registered on.")
-    else:
-        registration = register_skeleton(mesh_or_registration, skeleton)
-    poses = _check_poses(poses, skeleton)
+    registration = as_registration(mesh_or_registration, skeleton)
+    poses = check_poses(poses, skeleton)
     return posed(registration, skeleton, poses, check_method(method))
+
+
+def as_registration(mesh_or_registration, skeleton: Skeleton) -> SkeletonRegistration:
+    """`mesh_or_registration` if it is a `SkeletonRegistration` on `skeleton`, else the mesh
+    registered on it (`register_skeleton`)."""
+    if not isinstance(mesh_or_registration, SkeletonRegistration):
+        return register_skeleton(mesh_or_registration, skeleton)
+    if not isinstance(skeleton, Skeleton):
+        raise TypeError(f"`skeleton` must be an fj.Skeleton, got {type(skeleton)}.")
+    if len(mesh_or_registration.registrations) != len(skeleton.limbs):
+        raise ValueError("`skeleton` is not the one `mesh_or_registration` was registered on.")
+    return mesh_or_registration
 
 
 class Rigid(NamedTuple):
