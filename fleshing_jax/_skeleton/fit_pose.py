@@ -141,7 +141,10 @@ class PoseProblem(eqx.Module):
         return poses
 
     def __call__(self, y, args=None):
-        vertices = posed(self.registration, self.skeleton, self.poses(y), self.method).vertices
+        # Without the global projection check (as `fit_spine`'s default): the local map is
+        # smooth; the result's validity is checked on the whole mesh afterwards.
+        poses = self.poses(y)
+        vertices = posed(self.registration, self.skeleton, poses, self.method, False).vertices
         diff = vertices[self.rows] - self.targets
         return diff.reshape(-1) / jnp.sqrt(jnp.asarray(self.rows.shape[0], diff.dtype))
 

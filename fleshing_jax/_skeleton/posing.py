@@ -274,8 +274,10 @@ def end_motion(rest: AbstractSpine, posed: AbstractSpine) -> Rigid:
 
 
 def posed(registration: SkeletonRegistration, skeleton: Skeleton, poses: dict,
-          method: str) -> PosedSkeleton:
-    """`pose_skeleton` on a registration (traceable: `poses` are its only free values)."""
+          method: str, check: bool = True) -> PosedSkeleton:
+    """`pose_skeleton` on a registration (traceable: `poses` are its only free values).
+    `check=False` skips the global projection check of traced poses (a fit's objective:
+    smooth, and a much smaller program; `valid` then flags only the local tests)."""
     reg = registration
     vertices = reg.vertices
     valid = jnp.ones(vertices.shape[0], bool)
@@ -290,7 +292,7 @@ def posed(registration: SkeletonRegistration, skeleton: Skeleton, poses: dict,
         images, ok, motion = reg.vertices[ids], jnp.ones(n, bool), None
         if pose is not None:
             images, ok, motion = _pose_limb(reg.registrations[k], reg.rests[k], pose,
-                                            reg.joints[k], reg.stops[k], method)
+                                            reg.joints[k], reg.stops[k], method, check)
             images, ok = images[:n], ok[:n]
         if carry is not None:
             images = carry(images)
@@ -300,7 +302,7 @@ def posed(registration: SkeletonRegistration, skeleton: Skeleton, poses: dict,
     return PosedSkeleton(vertices, valid)
 
 
-def _pose_limb(registration, rest, pose, joint, stop, method):
+def _pose_limb(registration, rest, pose, joint, stop, method, check=True):
     """One limb's region posed: `(images, valid, end motion)`. Called eagerly, the fleshing
     runs in two phases (its sampled fallback compiled only if needed: `_fleshing.eager`)
     with programs shared by every limb of a bucket; traced, in one program."""
@@ -315,7 +317,7 @@ def _pose_limb(registration, rest, pose, joint, stop, method):
         images, ok = pose_registration(registration, target, method=method, margin=zero,
                                        beyond="rigid")
     else:
-        images, ok = pose_points(registration, target, method, zero, True, zero, "rigid")
+        images, ok = pose_points(registration, target, method, zero, check, zero, "rigid")
     return images, ok, _end_motion(rest, target)
 
 
