@@ -1,6 +1,7 @@
 """The posing tests' shape: a tube along x, cut by hand into a body (2 ≤ x ≤ 4), a right limb
 with a child at its tip, and a left limb (shared by `test_posing` and `test_fit_pose`, so that
-they share their compiled programs through the persistent cache).
+they share their compiled programs through the persistent cache). `tests/conftest.py` makes them
+the fixtures `tube`, `skeleton` and `registration`.
 
 Its limbs' spines are built as `fj.skeleton` builds them (8 control points, 32 subdivisions).
 """
@@ -42,3 +43,4 @@ def tube_registration(mesh, skeleton):
     that as the margin would leave no room to bend a tube this thin; the caps are far from the
     bends.)"""
     return fj.register_skeleton(mesh, skeleton, margin=0.06)
+

@@ -6,26 +6,10 @@ vertices and fits all three limbs, so that the tests share one compiled solve.
 
 import numpy as np
 import pytest
-from _posing_shapes import tube_mesh, tube_registration, tube_skeleton
 
 import fleshing_jax as fj
 
 TRUTH = {0: fj.LimbPose(40, 60, 15), 1: fj.LimbPose(25, -30, 0), 2: fj.LimbPose(35, 120, -10)}
-
-
-@pytest.fixture(scope="module")
-def tube():
-    return tube_mesh()
-
-
-@pytest.fixture(scope="module")
-def skeleton(tube):
-    return tube_skeleton(tube)
-
-
-@pytest.fixture(scope="module")
-def registration(tube, skeleton):
-    return tube_registration(tube, skeleton)
 
 
 @pytest.fixture(scope="module")

@@ -9,25 +9,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from _posing_shapes import tube_mesh, tube_registration, tube_skeleton
 from jax.test_util import check_grads
 
 import fleshing_jax as fj
-
-
-@pytest.fixture(scope="module")
-def tube():
-    return tube_mesh()
-
-
-@pytest.fixture(scope="module")
-def skeleton(tube):
-    return tube_skeleton(tube)
-
-
-@pytest.fixture(scope="module")
-def registration(tube, skeleton):
-    return tube_registration(tube, skeleton)
 
 
 def _pose(registration, skeleton, poses):
