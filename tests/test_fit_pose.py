@@ -2,6 +2,10 @@
 
 On the posing tests' tube (`_posing_shapes`), float64: every fit chooses the same number of
 vertices and fits all three limbs, so that the tests share one compiled solve.
+
+The fits are `slow`: the solve's one XLA program (Levenberg–Marquardt through three limbs'
+fleshing and its forward derivatives) did not finish compiling in 10 minutes on the shared
+2-core machine (8.5 GB resident), far beyond the suite's budget. Bad input runs by default.
 """
 
 import numpy as np
@@ -29,6 +33,7 @@ def _angles(pose):
     return np.array([float(pose.bend), float(pose.direction), float(pose.twist)])
 
 
+@pytest.mark.slow
 def test_fit_recovers_the_angles_from_the_rest_pose(skeleton, registration, ids):
     targets = _targets(registration, skeleton, ids, TRUTH)
     fit = fj.fit_skeleton_pose(registration, skeleton, ids, targets)
@@ -43,6 +48,7 @@ def test_fit_recovers_the_angles_from_the_rest_pose(skeleton, registration, ids)
     np.testing.assert_array_equal(np.asarray(fit.posed.vertices), vertices)
 
 
+@pytest.mark.slow
 def test_unreachable_targets_are_not_reported_as_a_fit(skeleton, registration, ids):
     # Limb 2 folded back on itself (the posing tests' invalid bend): its vertices cannot follow.
     truth = {**TRUTH, 2: fj.LimbPose(175, 0)}
@@ -53,6 +59,7 @@ def test_unreachable_targets_are_not_reported_as_a_fit(skeleton, registration, i
     assert float(fit.rms) > 1e-3
 
 
+@pytest.mark.slow
 def test_a_solve_cut_short_is_not_converged(skeleton, registration, ids):
     targets = _targets(registration, skeleton, ids, TRUTH)
     fit = fj.fit_skeleton_pose(registration, skeleton, ids, targets, max_steps=2)
@@ -60,6 +67,7 @@ def test_a_solve_cut_short_is_not_converged(skeleton, registration, ids):
     assert "steps" in fit.message
 
 
+@pytest.mark.slow
 def test_default_limbs_and_held_poses(skeleton, registration, ids):
     region = np.asarray(skeleton.region)
     child = ids[region[ids] == 1]
