@@ -5,7 +5,9 @@ vertices and fits all three limbs, so that the tests share one compiled solve.
 
 The fits are `slow`: the solve's one XLA program (Levenberg–Marquardt through three limbs'
 fleshing and its forward derivatives) did not finish compiling in 10 minutes on the shared
-2-core machine (8.5 GB resident), far beyond the suite's budget. Bad input runs by default.
+2-core machine (8.5 GB resident), far beyond the suite's budget; a one-limb fit (limb 2)
+compiled in about 6 min, then recovered (35°, 120°, −10°) to 1e-12 in 20 steps, rms 5e-17,
+0.45 s a fit. Bad input runs by default.
 """
 
 import numpy as np
