@@ -31,6 +31,8 @@ jax.config.update("jax_compilation_cache_dir", str(_CACHE))
 os.environ["FLESHING_JAX_CACHE"] = str(_CACHE)  # the command line in tests: the same cache
 jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.2)
 
+from _posing_shapes import tube_mesh, tube_registration, tube_skeleton  # noqa: E402
+
 import fleshing_jax as fj  # noqa: E402
 
 
@@ -80,6 +82,22 @@ PAIRS = _pairs()
 @pytest.fixture(params=sorted(PAIRS))
 def pair(request):
     return PAIRS[request.param]
+
+
+# The posing tests' tube, its hand-cut skeleton and their registration (`_posing_shapes`).
+@pytest.fixture(scope="module")
+def tube():
+    return tube_mesh()
+
+
+@pytest.fixture(scope="module")
+def skeleton(tube):
+    return tube_skeleton(tube)
+
+
+@pytest.fixture(scope="module")
+def registration(tube, skeleton):
+    return tube_registration(tube, skeleton)
 
 
 # Tests that each run for tens of seconds in a process of their own (notebook kernels, the

@@ -1,8 +1,8 @@
 """Posing a shape limb by limb (`fj.pose_skeleton`, `fj.LimbPose`, `fj.BentSpine`).
 
-One tube along x, cut by hand into a body (2 ≤ x ≤ 4), a right limb with a child at its tip and
-a left limb, is posed in float64 throughout, its limbs' spines built as `fj.skeleton` builds
-them (8 control points, 32 subdivisions), so that the tests share their compiled programs.
+One tube along x (`_posing_shapes`), cut by hand into a body (2 ≤ x ≤ 4), a right limb with a
+child at its tip and a left limb, is posed in float64 throughout, its limbs' spines built as
+`fj.skeleton` builds them, so that the tests share their compiled programs.
 """
 
 import jax
@@ -12,40 +12,6 @@ import pytest
 from jax.test_util import check_grads
 
 import fleshing_jax as fj
-
-RADIUS = 0.3
-
-
-def _straight(start, end):
-    return fj.BSpline(np.linspace(start, end, 8), subdivisions=32)
-
-
-@pytest.fixture(scope="module")
-def tube():
-    angle = np.linspace(0, 2 * np.pi, 16, endpoint=False)
-    return fj.extrusion(RADIUS * np.stack([np.cos(angle), np.sin(angle)], 1), 6.0, 60)
-
-
-@pytest.fixture(scope="module")
-def skeleton(tube):
-    x = np.asarray(tube.vertices)[:, 0]
-    region = np.full(len(x), -1)
-    region[x > 4.0 + 1e-9] = 0
-    region[x > 5.2 + 1e-9] = 1
-    region[x < 2.0 - 1e-9] = 2
-    limbs = [
-        fj.Limb(_straight([3.5, 0, 0], [6, 0, 0]), 0.5, -1),
-        fj.Limb(_straight([4.8, 0, 0], [6, 0, 0]), 0.4, 0),
-        fj.Limb(_straight([2.5, 0, 0], [0, 0, 0]), 0.5, -1),
-    ]
-    return fj.Skeleton(limbs, region, tube.vertices)
-
-
-@pytest.fixture(scope="module")
-def registration(tube, skeleton):
-    # (Its cap's fan edges are as long as its radius: half of that as the margin would leave
-    # no room to bend a tube this thin; the caps are far from the bends.)
-    return fj.register_skeleton(tube, skeleton, margin=0.06)
 
 
 def _pose(registration, skeleton, poses):

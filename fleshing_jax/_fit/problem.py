@@ -410,26 +410,39 @@ def solve(problem: AbstractPoseProblem, solver, y0, max_steps: int, throw: bool)
         return sum(jnp.sum(r**2) for r in jax.tree.leaves(problem(y)))
 
     spine, twist = problem.spine_and_twist(y)
-    search = getattr(solution.state, "search_state", None)
-    radius = getattr(search, "step_size", None)
-    if not isinstance(getattr(solver, "search", None), optx.ClassicalTrustRegion):
-        radius = None  # a line search's step says nothing about the model's quality
-    radius = jnp.ones((), loss(y).dtype) if radius is None else radius
+    radius = trust_radius(solver, solution, loss(y).dtype)
     return spine, twist, (loss(y0), loss(y)), radius, solution.result, solution.stats
 
 
-def stall_message(losses, radius, steps) -> str:
-    """Why a successful-looking solve is no minimum, with what to try ("" when it is one)."""
+def trust_radius(solver, solution: optx.Solution, dtype) -> Array:
+    """The final trust-region size of a trust-region `solver`'s `solution`, else 1 (a line
+    search's step says nothing about the local model's quality)."""
+    search = getattr(solution.state, "search_state", None)
+    radius = getattr(search, "step_size", None)
+    if radius is None or not isinstance(getattr(solver, "search", None),
+                                        optx.ClassicalTrustRegion):
+        return jnp.ones((), dtype)
+    return radius
+
+
+SPINE_ADVICE = (
+    "the loss is not smooth here (points leaving the valid space, or the spine's start frame "
+    "turning). Try a closer `init` (fit an `Arc` first and start the free-form spine on it), "
+    "`fixed=` for the root's control points, a finer `init` (`subdivisions=`), or "
+    "`smoothness=`."
+)
+
+
+def stall_message(losses, radius, steps, advice: str = SPINE_ADVICE) -> str:
+    """Why a successful-looking solve is no minimum, with what to try (`advice`; "" when it
+    is one)."""
     start, end = (float(v) for v in losses)
     if float(radius) >= COLLAPSED_TRUST_REGION or end <= MEANINGFUL_LOSS_RATIO * start:
         return ""
     return (
         f"stalled: after {int(steps)} steps the solver's trust region had shrunk to "
         f"{float(radius):.1e} with the loss only down from {start:.3e} to {end:.3e}, so this is "
-        "no minimum: the loss is not smooth here (points leaving the valid space, or the "
-        "spine's start frame turning). Try a closer `init` (fit an `Arc` first and start the "
-        "free-form spine on it), `fixed=` for the root's control points, a finer "
-        "`init` (`subdivisions=`), or `smoothness=`."
+        f"no minimum: {advice}"
     )
 
 

@@ -182,20 +182,28 @@ def _border(edges: np.ndarray, inside: np.ndarray, other: np.ndarray) -> np.ndar
     return border
 
 
-def _check_poses(poses, skeleton: Skeleton) -> dict:
+def check_poses(poses, skeleton: Skeleton, name: str = "poses") -> dict:
+    """`poses` (the argument `name`) checked: a dict of limb index → `LimbPose` or spine,
+    returned with `int` keys in order."""
     if not isinstance(poses, dict):
         raise TypeError(
-            f"`poses` must be a dict of limb index → LimbPose or spine, got {type(poses)}."
+            f"`{name}` must be a dict of limb index → LimbPose or spine, got {type(poses)}."
         )
-    count = len(skeleton.limbs)
     for k, pose in poses.items():
-        if isinstance(k, bool) or not isinstance(k, int | np.integer) or not 0 <= k < count:
-            raise ValueError(
-                f"`poses`: {k!r} is not a limb index of this skeleton (0 to {count - 1})."
-            )
+        check_limb_index(k, skeleton, name)
         if not isinstance(pose, LimbPose | AbstractSpine):
-            raise TypeError(f"`poses[{k}]` must be a LimbPose or a spine, got {type(pose)}.")
+            raise TypeError(f"`{name}[{k}]` must be a LimbPose or a spine, got {type(pose)}.")
     return {int(k): v for k, v in sorted(poses.items())}
+
+
+def check_limb_index(k, skeleton: Skeleton, name: str) -> int:
+    """`k` as an `int`, else `ValueError` naming the argument `name`: not a limb index."""
+    count = len(skeleton.limbs)
+    if isinstance(k, bool) or not isinstance(k, int | np.integer) or not 0 <= k < count:
+        raise ValueError(
+            f"`{name}`: {k!r} is not a limb index of this skeleton (0 to {count - 1})."
+        )
+    return int(k)
 
 
 def pose_skeleton(
@@ -219,16 +227,21 @@ def pose_skeleton(
 
     **Returns:** a `PosedSkeleton` `(vertices (n, 3), valid (n,))`.
     """
-    if isinstance(mesh_or_registration, SkeletonRegistration):
-        registration = mesh_or_registration
-        if not isinstance(skeleton, Skeleton):
-            raise TypeError(f"`skeleton` must be an fj.Skeleton, got {type(skeleton)}.")
-        if len(registration.registrations) != len(skeleton.limbs):
-            raise ValueError("`skeleton` is not the one `mesh_or_registration` was registered on.")
-    else:
-        registration = register_skeleton(mesh_or_registration, skeleton)
-    poses = _check_poses(poses, skeleton)
+    registration = as_registration(mesh_or_registration, skeleton)
+    poses = check_poses(poses, skeleton)
     return posed(registration, skeleton, poses, check_method(method))
+
+
+def as_registration(mesh_or_registration, skeleton: Skeleton) -> SkeletonRegistration:
+    """`mesh_or_registration` if it is a `SkeletonRegistration` on `skeleton`, else the mesh
+    registered on it (`register_skeleton`)."""
+    if not isinstance(mesh_or_registration, SkeletonRegistration):
+        return register_skeleton(mesh_or_registration, skeleton)
+    if not isinstance(skeleton, Skeleton):
+        raise TypeError(f"`skeleton` must be an fj.Skeleton, got {type(skeleton)}.")
+    if len(mesh_or_registration.registrations) != len(skeleton.limbs):
+        raise ValueError("`skeleton` is not the one `mesh_or_registration` was registered on.")
+    return mesh_or_registration
 
 
 class Rigid(NamedTuple):
@@ -261,8 +274,10 @@ def end_motion(rest: AbstractSpine, posed: AbstractSpine) -> Rigid:
 
 
 def posed(registration: SkeletonRegistration, skeleton: Skeleton, poses: dict,
-          method: str) -> PosedSkeleton:
-    """`pose_skeleton` on a registration (traceable: `poses` are its only free values)."""
+          method: str, check: bool = True) -> PosedSkeleton:
+    """`pose_skeleton` on a registration (traceable: `poses` are its only free values).
+    `check=False` skips the global projection check of traced poses (a fit's objective:
+    smooth, and a much smaller program; `valid` then flags only the local tests)."""
     reg = registration
     vertices = reg.vertices
     valid = jnp.ones(vertices.shape[0], bool)
@@ -277,7 +292,7 @@ def posed(registration: SkeletonRegistration, skeleton: Skeleton, poses: dict,
         images, ok, motion = reg.vertices[ids], jnp.ones(n, bool), None
         if pose is not None:
             images, ok, motion = _pose_limb(reg.registrations[k], reg.rests[k], pose,
-                                            reg.joints[k], reg.stops[k], method)
+                                            reg.joints[k], reg.stops[k], method, check)
             images, ok = images[:n], ok[:n]
         if carry is not None:
             images = carry(images)
@@ -287,7 +302,7 @@ def posed(registration: SkeletonRegistration, skeleton: Skeleton, poses: dict,
     return PosedSkeleton(vertices, valid)
 
 
-def _pose_limb(registration, rest, pose, joint, stop, method):
+def _pose_limb(registration, rest, pose, joint, stop, method, check=True):
     """One limb's region posed: `(images, valid, end motion)`. Called eagerly, the fleshing
     runs in two phases (its sampled fallback compiled only if needed: `_fleshing.eager`)
     with programs shared by every limb of a bucket; traced, in one program."""
@@ -302,7 +317,7 @@ def _pose_limb(registration, rest, pose, joint, stop, method):
         images, ok = pose_registration(registration, target, method=method, margin=zero,
                                        beyond="rigid")
     else:
-        images, ok = pose_points(registration, target, method, zero, True, zero, "rigid")
+        images, ok = pose_points(registration, target, method, zero, check, zero, "rigid")
     return images, ok, _end_motion(rest, target)
 
 

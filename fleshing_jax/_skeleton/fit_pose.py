@@ -1,0 +1,314 @@
+"""Fitting a skeleton's pose to where chosen vertices should go (`fit_skeleton_pose`).
+
+Inverse kinematics on exact-volume posing: the `LimbPose` angles of some limbs that bring
+chosen mesh vertices to target points, by nonlinear least squares (optimistix's
+Levenberg–Marquardt, as `fit_spine`), differentiating through `pose_skeleton`.
+
+- **Parameters.** Per fitted limb `(b₁, b₂, ψ)` in radians, `b = bend (cos direction,
+  sin direction)`: the bend as a vector in the joint's normal plane. The bend turns the limb by
+  `|b|` about `t × (b₁ I + b₂ J)`, smooth in `b` at the rest pose too, where `(bend, direction)`
+  is singular: there a change of direction moves nothing, so a fit started at rest could only
+  bend towards the first normal and would stop at a saddle for a target towards the second.
+  Radians, because a radian moves a limb's tip by about its length: all three are on one scale.
+- **Cost.** The solve poses only the chosen vertices (each limb's registration restricted to
+  them), so that a step costs the same on a 100k-vertex mesh as on a small one; the reported
+  rms and validity come from posing the whole mesh at the fitted angles.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optimistix as optx
+from jaxtyping import Array, ArrayLike, Bool, Float
+
+from .._batching.buckets import bucket
+from .._fit.problem import (
+    AbstractFitOutcome,
+    check_cloud,
+    default_solver,
+    stall_message,
+    trust_radius,
+)
+from .._fleshing.methods import check_method
+from .limb_pose import LimbPose
+from .posing import (
+    PosedSkeleton,
+    SkeletonRegistration,
+    as_registration,
+    check_limb_index,
+    check_poses,
+    pose_skeleton,
+    posed,
+)
+from .skeleton import Skeleton
+
+ADVICE = (
+    "the loss is not smooth here (chosen vertices leaving their limb's valid space). Start "
+    "closer (`init=`), fit fewer limbs (`limbs=`), or check that the targets are reachable."
+)
+# Per-point fields of a `Registration` (its `length` and `ends` are shared).
+_PER_POINT = ("points", "arc_length", "offset", "curvature", "valid", "discontinuous")
+
+
+class SkeletonFit(AbstractFitOutcome):
+    """The outcome of `fit_skeleton_pose`.
+
+    **Fields:**
+
+    - `poses`: dict limb index → `fj.LimbPose` (degrees; `bend ≥ 0`, `direction` in
+      (−180, 180]): the fitted limbs' poses and the held ones of `init`, for `pose_skeleton`.
+    - `rms`: root-mean-square distance between the chosen vertices posed by `poses` (the whole
+      mesh posed, with the full validity check) and their targets.
+    - `valid`: (k,) bool: which chosen vertices lie in their limb's valid space at `poses` (an
+      invalid one is left where it was, and counts so in `rms`).
+    - `posed`: the whole mesh posed by `poses` (`PosedSkeleton`: `vertices`, `valid`).
+    - `result`: the `optimistix.RESULTS` of the solve; `num_steps`, `stats`: the solver's.
+    - `loss`: the final objective, `rms²`.
+    - `stalled`: "" or, for a solve that optimistix calls successful although its steps
+      shrank to nothing without reducing the loss much (no minimum), what happened and what
+      to try.
+
+    `converged` is True only when the solver succeeded, did not stall and every chosen vertex
+    is valid; `message` says otherwise why not.
+    """
+
+    poses: dict
+    rms: Float[Array, ""]
+    valid: Bool[Array, " k"]
+    posed: PosedSkeleton
+    result: optx.RESULTS
+    num_steps: Array
+    loss: Float[Array, ""]
+    stats: dict
+    stalled: str = eqx.field(static=True, default="")
+
+    @property
+    def num_invalid(self) -> int:
+        """How many chosen vertices lie outside their limb's valid space at `poses`."""
+        return int(jnp.sum(~self.valid))
+
+    def _stall(self) -> str:
+        if self.stalled:
+            return self.stalled
+        if self.num_invalid:
+            return (
+                f"{self.num_invalid} of the {self.valid.shape[0]} chosen vertices lie outside "
+                "their limb's valid space at the fitted pose (left where they were): the "
+                "targets ask for a bend the limbs cannot make. Check `posed.valid`."
+            )
+        return ""
+
+
+def pose_of(y: Array) -> LimbPose:
+    """The `LimbPose` (degrees) of one limb's parameters `y = (b₁, b₂, ψ)` (radians)."""
+    b = y[:2]
+    # At b = 0 exactly, the polar angle's derivative is 0/0; a bend of 1e-⁽²ᵉᵖˢ⁾ rad moves
+    # nothing at round-off, and there the chain rule through |b| and atan2 gives the exact
+    # derivative of the smooth map b ↦ pose (the direction's ∂/∂φ is ∝ |b| and is divided by it).
+    tiny = jnp.finfo(b.dtype).eps ** 2
+    b = b.at[0].add(jnp.where(jnp.all(b == 0), tiny, 0))
+    bend = jnp.sqrt(jnp.sum(b**2))
+    return LimbPose(jnp.rad2deg(bend), jnp.rad2deg(jnp.arctan2(b[1], b[0])), jnp.rad2deg(y[2]))
+
+
+def parameters_of(pose: LimbPose, dtype) -> Array:
+    """`(b₁, b₂, ψ)` (radians, (3,)) of a `LimbPose`: the inverse of `pose_of`."""
+    bend, direction, twist = (np.deg2rad(float(v)) for v in (pose.bend, pose.direction,
+                                                             pose.twist))
+    return jnp.asarray([bend * np.cos(direction), bend * np.sin(direction), twist], dtype)
+
+
+class PoseProblem(eqx.Module):
+    """The residuals `y -> (k·3,)` of `fit_skeleton_pose`: `(x_i(y) − target_i) / √k`, whose
+    sum of squares is the mean squared distance. `y` (L, 3): the fitted limbs' parameters."""
+
+    registration: SkeletonRegistration  # restricted to the chosen vertices
+    skeleton: Skeleton
+    held: dict  # the poses of the limbs not fitted
+    rows: Array  # (k,) each chosen vertex's row in the restricted registration
+    targets: Array  # (k, 3)
+    limbs: tuple[int, ...] = eqx.field(static=True)
+    method: str = eqx.field(static=True)
+
+    def poses(self, y: Array) -> dict:
+        poses = dict(self.held)
+        poses.update({k: pose_of(y[i]) for i, k in enumerate(self.limbs)})
+        return poses
+
+    def __call__(self, y, args=None):
+        # Without the global projection check (as `fit_spine`'s default): the local map is
+        # smooth; the result's validity is checked on the whole mesh afterwards.
+        poses = self.poses(y)
+        vertices = posed(self.registration, self.skeleton, poses, self.method, False).vertices
+        diff = vertices[self.rows] - self.targets
+        return diff.reshape(-1) / jnp.sqrt(jnp.asarray(self.rows.shape[0], diff.dtype))
+
+
+def restricted(registration: SkeletonRegistration, ids: np.ndarray):
+    """`registration` reduced to the vertices `ids` (k,): `(registration, rows (k,))`, `rows`
+    the vertices' positions in its `vertices`.
+
+    Each limb keeps the rows of its region's chosen vertices (one row of its own if none,
+    never used: only its end motion is), padded to one bucket size for all (one compiled
+    program, `_batching.buckets`)."""
+    unique = np.unique(ids)
+    picked = [np.flatnonzero(np.isin(np.asarray(i), unique)) for i in registration.indices]
+    size = bucket(max(1, *(len(p) for p in picked)))
+    registrations, indices = [], []
+    for reg, limb_ids, rows in zip(registration.registrations, registration.indices, picked):
+        keep = rows if len(rows) else np.zeros(1, int)
+        keep = np.pad(keep, (0, size - len(keep)), mode="edge")  # padded with the last row
+        fields = tuple(jax.device_put(np.asarray(getattr(reg, f))[keep]) for f in _PER_POINT)
+        registrations.append(
+            eqx.tree_at(lambda r: tuple(getattr(r, f) for f in _PER_POINT), reg, fields))
+        positions = np.searchsorted(unique, np.asarray(limb_ids)[rows])
+        indices.append(jnp.asarray(positions, jnp.int32))
+    vertices = jax.device_put(np.asarray(registration.vertices)[unique])
+    small = SkeletonRegistration(tuple(registrations), registration.rests, tuple(indices),
+                                 registration.joints, registration.stops, vertices,
+                                 registration.margin)
+    return small, jnp.asarray(np.searchsorted(unique, ids), jnp.int32)
+
+
+@eqx.filter_jit
+def _solve(problem: PoseProblem, solver, y0: Array, max_steps: int, throw: bool):
+    """`optimistix.least_squares` on `problem`: `(y, trust radius, result, stats)`. The losses
+    are read from eager poses outside, which share their programs with `pose_skeleton`."""
+    solution = optx.least_squares(problem, solver, y0, max_steps=max_steps, throw=throw)
+    radius = trust_radius(solver, solution, y0.dtype)
+    return solution.value, radius, solution.result, solution.stats
+
+
+def _check_ids(vertex_ids, count: int) -> np.ndarray:
+    ids = np.asarray(vertex_ids)
+    if ids.dtype == bool or not np.issubdtype(ids.dtype, np.integer):
+        raise TypeError(f"`vertex_ids` must be integer vertex indices, got dtype {ids.dtype}.")
+    if ids.ndim != 1 or ids.shape[0] == 0:
+        raise ValueError(f"`vertex_ids` must be a non-empty (k,) array, got shape {ids.shape}.")
+    if ids.min() < 0 or ids.max() >= count:
+        raise ValueError(
+            f"`vertex_ids` must index the mesh's {count} vertices, got values from "
+            f"{ids.min()} to {ids.max()}."
+        )
+    return ids.astype(np.int64)
+
+
+def _default_limbs(skeleton: Skeleton, ids: np.ndarray) -> tuple[int, ...]:
+    """The limbs whose regions hold vertices of `ids`, and their ancestors."""
+    region = np.asarray(skeleton.region)
+    limbs = set()
+    for k in np.unique(region[ids]):
+        while k >= 0 and k not in limbs:
+            limbs.add(int(k))
+            k = skeleton.limbs[k].parent
+    return tuple(sorted(limbs))
+
+
+def fit_skeleton_pose(
+    mesh_or_registration,
+    skeleton: Skeleton,
+    vertex_ids: ArrayLike,
+    targets: ArrayLike,
+    *,
+    limbs: Sequence[int] | None = None,
+    init: dict | None = None,
+    method: str = "radial",
+    solver: optx.AbstractLeastSquaresSolver | optx.AbstractMinimiser | None = None,
+    rtol: float | None = None,
+    atol: float | None = None,
+    max_steps: int = 64,
+    throw: bool = False,
+) -> SkeletonFit:
+    """Finds the limbs' poses that bring the vertices `vertex_ids` to `targets`.
+
+    Nonlinear least squares over the bend, direction and twist of each limb of `limbs`,
+    through `pose_skeleton` (each limb's region fleshed with `det J = 1`, children carried).
+    Non-convergence is reported (`converged`, `message`), never raised (unless `throw`).
+
+    **Arguments:**
+
+    - `mesh_or_registration`: the mesh `skeleton` was built on, or its `register_skeleton`
+      (register once to fit many frames).
+    - `skeleton`: an `fj.Skeleton`.
+    - `vertex_ids`: (k,) int: the chosen vertices (indices into the mesh's vertices).
+    - `targets`: (k, 3) finite: where each chosen vertex should go.
+    - `limbs`: the limb indices whose poses are fitted; default: the limbs whose regions hold
+      chosen vertices, and their ancestors.
+    - `init`: dict limb index → `fj.LimbPose`: the starting poses of fitted limbs (default:
+      the rest pose) and the poses (`LimbPose` or spine) of other limbs, held fixed.
+    - `method`: the fleshing (`"radial"`, `"normal"`, `"binormal"`).
+    - `solver`: any optimistix least-squares solver or minimiser; default
+      `LevenbergMarquardt(rtol, atol)` with tolerances from the dtype (1e-10 in float64,
+      1e-5 in float32).
+    - `max_steps`, `throw`: passed to `optimistix.least_squares`.
+
+    **Returns:** a `SkeletonFit` (its `poses` ready for `pose_skeleton`). Float32 works (the
+    registration's dtype); its `rms` then stops near 1e-6 of the limbs' size.
+
+    **Raises:** `TypeError`/`ValueError` naming the argument: `vertex_ids` empty, not integer
+    or out of range; `targets` not (k, 3) or not finite; `limbs` or `init` naming a limb the
+    skeleton does not have; nothing to fit.
+    """
+    registration = as_registration(mesh_or_registration, skeleton)
+    ids = _check_ids(vertex_ids, registration.vertices.shape[0])
+    targets = check_cloud(targets, "targets")
+    if targets.shape != (ids.shape[0], 3):
+        raise ValueError(
+            f"`targets` must have shape (k, 3) = ({ids.shape[0]}, 3), one point per vertex of "
+            f"`vertex_ids`, got {targets.shape}."
+        )
+    method = check_method(method)
+    init = check_poses({} if init is None else init, skeleton, "init")
+    if limbs is None:
+        limbs = _default_limbs(skeleton, ids)
+    else:
+        limbs = tuple(sorted({check_limb_index(k, skeleton, "limbs") for k in limbs}))
+    if not limbs:
+        raise ValueError(
+            "nothing to fit: `limbs` is empty, or every vertex of `vertex_ids` lies on the body "
+            "(region −1), which no pose moves."
+        )
+    for k in limbs:
+        if not isinstance(init.get(k, LimbPose()), LimbPose):
+            raise TypeError(f"`init[{k}]` must be a LimbPose: limb {k} is fitted.")
+    max_steps = int(max_steps)
+    if max_steps < 1:
+        raise ValueError(f"`max_steps` must be a positive integer, got {max_steps}.")
+    dtype = registration.vertices.dtype
+    targets = targets.astype(dtype)
+    small, rows = restricted(registration, ids)
+    held = {k: v for k, v in init.items() if k not in limbs}
+    problem = PoseProblem(small, skeleton, held, rows, targets, limbs, method)
+    y0 = jnp.stack([parameters_of(init.get(k, LimbPose()), dtype) for k in limbs])
+    if solver is None:
+        solver = default_solver("least_squares", dtype, rtol, atol)
+    y, radius, result, stats = _solve(problem, solver, y0, max_steps, bool(throw))
+
+    def outcome(poses):
+        whole = pose_skeleton(registration, skeleton, poses, method=method)
+        distance = jnp.sum((whole.vertices[ids] - targets) ** 2, axis=-1)
+        return whole, jnp.mean(distance)
+
+    start = {**held, **{k: init.get(k, LimbPose()) for k in limbs}}
+    poses = {**held, **{k: pose_of(y[i]) for i, k in enumerate(limbs)}}
+    _, loss0 = outcome(start)
+    whole, loss = outcome(poses)
+    successful = bool(result == optx.RESULTS.successful)
+    stalled = stall_message((loss0, loss), radius, stats["num_steps"], ADVICE)
+    return SkeletonFit(
+        poses=dict(sorted(poses.items())),
+        rms=jnp.sqrt(loss),
+        valid=whole.valid[ids],
+        posed=whole,
+        result=result,
+        num_steps=stats["num_steps"],
+        loss=loss,
+        stats=stats,
+        stalled=stalled if successful else "",
+    )
+
