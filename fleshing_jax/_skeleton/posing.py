@@ -330,7 +330,7 @@ def limb_causes(registration: SkeletonRegistration, skeleton: Skeleton, poses: d
     dict limb index → `Causes`, for the limbs posed with a `LimbPose` or a spine."""
     from .._fleshing.diagnose import diagnose
 
-    poses = _check_poses(poses, skeleton)
+    poses = check_poses(poses, skeleton)
     causes = {}
     for k, pose in poses.items():
         reg = registration
