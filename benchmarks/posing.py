@@ -136,8 +136,13 @@ def volume_table(spot, skeleton, figure=None):
     for method, implicit in (("medial", True), ("lbs", False), ("dqs", False)):
         result = fj.deform_medial(spot, medial, handles, targets, method, implicit=implicit)
         deformed[method] = np.asarray(result.vertices)
-        rows.append((method, fj.volume(deformed[method], spot.faces) / v0 - 1,
-                     int((~np.asarray(result.vertex_attributes["valid"])).sum())))
+        rows.append(
+            (
+                method,
+                fj.volume(deformed[method], spot.faces) / v0 - 1,
+                int((~np.asarray(result.vertex_attributes["valid"])).sum()),
+            )
+        )
     if figure is not None:
         _picture(figure, spot, rest, vertices, deformed["medial"], region)
     return rows, max(det), stretch, still
@@ -154,8 +159,13 @@ def _picture(path, spot, rest, ours, medial, region):
     colours = plt.get_cmap("tab10")(np.arange(10))
     face_region = region[spot.faces].max(axis=1)
     fig = plt.figure(figsize=(13, 4.6))
-    for i, (title, v) in enumerate((("rest", rest), ("Fleshing: leg 30°, head 10°", ours),
-                                    ("medial deformation, same intent", medial))):
+    for i, (title, v) in enumerate(
+        (
+            ("rest", rest),
+            ("Fleshing: leg 30°, head 10°", ours),
+            ("medial deformation, same intent", medial),
+        )
+    ):
         ax = fig.add_subplot(1, 3, i + 1, projection="3d")
         triangles = v[spot.faces][:, :, [2, 0, 1]]  # z across, x deep, y up
         normal = np.cross(triangles[:, 1] - triangles[:, 0], triangles[:, 2] - triangles[:, 0])
@@ -187,8 +197,10 @@ def main():
     fj.use_compilation_cache()
     spot = fj.data.spot()
     skeleton, seconds = skeleton_time(spot)
-    print(f"| mesh | vertices | limbs | skeleton incl. medial mesh (s) |\n|---|---:|---:|---:|\n"
-          f"| spot | {len(spot.vertices)} | {len(skeleton.limbs)} | {seconds:.1f} |\n")
+    print(
+        f"| mesh | vertices | limbs | skeleton incl. medial mesh (s) |\n|---|---:|---:|---:|\n"
+        f"| spot | {len(spot.vertices)} | {len(skeleton.limbs)} | {seconds:.1f} |\n"
+    )
     n, registered, rows = pose_speed(spot, skeleton, args.frames)
     print(f"{n} vertices, float32, registered once in {registered:.1f} s\n")
     print("| posed | first frame (s) | per frame (ms, median) |\n|---|---:|---:|")
@@ -198,8 +210,10 @@ def main():
     print("\n| method | ΔV/V | invalid vertices |\n|---|---:|---:|")
     for name, change, invalid in rows:
         print(f"| {name} | {100 * change:+.4f} % | {invalid} |")
-    print(f"\nmax |det J − 1| in the posed regions: {det:.2e}; largest stretch of an edge "
-          f"crossing a region border: {stretch:.3f}; body bit-for-bit still: {still}")
+    print(
+        f"\nmax |det J − 1| in the posed regions: {det:.2e}; largest stretch of an edge "
+        f"crossing a region border: {stretch:.3f}; body bit-for-bit still: {still}"
+    )
 
 
 if __name__ == "__main__":
