@@ -1,0 +1,220 @@
+"""Posing spot limb by limb (issue 33): the targets of speed and volume.
+
+    python benchmarks/posing.py                   # all three tables and the figure
+    python benchmarks/posing.py --skip-skeleton   # reuse no time on the skeleton's build
+
+Prints Markdown tables:
+
+1. The skeleton of spot (2,930 vertices) with its medial mesh (200 spheres), wall time.
+2. A new pose of spot subdivided to about 100k vertices (trimesh's `subdivide` keeps the old
+   vertices first; a new vertex takes the region of its nearest old one), registered once in
+   float32; `jax.jit(lambda poses: fj.pose_skeleton(...).vertices)` per frame, medians.
+3. A front leg and the head posed together on spot in float64: whole-mesh volume change of ours
+   against medial deformation, LBS and DQS given the same intent (the medial mesh's spheres of
+   each posed limb's region sent where our map sends their centres, the body's held), max
+   |det J − 1| in the posed regions, the largest stretch of an edge crossing a region border,
+   whether the body is bit for bit still. `--figure PATH` writes the before/after picture.
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from pathlib import Path
+
+import jax
+import numpy as np
+import trimesh
+
+import fleshing_jax as fj
+
+HEAD, LEG = 0, 8  # spot's head/neck and a leg that is fully valid at rest (see the README)
+POSES = {HEAD: (10.0, 90.0), LEG: (30.0, 0.0)}  # bend, direction (degrees): all valid
+
+
+def _median_ms(fn, arg, frames):
+    fn(arg).block_until_ready()
+    times = []
+    for _ in range(frames):
+        start = time.perf_counter()
+        fn(arg).block_until_ready()
+        times.append(time.perf_counter() - start)
+    return 1e3 * float(np.median(times))
+
+
+def skeleton_time(spot):
+    start = time.perf_counter()
+    skeleton = fj.skeleton(spot)
+    return skeleton, time.perf_counter() - start
+
+
+def subdivided(spot, skeleton, count=100_000):
+    """spot subdivided to about `count` vertices (twice whole, then the first faces once more:
+    the mesh is for timing, its T-junctions do not matter), regions carried to the new
+    vertices."""
+    vertices, faces = np.asarray(spot.vertices), np.asarray(spot.faces)
+    for _ in range(2):
+        vertices, faces = trimesh.remesh.subdivide(vertices, faces)
+    # A subdivided face adds its three edge midpoints, each shared with a neighbour.
+    more = int((count - len(vertices)) / 1.5)
+    vertices, faces = trimesh.remesh.subdivide(vertices, faces, face_index=np.arange(more))
+    from scipy.spatial import cKDTree
+
+    old = np.asarray(spot.vertices)
+    nearest = cKDTree(old).query(vertices)[1]
+    region = np.asarray(skeleton.region)[nearest]
+    region[: len(old)] = np.asarray(skeleton.region)  # subdivide keeps the old vertices first
+    return trimesh.Trimesh(vertices, faces, process=False), region
+
+
+def pose_speed(spot, skeleton, frames=50):
+    import equinox as eqx
+    import jax.numpy as jnp
+
+    big, region = subdivided(spot, skeleton)
+    big_skeleton = eqx.tree_at(lambda s: s.region, skeleton, jnp.asarray(region))
+    start = time.perf_counter()
+    registration = fj.register_skeleton(big, big_skeleton, dtype=jnp.float32)
+    registered = time.perf_counter() - start
+    frame = jax.jit(lambda poses: fj.pose_skeleton(registration, big_skeleton, poses).vertices)
+    rows = []
+    for name, limbs in (("leg", [LEG]), ("head", [HEAD]), ("leg + head", [LEG, HEAD])):
+        poses = {k: fj.LimbPose(*POSES[k]) for k in limbs}
+        start = time.perf_counter()
+        frame(poses).block_until_ready()
+        first = time.perf_counter() - start
+        rows.append((name, first, _median_ms(frame, poses, frames)))
+    return len(big.vertices), registered, rows
+
+
+def _sphere_regions(medial, vertices, region):
+    """The region of the vertex nearest each sphere's centre."""
+    from scipy.spatial import cKDTree
+
+    return region[cKDTree(vertices).query(np.asarray(medial.centers))[1]]
+
+
+def volume_table(spot, skeleton, figure=None):
+    import jax.numpy as jnp
+
+    registration = fj.register_skeleton(spot, skeleton)
+    poses = {k: fj.LimbPose(*POSES[k]) for k in POSES}
+    out = fj.pose_skeleton(registration, skeleton, poses)
+    vertices, valid = np.asarray(out.vertices), np.asarray(out.valid)
+    rest = np.asarray(spot.vertices)
+    region = np.asarray(skeleton.region)
+    v0 = fj.volume(rest, spot.faces)
+    ours = fj.volume(vertices, spot.faces) / v0 - 1
+    det = []
+    bents = {}
+    for k in POSES:
+        spine = registration.rests[k]
+        bent = poses[k].spine(spine, registration.joints[k], registration.stops[k])
+        bents[k] = (spine, bent)
+        ids = np.flatnonzero(region == k)
+        d = np.asarray(fj.jacobian_determinant(
+            fj.Fleshing(spine, bent, beyond="rigid"), rest[ids]))  # fmt: skip
+        det.append(np.nanmax(np.abs(d - 1)))
+    edges = spot.edges_unique
+    crossing = region[edges[:, 0]] != region[edges[:, 1]]
+    length = lambda v: np.linalg.norm(v[edges[:, 0]] - v[edges[:, 1]], axis=1)  # noqa: E731
+    stretch = float(np.max(length(vertices)[crossing] / length(rest)[crossing]))
+    body = region < 0
+    still = bool(np.array_equal(vertices[body], rest[body]))
+    # The same intent for the medial mesh: each posed limb's spheres carried by our map.
+    medial = fj.medial_mesh(spot, 200, progress=False)
+    centers = np.asarray(medial.centers)
+    owner = _sphere_regions(medial, rest, region)
+    moved = [np.flatnonzero(owner == k) for k in POSES]
+    targets = [np.asarray(fj.flesh(jnp.asarray(centers[m]), *bents[k], beyond="rigid")[0])
+               for m, k in zip(moved, POSES)]  # fmt: skip
+    held = np.flatnonzero(owner < 0)
+    handles = np.concatenate([*moved, held])
+    targets = np.concatenate([*targets, centers[held]])
+    rows = [("Fleshing (ours)", ours, int((~valid).sum()))]
+    deformed = {}
+    for method, implicit in (("medial", True), ("lbs", False), ("dqs", False)):
+        result = fj.deform_medial(spot, medial, handles, targets, method, implicit=implicit)
+        deformed[method] = np.asarray(result.vertices)
+        rows.append(
+            (
+                method,
+                fj.volume(deformed[method], spot.faces) / v0 - 1,
+                int((~np.asarray(result.vertex_attributes["valid"])).sum()),
+            )
+        )
+    if figure is not None:
+        _picture(figure, spot, rest, vertices, deformed["medial"], region)
+    return rows, max(det), stretch, still
+
+
+def _picture(path, spot, rest, ours, medial, region):
+    """Rest, ours and medial deformation, rendered as shaded triangles (side view)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from mpl_toolkits.mplot3d.art3d import Poly3DCollection
+
+    colours = plt.get_cmap("tab10")(np.arange(10))
+    face_region = region[spot.faces].max(axis=1)
+    fig = plt.figure(figsize=(13, 4.6))
+    for i, (title, v) in enumerate(
+        (
+            ("rest", rest),
+            ("Fleshing: leg 30°, head 10°", ours),
+            ("medial deformation, same intent", medial),
+        )
+    ):
+        ax = fig.add_subplot(1, 3, i + 1, projection="3d")
+        triangles = v[spot.faces][:, :, [2, 0, 1]]  # z across, x deep, y up
+        normal = np.cross(triangles[:, 1] - triangles[:, 0], triangles[:, 2] - triangles[:, 0])
+        normal /= np.linalg.norm(normal, axis=1, keepdims=True) + 1e-12
+        shade = 0.45 + 0.55 * np.clip(normal @ np.array([0.3, -0.5, 0.8]), 0, 1)
+        base = np.where(face_region[:, None] < 0, 0.8, colours[face_region % 10, :3])
+        ax.add_collection3d(Poly3DCollection(triangles, facecolors=base * shade[:, None],
+                                             edgecolor="none"))  # fmt: skip
+        ax.set_xlim(-0.9, 1.1)
+        ax.set_ylim(-1, 1)
+        ax.set_zlim(-0.9, 1.1)
+        ax.view_init(elev=10, azim=-70)
+        ax.set_axis_off()
+        ax.set_title(title)
+    fig.tight_layout()
+    partial = Path(str(path) + ".partial.png")
+    fig.savefig(partial, dpi=80)
+    partial.replace(path)
+    plt.close(fig)
+
+
+def main():
+    parser = argparse.ArgumentParser()
+    parser.add_argument("--skip-skeleton", action="store_true")
+    parser.add_argument("--figure", type=Path, default=None)
+    parser.add_argument("--frames", type=int, default=50)
+    args = parser.parse_args()
+    jax.config.update("jax_enable_x64", True)  # float64 for the volumes; the pose is float32
+    fj.use_compilation_cache()
+    spot = fj.data.spot()
+    skeleton, seconds = skeleton_time(spot)
+    print(
+        f"| mesh | vertices | limbs | skeleton incl. medial mesh (s) |\n|---|---:|---:|---:|\n"
+        f"| spot | {len(spot.vertices)} | {len(skeleton.limbs)} | {seconds:.1f} |\n"
+    )
+    n, registered, rows = pose_speed(spot, skeleton, args.frames)
+    print(f"{n} vertices, float32, registered once in {registered:.1f} s\n")
+    print("| posed | first frame (s) | per frame (ms, median) |\n|---|---:|---:|")
+    for name, first, ms in rows:
+        print(f"| {name} | {first:.1f} | {ms:.2f} |")
+    rows, det, stretch, still = volume_table(spot, skeleton, args.figure)
+    print("\n| method | ΔV/V | invalid vertices |\n|---|---:|---:|")
+    for name, change, invalid in rows:
+        print(f"| {name} | {100 * change:+.4f} % | {invalid} |")
+    print(
+        f"\nmax |det J − 1| in the posed regions: {det:.2e}; largest stretch of an edge "
+        f"crossing a region border: {stretch:.3f}; body bit-for-bit still: {still}"
+    )
+
+
+if __name__ == "__main__":
+    main()
