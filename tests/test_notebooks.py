@@ -16,13 +16,20 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 NOTEBOOKS = ROOT / "notebooks"
 PATHS = sorted(NOTEBOOKS.glob("*.ipynb"))
+# Notebooks that run for minutes, with `python -m pytest -m slow` (07: spot's posing compared
+# with medial deformation, LBS and DQS, and a gradient: about 9 minutes on 2 busy cores).
+SLOW = {"07_posing_limbs"}
 
 
 def test_notebooks_exist():
     assert len(PATHS) >= 4, f"expected the tutorial notebooks in {NOTEBOOKS}"
 
 
-@pytest.mark.parametrize("path", PATHS, ids=[p.stem for p in PATHS])
+@pytest.mark.parametrize(
+    "path",
+    [pytest.param(p, marks=pytest.mark.slow) if p.stem in SLOW else p for p in PATHS],
+    ids=[p.stem for p in PATHS],
+)
 def test_notebook_runs(path, monkeypatch):
     nb = nbformat.read(path, as_version=4)
     code = [cell for cell in nb.cells if cell.cell_type == "code"]
