@@ -36,8 +36,8 @@ from .._checks import as_float_array, is_concrete
 from .._numerics import dot, safe_divide
 from .spine import AbstractSpine, AbstractTabulatedSpine
 
-GAUSS = 8  # Gauss–Legendre points an interval (exact for degree 15)
-INTERVALS = 32  # uniform intervals on [0, length], besides the base's own breaks
+GAUSS = 4  # Gauss–Legendre points an interval (exact for degree 7: the intervals are short)
+INTERVALS = 64  # uniform intervals on [0, length], besides the base's own breaks
 _NODES, _WEIGHTS = np.polynomial.legendre.leggauss(GAUSS)
 
 
