@@ -33,7 +33,9 @@ def tube_skeleton(mesh):
     limbs = [
         fj.Limb(_straight([3.5, 0, 0], [6, 0, 0]), 0.5, -1),
         fj.Limb(_straight([4.8, 0, 0], [6, 0, 0]), 0.4, 0),
-        fj.Limb(_straight([2.5, 0, 0], [0, 0, 0]), 0.5, -1),
+        # (Its joint given short of its region's border, at x = 2.3: the bend must still
+        # start past the border, x = 2.)
+        fj.Limb(_straight([2.5, 0, 0], [0, 0, 0]), 0.2, -1),
     ]
     return fj.Skeleton(limbs, region, mesh.vertices)
 

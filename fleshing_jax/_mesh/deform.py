@@ -126,12 +126,7 @@ def deform_mesh(
     elif isinstance(mesh, trimesh.PointCloud):
         points = mesh.vertices
     elif isinstance(mesh, tuple) and len(mesh) == 2:
-        points, faces = mesh
-        faces = np.asarray(faces)
-        if faces.ndim != 2 or not np.issubdtype(faces.dtype, np.integer):
-            raise ValueError(f"`mesh` faces must be an (F, k) integer array, got {faces.shape}.")
-        if faces.size and (faces.min() < 0 or faces.max() >= len(points)):
-            raise ValueError(f"`mesh` faces must index its {len(points)} vertices.")
+        points, faces = mesh[0], checked_faces(mesh[1], mesh[0])
     elif hasattr(mesh, "shape"):
         points = mesh
     else:
@@ -164,6 +159,32 @@ def deform_mesh(
         cloud.colors = mesh.colors
     cloud.metadata["valid"] = valid
     return cloud
+
+
+def checked_faces(faces, vertices) -> np.ndarray:
+    """The faces of a `(vertices, faces)` pair as an (F, k) integer array indexing the
+    vertices, else a `ValueError` naming `mesh` (the vertices are checked by their users)."""
+    faces = np.asarray(faces)
+    if faces.ndim != 2 or not np.issubdtype(faces.dtype, np.integer):
+        raise ValueError(f"`mesh` faces must be an (F, k) integer array, got {faces.shape}.")
+    if faces.size and (faces.min() < 0 or faces.max() >= len(vertices)):
+        raise ValueError(f"`mesh` faces must index its {len(vertices)} vertices.")
+    return faces
+
+
+def polygon_mesh(mesh) -> tuple[np.ndarray, np.ndarray]:
+    """`(vertices (n, 3), faces (F, k))` of a `trimesh.Trimesh` or a `(vertices, faces)` pair,
+    vertex order kept; a `TypeError`/`ValueError` naming `mesh` otherwise."""
+    if isinstance(mesh, trimesh.Trimesh):
+        return np.asarray(mesh.vertices), np.asarray(mesh.faces)
+    if not (isinstance(mesh, tuple) and len(mesh) == 2):
+        raise TypeError(
+            f"`mesh` must be a trimesh.Trimesh or a (vertices, faces) pair, got {type(mesh)}."
+        )
+    vertices = np.asarray(mesh[0])
+    if vertices.ndim != 2 or vertices.shape[1] != 3:
+        raise ValueError(f"`mesh` vertices must be an (n, 3) array, got {vertices.shape}.")
+    return vertices, checked_faces(mesh[1], vertices)
 
 
 def longest_edge(points, faces) -> float:

@@ -37,7 +37,7 @@ from .._fleshing.ends import EndFrames, aligned_twist, target_ends
 from .._fleshing.methods import check_method
 from .._fleshing.pipeline import pose as pose_registration, pose_points, register
 from .._fleshing.projection import Registration
-from .._mesh.deform import longest_edge
+from .._mesh.deform import longest_edge, polygon_mesh
 from .._numerics import cast_floats
 from .._spines.spine import AbstractSpine
 from .limb_pose import LimbPose
@@ -72,27 +72,6 @@ class PosedSkeleton(NamedTuple):
     valid: Bool[Array, " n"]
 
 
-def mesh_arrays(mesh) -> tuple[np.ndarray, np.ndarray]:
-    """`(vertices (n, 3), faces (F, k))` of a `trimesh.Trimesh` or a `(vertices, faces)` pair,
-    vertex order kept."""
-    import trimesh
-
-    if isinstance(mesh, trimesh.Trimesh):
-        return np.asarray(mesh.vertices), np.asarray(mesh.faces)
-    if isinstance(mesh, tuple) and len(mesh) == 2:
-        vertices, faces = np.asarray(mesh[0]), np.asarray(mesh[1])
-        if vertices.ndim != 2 or vertices.shape[1] != 3:
-            raise ValueError(f"`mesh` vertices must be an (n, 3) array, got {vertices.shape}.")
-        if faces.ndim != 2 or not np.issubdtype(faces.dtype, np.integer):
-            raise ValueError(f"`mesh` faces must be an (F, k) integer array, got {faces.shape}.")
-        if faces.size and (faces.min() < 0 or faces.max() >= len(vertices)):
-            raise ValueError(f"`mesh` faces must index its {len(vertices)} vertices.")
-        return vertices, faces
-    raise TypeError(
-        f"`mesh` must be a trimesh.Trimesh or a (vertices, faces) pair, got {type(mesh)}."
-    )
-
-
 def _check_skeleton(skeleton, vertices: np.ndarray) -> None:
     if not isinstance(skeleton, Skeleton):
         raise TypeError(f"`skeleton` must be an fj.Skeleton, got {type(skeleton)}.")
@@ -115,7 +94,7 @@ def register_skeleton(mesh, skeleton: Skeleton, *, margin: float | None = None,
     **Returns:** a `SkeletonRegistration`. **Raises:** `TypeError`/`ValueError` for a mesh or
     skeleton that does not fit, `ValueError` where a limb's children start before its joint.
     """
-    vertices, faces = mesh_arrays(mesh)
+    vertices, faces = polygon_mesh(mesh)
     _check_skeleton(skeleton, vertices)
     points = jnp.asarray(vertices, dtype)
     if margin is None:
@@ -266,8 +245,9 @@ def end_motion(rest: AbstractSpine, posed: AbstractSpine) -> Rigid:
     where a posed limb carries its children. Differentiable in `posed`."""
     target = posed._prepare()
     zero = jnp.zeros((), target.length.dtype)
-    twist = aligned_twist(EndFrames(rest), target, zero)
-    c0, *f0 = EndFrames(rest).frame(1)
+    ends = EndFrames(rest)
+    twist = aligned_twist(ends, target, zero)
+    c0, *f0 = ends.frame(1)
     c1, *f1 = target_ends(target, twist).frame(1)
     rotation = jnp.stack(f1, axis=1) @ jnp.stack(f0, axis=0)
     return Rigid(rotation, c1 - rotation @ c0)
