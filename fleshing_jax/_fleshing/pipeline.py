@@ -544,8 +544,11 @@ def prepare_target(
 
 def pose_prepared(registration: Registration, poser: Poser) -> tuple[Array, Array]:
     """`pose` onto a target from `prepare_target` (with the registered points' dtype)."""
-    if is_concrete(registration):  # called eagerly: the sampled check compiled only if needed
-        n = registration.points.shape[0]  # and the batch padded to a bucket size
+    # Called eagerly (the points and the target known): the sampled check compiled only if
+    # needed, and the batch padded to a bucket size. A traced target (`grad` in a pose's
+    # parameters) or registration: one program.
+    if is_concrete(registration, poser):
+        n = registration.points.shape[0]
         return unpad_batch(pose_eagerly(poser, pad_batch(registration, bucket(n))), n)
     return _pose(poser, registration)
 

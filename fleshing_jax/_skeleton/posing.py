@@ -32,10 +32,10 @@ import numpy as np
 from jaxtyping import Array, Bool, Float
 
 from .._batching.buckets import bucket, pad_batch, unpad_batch
-from .._checks import as_margin, is_concrete
+from .._checks import as_margin
 from .._fleshing.ends import EndFrames, aligned_twist, target_ends
 from .._fleshing.methods import check_method
-from .._fleshing.pipeline import pose as pose_registration, pose_points, register
+from .._fleshing.pipeline import pose as pose_registration, register
 from .._fleshing.projection import Registration
 from .._mesh.deform import longest_edge, polygon_mesh
 from .._numerics import cast_floats
@@ -289,15 +289,11 @@ def _pose_limb(registration, rest, pose, joint, stop, method, check=True):
     dtype = registration.points.dtype
     target = pose if isinstance(pose, AbstractSpine) else pose.spine(rest, joint, stop)
     target = cast_floats(target, dtype)
-    zero = jnp.zeros((), dtype)
     # The margin keeps edges whole on the rest side (the registration's); the images are
     # checked to project back onto the bent spine (margin 0): with the margin there too, the
     # region's bounds on a bend's changing curvature flagged most of a thin leg bent 60°.
-    if is_concrete(target):
-        images, ok = pose_registration(registration, target, method=method, margin=zero,
-                                       beyond="rigid")
-    else:
-        images, ok = pose_points(registration, target, method, zero, check, zero, "rigid")
+    images, ok = pose_registration(registration, target, method=method, check_projection=check,
+                                   margin=0.0, beyond="rigid")
     return images, ok, _end_motion(rest, target)
 
 
