@@ -67,6 +67,7 @@ from ._spines.frames import (
     frenet_frame as frenet_frame,
     rotation_minimizing_frame as rotation_minimizing_frame,
 )
+from ._spines.looked_up import LookedUpSpine as LookedUpSpine
 from ._spines.parametric import AbstractParametricSpine as AbstractParametricSpine
 from ._spines.polyline import Polyline as Polyline
 from ._spines.polynomial import InterpolatingPolynomial as InterpolatingPolynomial

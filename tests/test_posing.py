@@ -124,6 +124,28 @@ def test_volume_kept_and_no_crack(tube, skeleton, registration):
     assert np.max(_stretch(tube, rest, vertices)) < 1.5
 
 
+def test_float32_posing_reads_its_rest_spines_from_tables(tube, skeleton, registration):
+    # The per-frame path: float32 vertices, the bent spines built on tabulated rest spines.
+    poses = {0: fj.LimbPose(60, 90, 30), 1: fj.LimbPose(30, 180), 2: fj.LimbPose(50, 0)}
+    single = fj.register_skeleton(tube, skeleton, margin=0.06, dtype=jnp.float32)
+    assert all(isinstance(rest, fj.LookedUpSpine) for rest in single.rests)
+    # A looked-up rest spine is its spine, continuation included, to single precision.
+    s = jnp.linspace(-0.3, 2.8, 32, dtype=jnp.float32)
+    reference = jax.jit(jax.vmap(skeleton.limbs[0].spine.jet_and_normals))(s.astype(jnp.float64))
+    looked_up = jax.jit(jax.vmap(single.rests[0].jet_and_normals))(s)
+    for a, b in zip(jax.tree.leaves(looked_up), jax.tree.leaves(reference)):
+        assert a.dtype == jnp.float32
+        np.testing.assert_allclose(a, b, atol=2e-5)
+    posed = fj.pose_skeleton(single, skeleton, poses)
+    assert posed.vertices.dtype == jnp.float32
+    exact, valid = _pose(registration, skeleton, poses)
+    np.testing.assert_array_equal(np.asarray(posed.valid), valid)
+    np.testing.assert_allclose(np.asarray(posed.vertices), exact, atol=2e-5)  # (length 6)
+    region = np.asarray(skeleton.region)
+    rest = np.asarray(tube.vertices, np.float32)
+    np.testing.assert_array_equal(np.asarray(posed.vertices)[region == -1], rest[region == -1])
+
+
 def test_gradients_of_the_angles(skeleton, registration):
     tip = int(np.argmax(np.asarray(skeleton.vertices)[:, 0]))
 

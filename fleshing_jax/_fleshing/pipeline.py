@@ -33,11 +33,7 @@ from .eager import pose_eagerly, register_eagerly
 from .ends import EndFrames, aligned_twist, check_beyond, rigid_beyond, target_ends
 from .maps import BEND, UNBEND
 from .methods import check_method
-from .projection import (
-    Registrar,
-    Registration,
-    register_point,
-)
+from .projection import Registrar, Registration, invalid_past, register_point
 from .reach import search_range
 from .region import ValidRegion
 from .target import TargetFrames
@@ -549,7 +545,8 @@ def pose_prepared(registration: Registration, poser: Poser) -> tuple[Array, Arra
     # parameters) or registration: one program.
     if is_concrete(registration, poser):
         n = registration.points.shape[0]
-        return unpad_batch(pose_eagerly(poser, pad_batch(registration, bucket(n))), n)
+        padded = invalid_past(pad_batch(registration, bucket(n)), n)
+        return unpad_batch(pose_eagerly(poser, padded), n)
     return _pose(poser, registration)
 
 

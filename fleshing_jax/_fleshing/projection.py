@@ -14,6 +14,7 @@ import math
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array, ArrayLike, Bool, Float
 
 from .._batching.chunks import map_chunks
@@ -372,6 +373,21 @@ class Registration(eqx.Module):
     discontinuous: Bool[Array, " *batch"]
     length: Float[Array, ""]
     ends: EndFrames
+
+
+def invalid_past(registration: Registration, n: int) -> Registration:
+    """`registration` with its points from `n` on (a bucket's padding: `pad_batch` copies)
+    marked invalid, so that a pose leaves them where they are and runs no check on them."""
+    valid = registration.valid
+    if valid.shape[0] == n:
+        return registration
+    if isinstance(valid, jax.core.Tracer):
+        valid = valid & (jnp.arange(valid.shape[0]) < n)
+    else:  # on the host, as `pad_batch` pads: no device program per size
+        valid = np.array(valid)
+        valid[n:] = False
+        valid = jax.device_put(valid)
+    return eqx.tree_at(lambda r: r.valid, registration, valid)
 
 
 def register_point(

@@ -33,8 +33,10 @@ import numpy as np
 from jaxtyping import Array, ArrayLike
 
 from .._checks import as_float_array, is_concrete
-from .._numerics import dot, safe_divide
-from .spine import AbstractSpine, AbstractTabulatedSpine
+from .._numerics import dot
+from .looked_up import LookedUpSpine
+from .spine import AbstractSpine, AbstractTabulatedSpine, torsion_of
+from .table import PiecewiseCubic, SpineTable
 
 GAUSS = 4  # Gauss–Legendre points an interval (exact for degree 7: the intervals are short)
 INTERVALS = 64  # uniform intervals on [0, length], besides the base's own breaks
@@ -225,11 +227,43 @@ class PreparedBent(AbstractSpine):
         return self._jet_and_normals(s)[1]
 
     def _torsion(self, s: Array) -> Array:
-        def k(t):
-            return self._jet(t)[1:]
+        return torsion_of(self._jet, s)
 
-        (tangent, curvature), (_, dk) = jax.jvp(k, (s,), (jnp.ones_like(s),))
-        return safe_divide(dot(jnp.cross(tangent, curvature), dk), dot(curvature, curvature))
+    def _table(self) -> SpineTable | None:
+        """On a tabulated base (`LookedUpSpine`, float32 posing), the bent spine's table on the
+        base table's own pieces (the same search range: before the joint the spine is the
+        base, past its end the base moved rigidly), from the base's values at their nodes,
+        turned: `T₁ = Q T₀`, `k₁ = Q k₀ + Q′ T₀`, `(I₁, J₁) = Q (I₀, J₀)`, and
+        `C₁ = C₀ + ∫ (Q − 1) T₀` by Gauss–Legendre between consecutive nodes (exactly `C₀` up to
+        the joint). A few rotations a node, where evaluating the bent spine there would
+        integrate its position from the nearest break and continue it past its ends."""
+        base = self.base
+        if not (isinstance(base, LookedUpSpine) and isinstance(base.table.cubics, PiecewiseCubic)):
+            return None
+        table = base.table
+        nodes = table.cubics.nodes()
+        flat = nodes.reshape(-1)
+        (c0, t0, k0), (i0, j0) = jax.vmap(table.jet_and_normals)(flat)
+        r, slope = jax.vmap(self._angles)(flat)
+        turn = jax.vmap(self._turn)
+        k = turn(r, k0) + jax.vmap(self._turn_slope)(r, slope, t0)
+        starts = jnp.concatenate([table.lo[None], flat[:-1]])
+        half = (flat - starts) / 2
+        points = (starts + half)[:, None] + half[:, None] * jnp.asarray(_NODES, flat.dtype)
+
+        def moved(s):  # (Q − 1) T₀ at s
+            tangent = table.jet(s)[1]
+            return self._turn(self._angles(s)[0], tangent) - tangent
+
+        steps = half[:, None] * jnp.einsum("g,ngc->nc", jnp.asarray(_WEIGHTS, flat.dtype),
+                                           jax.vmap(jax.vmap(moved))(points))
+        c = c0 + jnp.cumsum(steps, axis=0)
+
+        def shaped(v):
+            return v.reshape(nodes.shape + (3,))
+
+        jet = (shaped(c), shaped(turn(r, t0)), shaped(k))
+        return table.refit(jet, (shaped(turn(r, i0)), shaped(turn(r, j0))))
 
     def default_samples(self) -> int:
         return self.base.default_samples()

@@ -49,6 +49,13 @@ class Sinusoid(eqx.Module):
         return [a[f] + sin * b[f] + versine * c[f] for f in range(a.shape[0])]
 
 
+    def vector(self, s: Array) -> Array:
+        """The F values at `s` as one (F,) vector (as `PiecewiseCubic.vector`)."""
+        sin, _, versine = turn(jnp.asarray(s, self.radius.dtype), self.radius)
+        a, b, c = self.coefficients
+        return a + sin * b + versine * c
+
+
 def turn(s: Array, radius: Array) -> tuple[Array, Array, Array]:
     """`(sin φ, cos φ, 1 − cos φ)` at the angle `φ = s/R` turned along a circle of `radius`,
     from one `sincos` of `φ/2`: `1 − cos φ = 2 sin²(φ/2)` has no cancellation near `φ = 0`."""

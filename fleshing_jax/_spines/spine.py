@@ -19,7 +19,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike
 
-from .._numerics import dot, norm, safe_sqrt
+from .._numerics import dot, norm, safe_divide, safe_sqrt
 
 
 def initial_normal(tangent: Array) -> Array:
@@ -136,6 +136,11 @@ class AbstractSpine(eqx.Module):
         elsewhere (quadratures split there: `bent`); none (the default) for analytic spines."""
         return jnp.zeros((0,), self.length.dtype)
 
+    def _table(self):
+        """This (prepared) spine's `table.SpineTable` if it has a cheaper way to build it than
+        evaluating itself at the table's nodes (`bent`); `None` (the default) otherwise."""
+        return None
+
     def _tabulable(self) -> bool:
         """Whether the batched single-precision paths may evaluate this spine through a table of
         cubic pieces (`table`): smooth spines yes, piecewise ones (polylines) no (static)."""
@@ -251,6 +256,17 @@ class AbstractSpine(eqx.Module):
             return jnp.minimum(self.length, 0.5 * jnp.pi / jnp.maximum(kappa, 1e-30))
 
         return reach(jnp.zeros_like(self.length)), reach(self.length)
+
+
+def torsion_of(jet: Callable, s: Array) -> Array:
+    """`τ = (T × k)·k′ / |k|²` at `s` from `jet`: `s ↦ (C, T, k)`, with `k′` by forward mode
+    (0 where the spine is straight)."""
+
+    def tangent_and_curvature(t):
+        return jet(t)[1:]
+
+    (tangent, k), (_, dk) = jax.jvp(tangent_and_curvature, (s,), (jnp.ones_like(s),))
+    return safe_divide(dot(jnp.cross(tangent, k), dk), dot(k, k))
 
 
 class Evaluators(NamedTuple):

@@ -91,7 +91,12 @@ class PiecewiseCubic(eqx.Module):
         e0, e1 = spine.extension()
         self.length, self.lo, self.hi = spine.length, -e0, spine.length + e1
         self.inner = max(MIN_PIECES, spine.default_samples()) if inner is None else inner
-        x, fit = arclength.fit_matrix(DEGREE)
+        self.coefficients = _fit(jax.vmap(jax.vmap(function))(self.nodes()))
+
+    def nodes(self) -> Array:
+        """(P, 4): the arc lengths where each piece interpolates, increasing (the Chebyshev
+        points of each piece)."""
+        x, _ = arclength.fit_matrix(DEGREE)
         x = jnp.asarray((x + 1) / 2, self.length.dtype)  # Chebyshev points of [0, 1]
         widths = self._widths()
         counts = (END_PIECES, self.inner, END_PIECES)
@@ -100,8 +105,11 @@ class PiecewiseCubic(eqx.Module):
             [a + w * jnp.arange(n, dtype=w.dtype) for a, w, n in zip(breaks, widths, counts)]
         )
         width = jnp.concatenate([jnp.full((n,), w) for w, n in zip(widths, counts)])
-        samples = jax.vmap(jax.vmap(function))(starts[:, None] + width[:, None] * x)  # (P, 4, F)
-        self.coefficients = jnp.einsum("kq,pqf->pkf", jnp.asarray(fit, samples.dtype), samples)
+        return starts[:, None] + width[:, None] * x
+
+    def refit(self, samples: Array) -> PiecewiseCubic:
+        """The same pieces interpolating other values at `nodes()`: `samples` (P, 4, F)."""
+        return eqx.tree_at(lambda table: table.coefficients, self, _fit(samples))
 
     def _widths(self) -> tuple[Array, Array, Array]:
         return -self.lo / END_PIECES, self.length / self.inner, (self.hi - self.length) / END_PIECES
@@ -114,6 +122,25 @@ class PiecewiseCubic(eqx.Module):
         be materialised and then read back (several times slower on XLA's CPU backend,
         benchmarks/README.md). So callers look up only the values they need, each used once.
         """
+        piece, u = self._locate(s)
+        count = self.coefficients.shape[2]
+        start = piece * (4 * count)
+        flat = self.coefficients.reshape(-1)
+        a0, a1, a2, a3 = (
+            [_read(flat, start + (k * count + f)) for f in range(count)] for k in range(4)
+        )
+        return [b0 + u * (b1 + u * (b2 + u * b3)) for b0, b1, b2, b3 in zip(a0, a1, a2, a3)]
+
+    def vector(self, s: Array) -> Array:
+        """The F tabulated values at `s` as one (F,) vector, read in one block: for the paths
+        that use them together (building other tables), where `fields` would trace 4 F reads
+        and F polynomials (about half a second of tracing for a spine table's 21 values)."""
+        piece, u = self._locate(s)
+        b0, b1, b2, b3 = jax.lax.dynamic_index_in_dim(self.coefficients, piece, keepdims=False)
+        return b0 + u * (b1 + u * (b2 + u * b3))
+
+    def _locate(self, s: Array) -> tuple[Array, Array]:
+        """`(piece (int32), u ∈ [−1, 1])`: the piece holding `s` and where in it."""
         s = jnp.asarray(s, self.length.dtype)
         w0, w1, w2 = self._widths()
         # A fractional piece index: whole part = the piece, fraction = where in it.
@@ -127,15 +154,15 @@ class PiecewiseCubic(eqx.Module):
             ),
         )
         index = jnp.where(jnp.isnan(index), 0, index)  # (keeps the reads below in bounds)
-        pieces, _, count = self.coefficients.shape
-        piece = jnp.clip(jnp.floor(index), 0, pieces - 1)
-        u = 2 * (index - piece) - 1
-        start = piece.astype(jnp.int32) * (4 * count)
-        flat = self.coefficients.reshape(-1)
-        a0, a1, a2, a3 = (
-            [_read(flat, start + (k * count + f)) for f in range(count)] for k in range(4)
-        )
-        return [b0 + u * (b1 + u * (b2 + u * b3)) for b0, b1, b2, b3 in zip(a0, a1, a2, a3)]
+        piece = jnp.clip(jnp.floor(index), 0, self.coefficients.shape[0] - 1)
+        return piece.astype(jnp.int32), 2 * (index - piece) - 1
+
+
+def _fit(samples: Array) -> Array:
+    """Monomial coefficients (P, 4, F) of the cubics through `samples` (P, 4, F) at each
+    piece's Chebyshev points."""
+    _, fit = arclength.fit_matrix(DEGREE)
+    return jnp.einsum("kq,pqf->pkf", jnp.asarray(fit, samples.dtype), samples)
 
 
 def tabulated(
@@ -171,22 +198,23 @@ class SpineTable(eqx.Module):
     samples: int = eqx.field(static=True)
 
     def __init__(self, spine: AbstractSpine, inner: int | None = None):
-        def values(s):
-            (c, t, k), (i, j) = spine.jet_and_normals(s)
-            products = [dot(c, t), dot(k, c), dot(c, i), dot(c, j), dot(k, i), dot(k, j)]
-            return jnp.concatenate([c, t, k, i, j, jnp.stack(products)])
-
         e0, e1 = spine.extension()
         self.length, self.lo, self.hi = spine.length, -e0, spine.length + e1
-        self.cubics = tabulated(spine, values, inner)
+        self.cubics = tabulated(spine, lambda s: table_values(*spine.jet_and_normals(s)), inner)
         self.samples = spine.default_samples()
+
+    def refit(self, jets: tuple[Array, Array, Array], normals: tuple[Array, Array]) -> SpineTable:
+        """The table of another spine over the same search range, from its jet and normals at
+        this table's `cubics.nodes()` (each (P, 4, 3)): no evaluation of that spine elsewhere
+        (`_spines.bent`: a bent limb, whose search range is its rest spine's)."""
+        samples = jax.vmap(jax.vmap(table_values))(jets, normals)
+        return eqx.tree_at(lambda table: table.cubics, self, self.cubics.refit(samples))
 
     def jet_and_normals(self, s):
         """`((C, T, k), (I, J))` at `s`, each (3,)."""
         # For the rare paths (global search, building other tables): the batched search uses
         # `_foot_terms` and `_local_terms`, whose lookups fuse.
-        values = jnp.stack(self.cubics.fields(s)[:15])
-        c, t, k, i, j = jnp.split(values, 5)
+        c, t, k, i, j = jnp.split(self.cubics.vector(s)[:15], 5)
         return (c, t, k), (i, j)
 
     def jet(self, s):
@@ -229,6 +257,14 @@ class SpineTable(eqx.Module):
         return self
 
 
+def table_values(jet: tuple[Array, Array, Array], normals: tuple[Array, Array]) -> Array:
+    """What a `SpineTable` holds at one arc length, (21,): `C, T, k, I, J` and the products
+    `C·T, k·C, C·I, C·J, k·I, k·J`."""
+    (c, t, k), (i, j) = jet, normals
+    products = [dot(c, t), dot(k, c), dot(c, i), dot(c, j), dot(k, i), dot(k, j)]
+    return jnp.concatenate([c, t, k, i, j, jnp.stack(products)])
+
+
 def _dot(x: Array, values: list[Array]) -> Array:
     """`x·v` for `x` (3,) and `v` given as 3 looked-up scalars."""
     return x[0] * values[0] + x[1] * values[1] + x[2] * values[2]
@@ -252,4 +288,7 @@ def fast_evaluator(spine: AbstractSpine) -> AbstractSpine | SpineTable:
     polylines and lines), its `SpineTable` in single precision (the spine's dtype, cast to the
     points'; see `tabulates`)."""
     spine = spine._prepare()
-    return SpineTable(spine) if tabulates(spine) else spine
+    if not tabulates(spine):
+        return spine
+    own = spine._table()
+    return SpineTable(spine) if own is None else own
