@@ -42,7 +42,6 @@ from __future__ import annotations
 
 import hashlib
 
-import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -50,6 +49,7 @@ from jax.scipy.linalg import cho_solve
 from jaxtyping import Array, ArrayLike, Float
 
 from .._checks import as_float_array, check_number, is_concrete
+from .._exported import persistent
 from .._medial_axis.medial_mesh import MedialMesh
 from .._numerics import safe_divide, safe_sqrt
 from .cells import ArapCells, arap_cells
@@ -256,7 +256,7 @@ def _initial_rotations(cells: ArapCells, prescribed, targets):
     return jax.vmap(matrix_from_quaternion)(field).at[cells.handles].set(at_handles)
 
 
-@eqx.filter_jit
+@persistent
 def solve(cells: ArapCells, targets, prescribed, iterations: int, solver: str):
     """Runs `iterations` (centre step, rotation step) pairs from the first guess.
 
