@@ -12,7 +12,8 @@ source, the versions of JAX, jaxlib and equinox, the backend, the dtype of Pytho
 on or off), the arguments' pytree structure (with the static fields of equinox modules), their
 shapes and dtypes, and the values of the static (non-array) arguments. Traced arguments (a call
 under `jit`, `grad` or `vmap`), `jax.disable_jit` or no cache folder: `eqx.filter_jit`, as
-without this module.
+without this module. The library's source stands for the constants its code reads while
+tracing: a test that patches one (`monkeypatch.setattr`) must call the function traced.
 """
 
 from __future__ import annotations
