@@ -91,6 +91,10 @@ def use_compilation_cache(
 
     The folder in use, or `None` when the cache stays off.
 
+    The library's largest programs (the medial pose: `arap_medial`, `MedialRig.pose`) also
+    keep their traced programs there (`jax.export`, a `fleshing-jax-exported` subfolder), so
+    that a new process's first call neither traces nor compiles them.
+
     The cache is trusted code: never point it at a folder that others can write to.
     """
     if path is not None and not isinstance(path, str | PathLike):

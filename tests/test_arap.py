@@ -14,6 +14,7 @@ from jax.test_util import check_grads
 import fleshing_jax as fj
 from fleshing_jax._medial_axis.medial_mesh import face_edges
 from fleshing_jax._medial_deform.arap import arap_energies, fit_rotation
+from fleshing_jax._medial_deform.cells import arap_cells
 from fleshing_jax._medial_deform.quaternions import matrix_from_quaternion, quaternion_from_matrix
 
 LENGTH = 4.0
@@ -222,6 +223,23 @@ def test_solvers_reach_the_same_minimum():
     gap_global, gap_local = (e_global - minimum) / minimum, (e_local - minimum) / minimum
     assert gap_global[fj_default_iterations() - 1] < 1e-3
     assert np.argmax(gap_local < 1e-4) > 3 * np.argmax(gap_global < 1e-4)
+
+
+def test_colour_table_rows_are_colours():
+    # The solver sweeps the colours as rows of one table: every sphere in exactly one row,
+    # the padding repeats a sphere of its own row, and no edge joins two spheres of a row.
+    padded = []
+    for medial, handles in [(CHAIN, ENDS), (SHEET, SIDES)]:
+        rest, _, edges, _ = medial.numpy()
+        table = arap_cells(rest, edges, handles, 0.1, np.float64).colours
+        rows = [np.unique(row) for row in table]
+        np.testing.assert_array_equal(np.sort(np.concatenate(rows)), np.arange(len(rest)))
+        colour = np.empty(len(rest), int)
+        for k, row in enumerate(rows):
+            colour[row] = k
+        assert (colour[edges[:, 0]] != colour[edges[:, 1]]).all()
+        padded += [len(row) < table.shape[1] for row in rows]
+    assert any(padded)  # (the sheet's last colour; the chain's two are equal)
 
 
 def fj_default_iterations():

@@ -15,6 +15,7 @@ from conftest import cloud
 
 import fleshing_jax as fj
 from fleshing_jax._fit.correspondences import Correspondence
+from fleshing_jax._fit.problem import straight_line
 
 BSpline = getattr(fj, "BSpline", None)
 if BSpline is None:  # until the free-form spines are exported
@@ -179,6 +180,31 @@ def test_bspline_gradient_and_recovery_from_straight_with_fixed_root_and_noise()
     assert 0.6 * expected < float(fit.rms) < expected
     assert _curve_error(fit.spine, truth) < 3 * noise
     np.testing.assert_array_equal(fit.spine.control_points[:2], _STRAIGHT[:2])
+
+
+@needs_bspline
+def test_a_straight_bspline_source_is_registered_on_its_line():
+    # The fit registers its source on the line a straight B-spline traces (a lighter
+    # program): the same registration to the B-spline's own round-off. Unevenly spaced
+    # control points along a slanted line, points also past both ends.
+    turn = np.linalg.qr(np.random.default_rng(3).normal(size=(3, 3)))[0]
+    points = np.c_[[0.0, 0.3, 1.0, 2.5, 3.0, 4.0], np.zeros(6), np.zeros(6)] @ turn.T + 1.0
+    spline = BSpline(points)
+    line = straight_line(spline)
+    assert isinstance(line, fj.Line)
+    source = cloud(LINE, overshoot=0.3) @ turn.T + 1.0
+    on_spline, on_line = fj.register(source, spline), fj.register(source, line)
+    for a, b in zip(jax.tree.leaves(on_spline), jax.tree.leaves(on_line)):
+        np.testing.assert_allclose(a, b, rtol=0, atol=1e-11)
+    s = np.asarray(on_line.arc_length)
+    assert (s <= 0).any() and (s >= float(line.length)).any()  # past both ends too
+    # Not straight, folding back, or not clamped: registered on the B-spline itself.
+    bent = points.copy()
+    bent[2] += 1e-6 * turn[:, 1]
+    folded = points[[0, 1, 3, 2, 4, 5]]
+    knots = np.linspace(0.0, 1.0, 12)
+    for other in (BSpline(bent), BSpline(folded), BSpline(points, knots=knots), LINE):
+        assert straight_line(other) is None
 
 
 def test_chamfer_fit_without_correspondences():

@@ -118,7 +118,7 @@ def test_shared_edges_give_the_field_evaluated_in_place(sheet):
 
 
 def test_blocks_do_not_mix_vertices(sheet, monkeypatch):
-    # 300 vertices in blocks of 128 (two blocks and a remainder) or in one block.
+    # 300 vertices in blocks of 128 (three, the last padded) or in one block.
     points, _, rig = sheet
     rng = np.random.default_rng(2)
     centers = jnp.asarray(CENTERS + rng.normal(scale=0.1, size=CENTERS.shape))
@@ -165,3 +165,59 @@ def test_gradients_through_slabs_match_finite_differences(sheet):
                                                                       size=CENTERS.shape))
     assert np.isfinite(np.asarray(jax.grad(loss)(centers))).all()
     check_grads(loss, (centers,), order=1, modes=["rev"])
+
+
+@pytest.mark.parametrize("newton_steps, relax_iterations", [(2, 2), (0, 1)])
+def test_correction_loop_is_its_steps_in_turn(newton_steps, relax_iterations):
+    # `correct` runs its Newton steps and relaxation rounds as one loop; the same steps
+    # written out one after the other: Newton steps (the angle test from the second on),
+    # then each round a tangential move to the turned rest Laplacian and one projection.
+    # A grid above the sheet with faces, so that the relaxation runs.
+    u, v = np.meshgrid(np.linspace(-0.3, 3.2, 12), np.linspace(-0.3, 1.4, 8), indexing="ij")
+    points = np.c_[u.ravel(), v.ravel(), np.full(u.size, 0.45)]
+    quads = (np.arange(11)[:, None] * 8 + np.arange(7)[None]).ravel()
+    faces = np.r_[np.c_[quads, quads + 8, quads + 1], np.c_[quads + 1, quads + 8, quads + 9]]
+    medial = MedialMesh(CENTERS, RADII, EDGES, FACES)
+    rig = MedialRig(points, medial, faces=faces, field_slabs=2)
+    rng = np.random.default_rng(5)
+    centers = jnp.asarray(CENTERS + rng.normal(scale=0.1, size=CENTERS.shape))
+    skinned = jnp.asarray(points + rng.normal(scale=0.05, size=points.shape))
+    turn = jnp.asarray(np.linalg.qr(rng.normal(size=(len(points), 3, 3)))[0])
+    turn = turn * jnp.sign(jnp.linalg.det(turn))[:, None, None]  # rotations
+    d, cos_max = rig.correction, np.cos(np.radians(55.0))
+
+    @jax.jit
+    def steps_in_turn(x):
+        active, g_prev = jnp.ones(len(x), bool), None
+
+        def project(x, active, g_prev):
+            f, g = shared_field(x, centers, rig.radii, rig.cones, d)
+            if g_prev is not None:
+                cos = jnp.sum(g * g_prev, 1) / (jnp.linalg.norm(g, axis=1)
+                                                * jnp.linalg.norm(g_prev, axis=1))
+                active = active & (cos >= cos_max)
+            moved = x - ((f - d.iso) / jnp.maximum(jnp.sum(g * g, 1), 0.25))[:, None] * g
+            return jnp.where(active[:, None], moved, x), active, g
+
+        for _ in range(newton_steps):
+            x, active, g_prev = project(x, active, g_prev)
+        if g_prev is None:
+            g_prev = shared_field(x, centers, rig.radii, rig.cones, d)[1]
+        for _ in range(relax_iterations):
+            mean = jnp.einsum("nk,nkd->nd", d.ring_weights, x[d.ring])
+            move = mean + jnp.einsum("nab,nb->na", turn, d.laplacian) - x
+            move = move - jnp.sum(move * g_prev, 1)[:, None] * g_prev
+            x = jnp.where(active[:, None], x + 0.5 * move, x)
+            x, active, g_prev = project(x, active, g_prev)
+        return x, ~active
+
+    def loop(x):
+        return correct(x, turn, centers, rig.radii, rig.cones, rig.medial_faces, d,
+                       newton_steps=newton_steps, relax_iterations=relax_iterations,
+                       relax_step=0.5, contact_angle=55.0)
+
+    expected, contact = steps_in_turn(skinned)
+    x, loop_contact = jax.jit(loop)(skinned)
+    np.testing.assert_allclose(x, expected, rtol=0, atol=1e-12)
+    np.testing.assert_array_equal(loop_contact, contact)
+    assert float(jnp.abs(x - skinned).max()) > 1e-3  # the correction did move them

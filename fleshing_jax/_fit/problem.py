@@ -21,12 +21,13 @@ import numpy as np
 import optimistix as optx
 from jaxtyping import Array, ArrayLike, Bool, Float
 
-from .._checks import as_float_array, as_points, as_twist
+from .._checks import as_float_array, as_points, as_twist, is_concrete
 from .._fleshing.methods import check_method
 from .._fleshing.pipeline import pose, pose_points, register
 from .._fleshing.projection import Registration
 from .._numerics import cast_floats
 from .._spines.analytic import Arc, Helix, Line
+from .._spines.bspline import BSpline
 from .._spines.spine import AbstractSpine
 
 INVALID_MODES = ("penalize", "exclude")
@@ -359,6 +360,30 @@ class Setup(eqx.Module):
         )
 
 
+def straight_line(spine) -> Line | None:
+    """The `Line` that a straight B-spline traces, or `None`: for a concrete B-spline with
+    clamped knots whose control points lie in order along one line (to a few ulps of its
+    length), which is then the segment from its first to its last control point (in order:
+    its derivative's control points all point one way). The fit's usual rest spine: its
+    registration on the line is the same to round-off (the same foot, arc length and frame)
+    and compiles in a fraction of the time (closed-form feet, no tables or reach bounds)."""
+    if not isinstance(spine, BSpline) or not is_concrete((spine.control_points, spine.knots)):
+        return None
+    dtype = spine.control_points.dtype
+    p, u, d = np.asarray(spine.control_points, np.float64), np.asarray(spine.knots), spine.degree
+    chord = p[-1] - p[0]
+    length = float(np.linalg.norm(chord))
+    if not (length > 0 and np.all(u[:d + 1] == u[0]) and np.all(u[-d - 1:] == u[-1])):
+        return None
+    direction = chord / length
+    along = (p - p[0]) @ direction
+    across = np.linalg.norm(p - p[0] - along[:, None] * direction, axis=1)
+    if across.max() > 8 * np.finfo(dtype).eps * length or np.any(np.diff(along) < 0):
+        return None
+    return Line(np.asarray(length, dtype), origin=p[0].astype(dtype),
+                tangent=direction.astype(dtype))
+
+
 def prepare(
     source_spine,
     init,
@@ -386,7 +411,7 @@ def prepare(
     y0 = parameters.initial(twist if fit_twist else None)
     if sum(v.size for v in y0[0]) == 0 and not fit_twist:
         raise ValueError("nothing to fit: every parameter is `fixed` and `fit_twist` is False.")
-    registration = register(source, source_spine)
+    registration = register(source, straight_line(source_spine) or source_spine)
     if not bool(jnp.any(registration.valid)):
         raise ValueError("no point of `source` lies in the valid space of `source_spine`.")
     extra = () if regularizers is None else tuple(regularizers)

@@ -42,7 +42,6 @@ from __future__ import annotations
 
 import hashlib
 
-import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -50,6 +49,7 @@ from jax.scipy.linalg import cho_solve
 from jaxtyping import Array, ArrayLike, Float
 
 from .._checks import as_float_array, check_number, is_concrete
+from .._exported import persistent
 from .._medial_axis.medial_mesh import MedialMesh
 from .._numerics import safe_divide, safe_sqrt
 from .cells import ArapCells, arap_cells
@@ -78,13 +78,15 @@ def _cofactors(x):
 
 def _polar(m):
     """Orthogonal polar factor of a non-singular `m` (Higham's scaled Newton iteration)."""
-    x = m / _fro(m)
-    for _ in range(POLAR_STEPS):
+    def step(_, x):
         c, det = _cofactors(x)
         inv_t = c / det
         gamma = jnp.sqrt(_fro(inv_t) / _fro(x))
-        x = 0.5 * (gamma * x + inv_t / gamma)
-    return x
+        return 0.5 * (gamma * x + inv_t / gamma)
+
+    # A loop, not unrolled: one step to trace and compile where ten made the rotation fit
+    # most of the ARAP solve's program.
+    return jax.lax.fori_loop(0, POLAR_STEPS, step, m / _fro(m))
 
 
 def _smallest_eigenvector(h):
@@ -186,13 +188,19 @@ def _rotation_step(cells: ArapCells, c, r, prescribed):
     # of neighbouring centres keep float32 accurate far from the origin.
     d = c[cells.members] - c[:, None]
     a = jnp.einsum("nka,nkb->nab", d, cells.offsets)
-    for idx in cells.colours:
+
+    def colour(k, r):
+        idx = cells.colours[k]
         m = (a[idx] + jnp.einsum("nd,ndab->nab", cells.weights[idx], r[cells.neighbours[idx]])
              + cells.proximal[idx, None, None] * r[idx])
         r = r.at[idx].set(jax.vmap(fit_rotation)(m))
         if prescribed is not None:
             r = r.at[cells.handles].set(prescribed)
-    return r
+        return r
+
+    # A loop over the colours (rows of one padded table), not unrolled: the rotation fit is
+    # traced and compiled once rather than once per colour.
+    return jax.lax.fori_loop(0, cells.colours.shape[0], colour, r)
 
 
 def _global_centres(cells: ArapCells, r, shift):
@@ -248,7 +256,7 @@ def _initial_rotations(cells: ArapCells, prescribed, targets):
     return jax.vmap(matrix_from_quaternion)(field).at[cells.handles].set(at_handles)
 
 
-@eqx.filter_jit
+@persistent
 def solve(cells: ArapCells, targets, prescribed, iterations: int, solver: str):
     """Runs `iterations` (centre step, rotation step) pairs from the first guess.
 

@@ -63,7 +63,9 @@ class ArapCells(eqx.Module):
     - `neighbours`, `weights`: `(n, K − 1)` the graph neighbours of each sphere and the
       smoothness weights `w_ij` (0 on padding).
     - `proximal`: `(n,)` weight of the proximal term of each rotation fit.
-    - `colours`: tuple of index arrays, a colouring of the medial graph.
+    - `colours`: `(C, m)` a colouring of the medial graph, one colour's spheres per row,
+      padded with repeats of its first sphere (a sphere fitted twice in one colour gets
+      the same rotation twice).
     - `handles`, `free`: `(h,)` and `(f,)` sphere indices.
     - `factor`, `coupling`: lower Cholesky factor of the centres' system restricted to the
       free spheres `L_ff` `(f, f)`, and the block `L_fh` `(f, h)`.
@@ -81,7 +83,7 @@ class ArapCells(eqx.Module):
     neighbours: Int[Array, "n D"]
     weights: Float[Array, "n D"]
     proximal: Float[Array, " n"]
-    colours: tuple[Int[Array, " m"], ...]
+    colours: Int[Array, "C m"]
     handles: Int[Array, " h"]
     free: Int[Array, " f"]
     factor: Float[Array, "f f"]
@@ -138,6 +140,13 @@ def _colouring(adjacency: scipy.sparse.csr_matrix) -> list[np.ndarray]:
             c += 1
         colour[i] = c
     return [np.flatnonzero(colour == c) for c in range(colour.max() + 1)]
+
+
+def _colour_table(colours: list[np.ndarray]) -> np.ndarray:
+    """The colours as rows of one `(C, m)` table, `m` the largest colour, each row padded with
+    its first sphere (so that the solver loops over one row shape)."""
+    width = max(len(c) for c in colours)
+    return np.stack([np.r_[c, np.full(width - len(c), c[0])] for c in colours])
 
 
 def _cholesky(matrix: np.ndarray, free: np.ndarray, handles: np.ndarray):
@@ -217,7 +226,7 @@ def arap_cells(rest: np.ndarray, edges: np.ndarray, handles: np.ndarray, smoothn
         rest=f(rest), members=i(members), mask=f(mask), offsets=f(offsets),
         handle_offsets=f(handle_offsets), owners=i(owners), owner_offsets=f(owner_offsets),
         neighbours=i(neighbours), weights=f(weights), proximal=f(proximal),
-        colours=tuple(i(c) for c in _colouring(adjacency)),
+        colours=i(_colour_table(_colouring(adjacency))),
         handles=i(handles), free=i(free), factor=f(factor), coupling=f(coupling),
         q_factor=f(q_factor), q_coupling=f(q_coupling),
     )

@@ -292,42 +292,60 @@ def correct(
         return field(p, width, jax.tree.map(lambda a: a[:kc], rows),
                      jax.tree.map(lambda a: a[kc:], rows), slabs, slots)
 
+    # The vertices padded to whole blocks (copies of the last one, dropped from the output):
+    # `lax.map` then runs one traced block, where a remainder traced and compiled the field a
+    # second time.
+    n = skinned.shape[0]
+    block = min(BLOCK, n)
+    pad = -n % block
+
+    def padded(a):
+        return jnp.concatenate([a, jnp.broadcast_to(a[-1:], (pad, *a.shape[1:]))]) if pad else a
+
+    per_vertex = [padded(a) for a in (data.width, data.field_cones, data.edge_cones,
+                                      data.field_slabs, data.edge_slots)]
+
     def evaluate(x):
         # In blocks of vertices (a loop, each block vectorised): the (block, candidates)
         # temporaries XLA materialises between its fused kernels then stay in cache, where
         # over all vertices at once they go through memory (measured in benchmarks/README.md).
-        return jax.lax.map(lambda a: one(*a), (x, data.width, data.field_cones,
-                                               data.edge_cones, data.field_slabs,
-                                               data.edge_slots), batch_size=BLOCK)
+        f, g = jax.lax.map(lambda a: one(*a), (padded(x), *per_vertex), batch_size=block)
+        return f[:n], g[:n]
 
     cos_max = jnp.cos(jnp.deg2rad(contact_angle)).astype(skinned.dtype)
+    relaxing = data.ring is not None and relax_iterations > 0
+    steps = newton_steps + (relax_iterations if relaxing else 0)
+    x, active = skinned, jnp.ones(n, bool)
+    if steps == 0:
+        return x, ~active
+    # The gradient of the previous evaluation: the first Newton step has none to compare with
+    # (the angle test starts at the second step), relaxation without Newton steps evaluates it.
+    g, tested_first = jnp.zeros_like(x), False
+    if relaxing:
+        if newton_steps == 0:
+            (_, g), tested_first = evaluate(x), True
+        # (Explicit sums of products, not `einsum` or `jnp.sum` over the short axes: see
+        # `weighted_sum`.)
+        delta = dot(rotations, data.laplacian[:, None, :])
 
-    def project(x, active, g_prev):
+    def step(k, state):
+        # The Newton steps, then the rounds of relaxation, each followed by one projection
+        # step, as one loop: the field is traced and compiled once for all of them.
+        x, active, g_prev = state
+        if relaxing:
+            ring = jax.vmap(weighted_sum)(data.ring_weights, x[data.ring])
+            move = ring + delta - x
+            move = move - dot(move, g_prev)[:, None] * g_prev
+            x = jnp.where((active & (k >= newton_steps))[:, None], x + relax_step * move, x)
         f, g = evaluate(x)
         # The angle test of Vaillant et al. on unit gradients; a smooth union's gradient can
         # be short where two primitives' gradients oppose, so the step's denominator is kept
         # away from 0 (it is 1 wherever one primitive dominates).
-        if g_prev is not None:  # (the first step has nothing to compare with)
-            active = active & (dot(g, g_prev) >= cos_max * norm(g) * norm(g_prev))
-        step = (f - data.iso) / jnp.maximum(dot(g, g), 0.25)
-        x = jnp.where(active[:, None], x - step[:, None] * g, x)
-        return x, active, g
+        tested = active & (dot(g, g_prev) >= cos_max * norm(g) * norm(g_prev))
+        active = tested if tested_first else jnp.where(k > 0, tested, active)
+        size = (f - data.iso) / jnp.maximum(dot(g, g), 0.25)
+        return jnp.where(active[:, None], x - size[:, None] * g, x), active, g
 
-    x, g = skinned, None
-    active = jnp.ones(x.shape[0], bool)
-    for _ in range(newton_steps):
-        x, active, g = project(x, active, g)
-    if data.ring is not None and relax_iterations:
-        if g is None:
-            _, g = evaluate(x)
-        # (Explicit sums of products, not `einsum` or `jnp.sum` over the short axes: see
-        # `weighted_sum`.)
-        delta = dot(rotations, data.laplacian[:, None, :])
-        for _ in range(relax_iterations):
-            ring = jax.vmap(weighted_sum)(data.ring_weights, x[data.ring])
-            move = ring + delta - x
-            move = move - dot(move, g)[:, None] * g
-            x = jnp.where(active[:, None], x + relax_step * move, x)
-            x, active, g = project(x, active, g)
+    x, active, _ = jax.lax.fori_loop(0, steps, step, (x, active, g))
     return x, ~active
 

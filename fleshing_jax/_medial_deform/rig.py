@@ -45,6 +45,7 @@ from jaxtyping import Array, ArrayLike, Bool, Float, Int
 from scipy import sparse
 
 from .._checks import as_real_array, check_number, is_concrete
+from .._exported import persistent
 from .._medial_axis.medial_mesh import MedialMesh
 from .._medial_axis.weld import weld
 from .._mesh.volume import triangulate
@@ -342,7 +343,7 @@ class MedialRig(eqx.Module):
         return _pose(self, posed.centers, posed.rotations, method, bool(implicit))
 
 
-@eqx.filter_jit
+@persistent
 def _pose(rig: MedialRig, centers, rotations, method, implicit):
     dtype = centers.dtype
     rig = cast_floats(rig, dtype)

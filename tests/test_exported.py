@@ -1,0 +1,89 @@
+"""`_exported.persistent`: traced programs kept on disk, so that a first call in a new process
+does not trace. A new process is simulated by emptying the in-memory table of loaded programs;
+the folder is a temporary one (JAX's configuration is left as it is)."""
+
+from collections import OrderedDict
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from fleshing_jax import _exported
+
+traces = []  # one entry per trace of `scaled`'s Python body
+
+
+class Scale(eqx.Module):
+    factor: jax.Array
+    power: int = eqx.field(static=True)
+
+
+def _scaled(scale, x, shift, mode):
+    traces.append(mode)
+    y = scale.factor * x**scale.power + shift
+    return (jnp.sum(y) if mode == "sum" else jnp.max(y)), y * 2
+
+
+scaled = _exported.persistent(_scaled)
+
+
+@pytest.fixture
+def folder(tmp_path, monkeypatch):
+    monkeypatch.setattr(_exported, "_folder", lambda: tmp_path)
+    monkeypatch.setattr(_exported, "_loaded", OrderedDict())
+    traces.clear()
+    return tmp_path
+
+
+def _new_process(monkeypatch):
+    monkeypatch.setattr(_exported, "_loaded", OrderedDict())
+
+
+def test_a_warm_call_loads_the_program_without_tracing(folder, monkeypatch):
+    scale, x = Scale(jnp.asarray(1.5), 2), np.linspace(0.0, 1.0, 5)
+    expected = eqx.filter_jit(_scaled)(scale, x, 0.5, "sum")
+    traces.clear()
+    first = scaled(scale, x, 0.5, "sum")
+    assert traces == ["sum"] and len(list(folder.iterdir())) == 1
+    _new_process(monkeypatch)
+    again = scaled(scale, jnp.asarray(x), 0.5, "sum")
+    assert traces == ["sum"]  # loaded, not traced
+    for a, b, c in zip(first, again, expected):
+        np.testing.assert_array_equal(a, c)
+        np.testing.assert_array_equal(b, c)
+    # Each thing that decides the trace has its own program: a static argument, a static
+    # field, a shape, a dtype.
+    scaled(scale, x, 0.5, "max")
+    scaled(Scale(jnp.asarray(1.5), 3), x, 0.5, "sum")
+    scaled(scale, x[:4], 0.5, "sum")
+    scaled(scale, x.astype(np.float32), 0.5, "sum")
+    assert len(traces) == 5 and len(list(folder.iterdir())) == 5
+    _new_process(monkeypatch)
+    out = scaled(Scale(jnp.asarray(2.0), 3), x, 0.5, "sum")  # another value: the same program
+    assert len(traces) == 5
+    np.testing.assert_allclose(out[1], 2 * (2.0 * x**3 + 0.5), rtol=1e-15)
+
+
+def test_traced_calls_compile_as_filter_jit(folder):
+    scale, x = Scale(jnp.asarray(1.5), 2), jnp.linspace(0.0, 1.0, 5)
+    gradient = jax.grad(lambda f: scaled(Scale(f, 2), x, 0.5, "sum")[0])(1.5)
+    np.testing.assert_allclose(gradient, jnp.sum(x**2), rtol=1e-15)
+    jitted = jax.jit(lambda x: scaled(scale, x, 0.5, "sum"))(x)
+    np.testing.assert_allclose(jitted[0], jnp.sum(1.5 * x**2 + 0.5), rtol=1e-15)
+    assert list(folder.iterdir()) == []
+
+
+def test_a_damaged_program_is_exported_again(folder, monkeypatch):
+    scale, x = Scale(jnp.asarray(1.5), 2), np.linspace(0.0, 1.0, 5)
+    expected = scaled(scale, x, 0.5, "sum")
+    (path,) = folder.iterdir()
+    path.write_bytes(b"not a program")
+    _new_process(monkeypatch)
+    out = scaled(scale, x, 0.5, "sum")
+    assert len(traces) == 2
+    np.testing.assert_array_equal(out[1], expected[1])
+    _new_process(monkeypatch)
+    scaled(scale, x, 0.5, "sum")
+    assert len(traces) == 2  # the file was written again
