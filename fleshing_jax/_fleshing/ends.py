@@ -51,8 +51,7 @@ class EndFrames(eqx.Module):
 
     def __init__(self, spine=None, values=None):
         if values is None:
-            spine = jax.lax.stop_gradient(spine)
-            frames = [_frame(spine, s) for s in (jnp.zeros_like(spine.length), spine.length)]
+            frames = _frames(jax.lax.stop_gradient(spine))
             values = tuple(v for frame in frames for vector in frame for v in vector)
         self.values = tuple(values)
 
@@ -69,9 +68,12 @@ def end_frames(spine) -> EndFrames:
     return EndFrames(spine)
 
 
-def _frame(spine, s: Array) -> tuple[Array, Array, Array, Array]:
-    (c, t, _), (i, j) = spine.jet_and_normals(s)
-    return c, t, i, j
+def _frames(spine) -> list[tuple[Array, Array, Array, Array]]:
+    """`(C, T, I, J)` of `spine` at 0 and at its length, evaluated together (`_anchors`:
+    spines share their work between the two ends; no continuation past them is traced)."""
+    spine = spine._prepare()
+    _, start, end = spine._anchors(jnp.zeros_like(spine.length))
+    return [(c, t, i, j) for (c, t, _), (i, j) in (start, end)]
 
 
 def aligned_twist(start: EndFrames, target, twist: Array) -> Array:
@@ -80,7 +82,7 @@ def aligned_twist(start: EndFrames, target, twist: Array) -> Array:
     `twist` when the two start tangents and normals are equal, so that a spine posed on
     itself keeps its frame to the last bit). `target`: a prepared spine."""
     _, t0, i0, _ = start.frame(0)
-    (_, t1, _), (i1, j1) = target.jet_and_normals(jnp.zeros_like(target.length))
+    (_, t1, _), (i1, j1) = target._jet_and_normals(jnp.zeros_like(target.length))
     t0, i0 = jax.lax.stop_gradient((t0, i0))
     # The smallest rotation taking t0 to t1, applied to i0: with a = t0 × t1 and c = t0·t1,
     # R v = c v + a × v + a (a·v) / (1 + c). Undefined for opposite tangents (c = −1): there
@@ -100,10 +102,7 @@ def _same(a: tuple[Array, ...], b: tuple[Array, ...], scale: Array = 1.0) -> Arr
 
 def target_ends(target, twist: Array) -> EndFrames:
     """The target's `EndFrames` with its normals turned by `twist` (a prepared spine)."""
-    frames = []
-    for s in (jnp.zeros_like(target.length), target.length):
-        c, t, i, j = _frame(target, s)
-        frames.append((c, t, *twist_normals((i, j), twist)))
+    frames = [(c, t, *twist_normals((i, j), twist)) for c, t, i, j in _frames(target)]
     return EndFrames(values=[v for frame in frames for vector in frame for v in vector])
 
 

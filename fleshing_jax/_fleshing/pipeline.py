@@ -170,14 +170,15 @@ class Poser(eqx.Module):
         """`start`: the source's `EndFrames`, from which the target's first normal is carried
         (`ends.aligned_twist`; `None`: the target's own, for callers that align the twist
         themselves); `beyond`: `"continue"` or `"rigid"` (`ends`)."""
+        target = target._prepare()  # once: each preparation is traced again
         if start is not None:
-            twist = aligned_twist(start, target._prepare(), twist)
-        self.ends = target_ends(target._prepare(), twist) if beyond == "rigid" else None
+            twist = aligned_twist(start, target, twist)
+        self.ends = target_ends(target, twist) if beyond == "rigid" else None
         closed = target._has_closed_form_foot()
         # Tabulated from the spine table (its nodes are the table's, so no exact evaluation),
         # but for lines and arcs: cheap to evaluate exactly, and checked without the table,
         # so that none is built (half the preparation's compilation of an arc).
-        self.target = target._prepare() if closed else fast_evaluator(target)
+        self.target = target if closed else fast_evaluator(target)
         self.frames = TargetFrames(self.target, twist, tabulate=tabulates(target))
         self.method, self.check_projection = method, check_projection
         use = check_projection and not closed

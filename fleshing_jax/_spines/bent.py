@@ -199,8 +199,12 @@ class PreparedBent(AbstractSpine):
         """`T₁(s) = Q(s) T₀(s)` for `s ∈ [joint, stop]` (the quadrature's integrand)."""
         return self._turn(self._angles(s)[0], self.base._jet(s)[1])
 
-    def _position(self, s: Array, c0: Array) -> Array:
-        """`C₁(s)`, given `c0 = C₀(s)`."""
+    def _position(self, s: Array, c0: Array, integrate: bool = True) -> Array:
+        """`C₁(s)`, given `c0 = C₀(s)`; `integrate=False` for an `s` known to lie outside
+        `(joint, stop)` (the ends: no quadrature traced)."""
+        rigid = self.positions[-1] + self._turn(jnp.ones_like(s), c0 - self.rest_stop)
+        if not integrate:
+            return jnp.where(s <= self.joint, c0, rigid)
         inside = jnp.where(s < self.joint, self.joint, jnp.where(s > self.stop, self.stop, s))
         m = jnp.clip(jnp.searchsorted(self.breaks, inside, side="right") - 1, 0,
                      self.breaks.shape[0] - 2)
@@ -209,16 +213,31 @@ class PreparedBent(AbstractSpine):
         points = start + half * (1 + jnp.asarray(_NODES, s.dtype))
         values = jax.vmap(self._tangent)(points)
         integral = self.positions[m] + half * jnp.asarray(_WEIGHTS, s.dtype) @ values
-        rigid = self.positions[-1] + self._turn(jnp.ones_like(s), c0 - self.rest_stop)
         return jnp.where(s <= self.joint, c0, jnp.where(s >= self.stop, rigid, integral))
 
-    def _jet_and_normals(self, s: Array):
-        (c0, t0, k0), (i0, j0) = self.base._jet_and_normals(s)
+    def _turned(self, s: Array, base, integrate: bool = True):
+        """`_jet_and_normals` at `s` from the base's there (`integrate`: as `_position`)."""
+        (c0, t0, k0), (i0, j0) = base
         r, slope = self._angles(s)
         tangent = self._turn(r, t0)
         k = self._turn(r, k0) + self._turn_slope(r, slope, t0)
-        jet = (self._position(s, c0), tangent, k)
+        jet = (self._position(s, c0, integrate), tangent, k)
         return jet, (self._turn(r, i0), self._turn(r, j0))
+
+    def _jet_and_normals(self, s: Array):
+        return self._turned(s, self.base._jet_and_normals(s))
+
+    def _anchors(self, s: Array) -> list:
+        # The base's three evaluations shared (`AbstractSpine._anchors`); the ends lie before
+        # the joint and past the stop, where no quadrature is needed.
+        here, start, end = self.base._anchors(s)
+        ends = (jnp.zeros_like(self.length), self.length)
+        return [self._turned(s, here)] + [
+            self._turned(x, base, integrate=False) for x, base in zip(ends, (start, end))
+        ]
+
+    def _anchor_jets(self, s: Array) -> list:
+        return [jet for jet, _ in self._anchors(s)]
 
     def _jet(self, s: Array):
         return self._jet_and_normals(s)[0]

@@ -217,6 +217,10 @@ class SpineTable(eqx.Module):
         c, t, k, i, j = jnp.split(self.cubics.vector(s)[:15], 5)
         return (c, t, k), (i, j)
 
+    def _anchors(self, s):
+        """`jet_and_normals` at `s`, at 0 and at `length` (as `AbstractSpine._anchors`)."""
+        return [self.jet_and_normals(x) for x in (s, jnp.zeros_like(self.length), self.length)]
+
     def jet(self, s):
         """`(C, T, k)` at `s`, each (3,)."""
         return self.jet_and_normals(s)[0]
