@@ -30,26 +30,33 @@ def test_bent_spine_is_the_base_up_to_the_joint_and_rigid_past_its_stop():
                                 [4, 0, 0], [5, 0.1, 0.1]]))
     bent = fj.BentSpine(base, joint=1.0, stop=3.5, bend=1.2, direction=0.7, twist=0.5)
     assert float(bent.length) == float(base.length)
-    np.testing.assert_array_equal(bent(0.8), base(0.8))
-    for a, b in zip(jax.tree.leaves(bent.jet_and_normals(0.8)),
-                    jax.tree.leaves(base.jet_and_normals(0.8))):
+    # (Each check compiled as one program: evaluated eagerly, a spine is many small ones.)
+    before = jax.jit(lambda b, s: (b(s), b.jet_and_normals(s)))
+    for a, b in zip(jax.tree.leaves(before(bent, 0.8)), jax.tree.leaves(before(base, 0.8))):
         np.testing.assert_array_equal(a, b)
+
     # Exactly arc length, with the jet's derivatives consistent to round-off (det J = 1).
-    for s in (1.2, 2.0, 3.0, 3.6, float(base.length) - 0.1):
-        s = jnp.asarray(s)
-        np.testing.assert_allclose(jax.jacfwd(bent)(s), bent.tangent(s), atol=1e-14)
-        np.testing.assert_allclose(jax.jacfwd(bent.tangent)(s), bent.curvature_vector(s),
-                                   atol=1e-13)
-        assert abs(float(jnp.linalg.norm(bent.tangent(s))) - 1) < 1e-14
+    @jax.jit
+    @jax.vmap
+    def derivatives(s):
+        return (jax.jacfwd(bent)(s), bent.tangent(s), jax.jacfwd(bent.tangent)(s),
+                bent.curvature_vector(s))
+
+    s = jnp.asarray([1.2, 2.0, 3.0, 3.6, float(base.length) - 0.1])
+    dc, tangent, dt, k = derivatives(s)
+    np.testing.assert_allclose(dc, tangent, atol=1e-14)
+    np.testing.assert_allclose(dt, k, atol=1e-13)
+    np.testing.assert_allclose(np.linalg.norm(tangent, axis=1), 1, atol=1e-14)
     # Past the stop, the base moved rigidly: distances kept, and moved.
     s = jnp.linspace(3.5, float(base.length), 5)
-    a, b = jax.vmap(bent)(s), jax.vmap(base)(s)
+    a, b = jax.jit(jax.vmap(bent))(s), jax.jit(jax.vmap(base))(s)
     np.testing.assert_allclose(np.linalg.norm(a[:, None] - a[None], axis=-1),
                                np.linalg.norm(b[:, None] - b[None], axis=-1), atol=1e-13)
     assert float(jnp.max(jnp.abs(a - b))) > 0.5
     # The bend's angle: the tangent turns by `bend` about the joint's axis on a straight base.
     line = fj.BentSpine(fj.Line(3.0), joint=0.5, bend=1.0, direction=0.3)
-    assert np.degrees(np.arccos(float(line.tangent(3.0) @ line.tangent(0.5)))) == pytest.approx(
+    tangents = jax.jit(jax.vmap(line.tangent))(jnp.asarray([3.0, 0.5]))
+    assert np.degrees(np.arccos(float(tangents[0] @ tangents[1]))) == pytest.approx(
         np.degrees(1.0), abs=1e-9)
 
 
@@ -60,6 +67,7 @@ def test_bent_spine_fleshing_has_unit_jacobian_and_gradients():
     det = fj.jacobian_determinant(fj.Fleshing(base, bent), points)
     assert np.all(np.isfinite(det)) and float(jnp.max(jnp.abs(det - 1))) < 1e-12
 
+    @jax.jit
     def image(angles):
         spine = fj.BentSpine(base, joint=0.5, bend=angles[0], twist=angles[1])
         return spine(2.5)

@@ -11,6 +11,8 @@ import sys
 import textwrap
 from pathlib import Path
 
+import pytest
+
 SCRIPT = textwrap.dedent(
     """
     import jax
@@ -73,6 +75,7 @@ SCRIPT = textwrap.dedent(
 )
 
 
+@pytest.mark.slow  # (`python -m pytest -m slow`): four devices' programs, 100 s of compiling
 def test_flesh_and_pose_on_sharded_points():
     env = dict(os.environ)
     env["XLA_FLAGS"] = (
