@@ -282,8 +282,28 @@ def test_candidate_search_and_pruning_keep_every_closest_pair(monkeypatch):
     lists = cKDTree(points).query_ball_point(union.centre, union.radius)
     assert sorted(zip(prim.tolist(), pts.tolist())) == sorted(
         (k, i) for k, found in enumerate(lists) for i in found)
+    # With a margin per point: every pair within it (more only where the sum is negative).
+    extra = rng.uniform(-0.5, 0.5, len(points))
+    pts, prim = candidates.ball_pairs(points, union.centre, union.radius, extra)
+    gap = np.linalg.norm(points[:, None] - union.centre, axis=2) - union.radius - extra[:, None]
+    got = np.zeros(gap.shape, bool)
+    got[pts, prim] = True
+    assert (got[gap <= -1e-12]).all() and not got[(gap > 1e-12) & (union.radius + extra[:, None]
+                                                                   > 0)].any()
     params = np.concatenate([centres, radii[:, None]], axis=1)
-    found = candidates.search(points, union, params, margin=0.05, reach=0.1)
+    found = candidates.search(points, union, params, margin=0.05)
+    # Exactly the pairs within twice the margin of each point's best (over all primitives),
+    # whatever upper bound of that best the search starts from.
+    every = np.arange(len(points) * len(union.kind))
+    all_prim, all_pts = np.divmod(every, len(points))
+    value = union.distance(points, all_pts, all_prim)
+    best = value.reshape(-1, len(points)).min(axis=0)
+    band = value <= best[all_pts] + 0.1
+    for upper in (None, best + rng.uniform(0, 0.5, len(points))):
+        again = candidates.search(points, union, params, margin=0.05, upper=upper)
+        assert (np.diff(again.prim) >= 0).all()
+        assert sorted(zip(again.prim.tolist(), again.pts.tolist())) == sorted(
+            zip(all_prim[band].tolist(), all_pts[band].tolist()))
     moved = params + rng.uniform(-0.02, 0.02, params.shape)  # at most 0.08 per sphere
     after = UnionPrimitives(moved[:, :3], moved[:, 3], edges, faces)
     kept = candidates.prune(found, after, moved, len(points), 1e-12)
@@ -293,10 +313,10 @@ def test_candidate_search_and_pruning_keep_every_closest_pair(monkeypatch):
         np.testing.assert_array_equal(a, b)
     # Over the budget of pairs, the band narrows (the steps with it) and keeps each
     # sample's closest pair.
-    assert len(found.pts) > 1000
-    monkeypatch.setattr(candidates, "PAIRS", 900)
-    narrow = candidates.search(points, union, params, margin=0.05, reach=0.1)
-    assert 0.05 / 8 < narrow.margin < 0.05 and len(narrow.pts) <= 901
+    assert len(found.pts) > 600
+    monkeypatch.setattr(candidates, "PAIRS", 600)
+    narrow = candidates.search(points, union, params, margin=0.05)
+    assert 0.05 / 8 < narrow.margin < 0.05 and len(narrow.pts) <= 601
     assert (np.diff(narrow.prim) >= 0).all()
     np.testing.assert_array_equal(_closest(points, narrow.pts, narrow.prim, union)[0],
                                   _closest(points, found.pts, found.prim, union)[0])
