@@ -240,6 +240,22 @@ def test_primitive_distances_match_brute_force():
     assert np.isfinite(slab).any() and np.isinf(slab).any()
 
 
+def test_slab_distance_tests_the_foot_first_and_changes_nothing():
+    """`_Slabs.distance` evaluates the closed form only where a shorter form of the foot's
+    coordinates puts it near the triangle: the same values, bit for bit, as the closed
+    form on every pair (finite and infinite), including slabs with no tangent planes."""
+    rng = np.random.default_rng(5)
+    c, r = rng.normal(size=(3, 60, 3)), rng.uniform(0, 0.6, (3, 60))
+    c[2, :5] = c[0, :5] + 0.5 * (c[1, :5] - c[0, :5])  # centres on a line: no planes
+    r[1, 5:10] = r[0, 5:10] + 2.0  # one sphere holds another: no planes either
+    slabs = primitives._Slabs(c[0], r[0], c[1], r[1], c[2], r[2])
+    assert (~slabs.ok).sum() >= 10
+    p, i = 2 * rng.normal(size=(50_000, 3)), rng.integers(0, 60, 50_000)
+    value = slabs.distance(p, i)
+    np.testing.assert_array_equal(value, slabs._parts(p, i)[0])
+    assert 1000 < np.isfinite(value).sum() < 49_000
+
+
 def test_pairs_evaluated_in_blocks_match_one_pass(monkeypatch):
     """`UnionPrimitives.closest`/`distance` work in blocks of pairs (for the cache), and the
     fit's `_closest` evaluates spheres and weights for each sample's attaining pair only:
