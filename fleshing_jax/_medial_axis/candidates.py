@@ -110,11 +110,11 @@ def search(points, union: UnionPrimitives, params, margin: float,
     floor, held = margin / 8, 0
     for pts, prim in ball_blocks(points, union.centre, union.radius, upper + 2 * margin):
         value = union.distance(points, pts, prim)
-        # Only the pairs within the band of the bound (a superset of the final band, which
-        # holds each sample's closest pair): on a sphere, all pairs at once took 1.5 GB.
-        near = value <= upper[pts] + 2 * margin
-        pts, prim, value = pts[near], prim[near], value[near]
         np.minimum.at(best, pts, value)
+        # Only the pairs within the band of the best so far (a superset of the final band):
+        # on a sphere, all pairs at once took 1.5 GB.
+        near = value <= best[pts] + 2 * margin
+        pts, prim, value = pts[near], prim[near], value[near]
         found_pts.append(pts), found_prim.append(prim), found_val.append(value)
         held += len(pts)
         if held > 2 * PAIRS and margin > floor:  # narrowed early: memory stays capped
