@@ -231,11 +231,10 @@ def refine_spheres(points, targets, centers, radii, edges, faces, *, scale: floa
 
     def descend(params, pairs, fitted, iterations, margin, guard):
         """`iterations` damped Gauss-Newton steps from `params` (`pairs`: its candidates
-        for `margin`, or None; `fitted`: its `evaluate`); `guard`: keep the centres inside
-        `surface`."""
+        for `margin`, or None: found at the first trial; `fitted`: its `evaluate`);
+        `guard`: keep the centres inside `surface`."""
         damping = 1e-3
         residual, jac, attained = fitted
-        pairs = search(params, margin, attained) if pairs is None else pairs
 
         def trial_of(step, limit):
             # No sphere moves by more than half of `limit` in one step, so that the
@@ -259,8 +258,8 @@ def refine_spheres(points, targets, centers, radii, edges, faces, *, scale: floa
             for _ in range(8):
                 step = -sparse_linalg.spsolve((hessian + sparse.diags(damping * ridge)).tocsc(),
                                               gradient).reshape(-1, 4)
-                trial = trial_of(step, pairs.margin)
-                if _moved(trial, pairs.anchor).max() > pairs.margin:
+                trial = trial_of(step, margin if pairs is None else pairs.margin)
+                if pairs is None or _moved(trial, pairs.anchor).max() > pairs.margin:
                     # Outside the candidates' validity: found again at the trial, not at
                     # `params`, so that they serve the next step from either (both within
                     # half the margin; on spot 9 searches instead of 14). Narrowed to the
