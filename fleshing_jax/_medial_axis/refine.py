@@ -50,6 +50,15 @@ cones and slabs, by damped Gauss-Newton (Levenberg-Marquardt) steps:
   out of it (by up to 1.2 % of the diagonal): the samples at its corners pull their small
   spheres outwards, and the containment penalty on `s(c) + r` is soft.
 
+- where nearly every primitive lies within every sample's band (over `CROWDED` candidate
+  pairs a sample: a sphere-like shape, whose spheres all sit near its centre), the fit keeps
+  a regular selection of its samples, for about `THIN` pairs: each search and evaluation
+  measured every (sample, primitive) pair, 23M pairs a search on an icosphere at 100
+  spheres (the fit 29 s of 37), and the search's cap then narrowed the steps eightfold.
+  Thinned, the icosphere's distances stay at 0.07 % of the diagonal (30 and 100 spheres:
+  15k and 1.6k of 26k samples); spot, the animal, the capsule (61 pairs a sample), the
+  torus, box, flat ellipsoid and bunny (16–37) are not thinned.
+
 `medial_mesh` fits the samples the initial axis was built from, and centres of that axis.
 """
 
@@ -131,6 +140,10 @@ def _centres_kept_inside(surface: SurfaceQuery, params, trial):
 
 
 ROUND = 3  # the longer steps after the fit are taken, and kept or dropped, this many at a time
+
+CROWDED = 100  # candidate pairs per sample beyond which the fit thins its samples (see below)
+
+THIN = 2_000_000  # about the candidate pairs a thinned fit keeps
 
 SHORTEST = 0.5  # an edge may shrink to this fraction of its length before the fit (see below)
 
@@ -277,6 +290,17 @@ def refine_spheres(points, targets, centers, radii, edges, faces, *, scale: floa
         return params, (residual, jac, attained)
 
     pairs = search(params, margin)
+    # Pairs beyond the search's cap (its margin narrowed) counted as growing with the margin.
+    held = len(pairs.pts) * margin / pairs.margin
+    if held > CROWDED * len(points) and held > THIN:
+        # Nearly every primitive within every sample's band (a sphere-like shape): a
+        # regular selection of the samples (and inner points) tells the fit as much, for
+        # `THIN` pairs (see the module's notes).
+        keep = np.unique((np.arange(int(len(points) * THIN / held))
+                          * (held / THIN)).astype(np.int64))
+        points, targets = points[keep], targets[keep]
+        contain_weight = np.sqrt(0.1 * len(points) / n)
+        pairs = search(params, margin)
     params, fitted = descend(params, pairs, evaluate(params, pairs), iterations, margin, False)
     # Then rounds of steps twice as long, centres kept inside, each kept only if it brings
     # the worst sample (or sphere past the surface) nearer (see the module's notes).
