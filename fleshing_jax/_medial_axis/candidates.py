@@ -6,7 +6,7 @@ most `δ` (`refine`'s notes). So the fit searches, now and then, for the pairs w
 `2 margin` of each sample's best (`search`), valid while no sphere moves more than `margin`
 from where they were found (the *anchor*), and evaluates only those.
 
-Both steps cost in proportion to their pairs (millions: spot at 200 spheres searches 3.7M
+Both steps cost in proportion to their pairs (millions: spot at 200 spheres searches 3.1M
 and keeps 1.2M, for 25,000 samples), so each does less than all of them:
 
 - the search tests the primitives' bounding spheres against all samples in blocks of
