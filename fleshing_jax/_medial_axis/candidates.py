@@ -6,7 +6,7 @@ most `δ` (`refine`'s notes). So the fit searches, now and then, for the pairs w
 `2 margin` of each sample's best (`search`), valid while no sphere moves more than `margin`
 from where they were found (the *anchor*), and evaluates only those.
 
-Both steps cost in proportion to their pairs (millions: spot at 200 spheres searches 3.7M
+Both steps cost in proportion to their pairs (millions: spot at 200 spheres searches 3.1M
 and keeps 1.2M, for 25,000 samples), so each does less than all of them:
 
 - the search tests the primitives' bounding spheres against all samples in blocks of
@@ -26,24 +26,27 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from .primitives import UnionPrimitives
 
 BUDGET = 1 << 19  # (sample, primitive) distances that `ball_pairs` computes at once
 
 
-def ball_pairs(points, centre, radius):
-    """Every pair `(pts, prim)` with `|points[pts] − centre[prim]| <= radius[prim]`, the
-    primitives ascending (and the samples ascending within each), for `points (N, 3)`,
-    `centre (P, 3)`, `radius (P,)` (see `ball_blocks`)."""
-    blocks = list(ball_blocks(points, centre, radius))
+def ball_pairs(points, centre, radius, extra=None):
+    """Every pair `(pts, prim)` with `|points[pts] − centre[prim]| <= radius[prim]` (plus
+    `extra[pts]` when given), the primitives ascending (and the samples ascending within
+    each), for `points (N, 3)`, `centre (P, 3)`, `radius (P,)`, `extra (N,)` (see
+    `ball_blocks`)."""
+    blocks = list(ball_blocks(points, centre, radius, extra))
     return tuple(np.concatenate([np.zeros(0, np.int64)] + [block[k] for block in blocks])
                  for k in range(2))
 
 
-def ball_blocks(points, centre, radius):
+def ball_blocks(points, centre, radius, extra=None):
     """`ball_pairs` in blocks of about `BUDGET` tested pairs (a few MB: they stay in the
-    cache), primitives ascending from block to block."""
+    cache), primitives ascending from block to block. With `extra`, a block may also hold
+    pairs beyond `radius + extra` where that sum is negative (a superset, never fewer)."""
     origin = points.mean(axis=0) if len(points) else np.zeros(3)
     p, c = points - origin, centre - origin  # near the origin: little cancellation below
     pp = np.einsum("ij,ij->i", p, p)
@@ -57,7 +60,15 @@ def ball_blocks(points, centre, radius):
         square = block[:, :1] * minus_2p[0]
         square += block[:, 1:2] * minus_2p[1]
         square += block[:, 2:] * minus_2p[2]
-        square += pp
+        if extra is None:
+            square += pp
+        else:
+            # |p − c| <= r + e  ⇐  |p|² − e² − 2 c·p − 2 r e <= r² − |c|² where r + e >= 0:
+            # one more term per pair. `e` is raised to −r of the block's smallest `r`, so that
+            # the squares do not admit points far inside a small primitive (a superset).
+            e = np.maximum(extra, -radius[start:start + rows].min())
+            square += radius[start:start + rows, None] * (-2 * e)
+            square += pp - e * e
         prim, pts = np.divmod(np.flatnonzero(square <= limit[start:start + rows, None]),
                               len(p))
         yield pts, prim + start
@@ -79,54 +90,62 @@ class Candidates:
     margin: float
 
 
-def search(points, union: UnionPrimitives, params, margin: float, reach: float) -> Candidates:
+def search(points, union: UnionPrimitives, params, margin: float,
+           upper=None) -> Candidates:
     """The pairs within `2 margin` of each sample's smallest distance to the `union` of
-    the spheres `params (n, 4)`, among the primitives whose bounding sphere comes within
-    `reach` of it. Every sample gets one: the reach grows (×4) until it does.
+    the spheres `params (n, 4)`, given `upper (N,)`: an upper bound of each sample's
+    distance to the union (by default, from its nearest sphere centres: `upper_bound`). Only
+    the primitives whose bounding sphere comes within `upper + 2 margin` of a sample can be
+    in its band, so only those are evaluated: the closer the bound, the fewer (a point deep
+    inside tests only the primitives around it).
 
     At most about `PAIRS` pairs are kept: beyond, the margin is narrowed until they fit
     (down to an eighth; the fit's steps shorten with it). On a sphere nearly every
     primitive lies within `2 margin` of every sample (9.2M pairs, 358 a sample, at 100
     spheres: 1.4 GB and 42 s for the fit); on spot at 200 spheres they are 1.2M."""
+    if upper is None:
+        upper = upper_bound(points, union)
     best = np.full(len(points), np.inf)
     found_pts, found_prim, found_val = [], [], []
-    todo = np.arange(len(points))
     floor, held = margin / 8, 0
-    while len(todo):
-        for pts, prim in ball_blocks(points[todo], union.centre, union.radius + reach):
-            pts = todo[pts]
-            value = union.distance(points, pts, prim)
-            np.minimum.at(best, pts, value)
-            # Only the pairs within the band of the best so far (a superset of the final
-            # band): on a sphere, all pairs at once took 1.5 GB.
+    for pts, prim in ball_blocks(points, union.centre, union.radius, upper + 2 * margin):
+        value = union.distance(points, pts, prim)
+        np.minimum.at(best, pts, value)
+        # Only the pairs within the band of the best so far (a superset of the final band):
+        # on a sphere, all pairs at once took 1.5 GB.
+        near = value <= best[pts] + 2 * margin
+        pts, prim, value = pts[near], prim[near], value[near]
+        found_pts.append(pts), found_prim.append(prim), found_val.append(value)
+        held += len(pts)
+        if held > 2 * PAIRS and margin > floor:  # narrowed early: memory stays capped
+            pts, prim, value = (np.concatenate(x) for x in (found_pts, found_prim, found_val))
+            margin = _narrowed(value - best[pts], margin, floor)
             near = value <= best[pts] + 2 * margin
-            found_pts.append(pts[near]), found_prim.append(prim[near])
-            found_val.append(value[near])
-            held += near.sum()
-            if held > 2 * PAIRS and margin > floor:  # narrowed early: memory stays capped
-                pts, prim, value = (np.concatenate(x) for x in (found_pts, found_prim,
-                                                                found_val))
-                margin = _narrowed(value - best[pts], margin, floor)
-                near = value <= best[pts] + 2 * margin
-                found_pts, found_prim, found_val = [pts[near]], [prim[near]], [value[near]]
-                held = near.sum()
-        # A sample whose best is beyond `reach` may have a closer primitive not yet searched.
-        todo = todo[~(best[todo] <= reach)]
-        reach *= 4
+            found_pts, found_prim, found_val = [pts[near]], [prim[near]], [value[near]]
+            held = near.sum()
     pts, prim, value = (np.concatenate(x) for x in (found_pts, found_prim, found_val))
     gap = value - best[pts]
     keep = np.flatnonzero(gap <= 2 * margin)
     if len(keep) > PAIRS:
         margin = _narrowed(gap[keep], margin, floor)
         keep = keep[gap[keep] <= 2 * margin]
-    if (np.diff(prim[keep]) < 0).any():  # after a second reach: sorted by primitive again
-        keep = keep[np.argsort(prim[keep], kind="stable")]
     return Candidates(pts[keep], prim[keep], value[keep], params, margin)
+
+
+def upper_bound(points, union: UnionPrimitives, neighbours: int = 8):
+    """An upper bound `(N,)` of the distance of `points (N, 3)` to the `union`: the least
+    `|p − c| − r` over the spheres of its `neighbours` nearest centres (every sphere is part
+    of the union, alone or as the end of a cone)."""
+    k = min(neighbours, len(union.centers))
+    distance, index = cKDTree(union.centers).query(points, k=k)
+    distance, index = distance.reshape(len(points), k), index.reshape(len(points), k)
+    return (distance - union.radii[index]).min(axis=1)
 
 
 def _narrowed(gap, margin: float, floor: float) -> float:
     """The margin, at most `margin` and at least `floor`, that keeps about `PAIRS` of the
     pairs at `gap` (M,) above their samples' best within twice it."""
+    gap = gap[gap <= 2 * margin]
     if len(gap) <= PAIRS:
         return margin
     return min(margin, max(float(np.partition(gap, PAIRS)[PAIRS]) / 2 * (1 - 1e-9), floor))

@@ -34,7 +34,8 @@ def medial_mesh(mesh, spheres: int = 200, *, seed: int = 0, samples: int = 20_00
        weighted towards the worst covered (an approximate `Σ |d|⁴`: the targets are
        Hausdorff distances), with every sphere kept inside the surface; then up to 21
        steps twice as long, centres kept inside, in rounds of 3 kept while they bring the
-       worst sample nearer (`refine.refine_spheres`).
+       worst sample nearer (`refine.refine_spheres`). On sphere-like shapes, where nearly
+       every primitive lies near every sample, a regular selection of the samples is fitted.
 
     Deterministic for a given `seed` (NumPy and SciPy only; no threads involved).
 

@@ -80,6 +80,9 @@ class _Cones:
         return end0, end1, lateral, t
 
 
+FOOT = 1e-6  # how far outside its triangle (in barycentric units) a foot is evaluated still
+
+
 class _Slabs:
     """Per-slab quantities: the centres' plane and the two tangent planes' normals."""
 
@@ -96,11 +99,32 @@ class _Slabs:
         # One row per slab, gathered once per pair (`_parts`; see `_Cones`).
         self.table = np.concatenate([c0, self.m, self.a, self.e1, self.e2, self.gram_inv,
                                      np.stack([r0, self.g, self.ok], 1)], axis=1)
+        # The foot's barycentric coordinates are linear in `d = p − c0` and `|m·d|`:
+        # `b_k = P_k·d − |m·d| P_k·a / γ` (`P_k` the rows of the inverse Gram matrix on
+        # `e1`, `e2`, in the plane, so `P_k·m = 0`). A row per slab for that test.
+        gi = self.gram_inv
+        p1 = gi[:, :1] * self.e1 + gi[:, 1:2] * self.e2
+        p2 = gi[:, 1:2] * self.e1 + gi[:, 2:] * self.e2
+        self.test = np.concatenate([c0, self.m, p1, p2, np.stack(
+            [_dot(p1, self.a) / self.g, _dot(p2, self.a) / self.g, self.ok], 1)], axis=1)
 
     def distance(self, p, i):
         """Signed distances of `p` (M, 3) to the tangent-plane parts of slabs `i` (M,), `inf`
-        where the minimiser is not inside the triangle."""
-        return self._parts(p, i)[0]
+        where the minimiser is not inside the triangle.
+
+        The closed form only where a shorter form of the foot's coordinates puts it in the
+        triangle or near (`FOOT`): most pairs are elsewhere (on spot at 200 spheres, 7k of
+        the fit's 1.3M slab pairs are finite), and the form that decides is the same."""
+        row = self.test[i]
+        d = p - row[:, :3]
+        lift = np.abs(_dot(d, row[:, 3:6]))
+        b1 = _dot(d, row[:, 6:9]) - lift * row[:, 12]
+        b2 = _dot(d, row[:, 9:12]) - lift * row[:, 13]
+        near = np.flatnonzero((row[:, 14] > 0) & (b1 >= -FOOT) & (b2 >= -FOOT)
+                              & (b1 + b2 <= 1 + FOOT))
+        value = np.full(len(p), np.inf)
+        value[near] = self._parts(p[near], i[near])[0]
+        return value
 
     def closest(self, p, i):
         """`distance`, and the barycentric coordinates `(M, 3)` of the interpolated sphere

@@ -218,10 +218,13 @@ def _uncovered_block(spheres, edges, faces, pairs, optimum, samples, points):
     # bound exceeds the worst found. The others cannot raise it, so the result is that of
     # measuring every sample (a sphere-like shape's samples, thousands per sphere, each
     # against dozens of cones, took 2.5–6.6 GB and minutes; issue 30).
-    bound = best.copy()
+    # (`a` ascends and every sample has a cone, the merged sphere's own: a reduction by
+    # sample, not `np.minimum.at`, from its points gathered once: 3× faster on a sphere.)
     a, k = _pairs_by_row(p_row, c_row, m)
-    far = points[p_id[a]] - ends[k, :3]
-    np.minimum.at(bound, a, np.sqrt(np.einsum("ij,ij->i", far, far)) - ends[k, 3])
+    far = points[p_id][a] - ends[k, :3]
+    first = np.searchsorted(a, np.arange(len(best)))
+    bound = np.minimum(best, np.minimum.reduceat(np.sqrt(np.einsum("ij,ij->i", far, far))
+                                                 - ends[k, 3], first)) if len(a) else best
     order = np.lexsort((-bound, p_row))
     rank = np.arange(len(order)) - np.searchsorted(p_row[order], p_row[order])
     top = np.sort(order[rank < TOP])
