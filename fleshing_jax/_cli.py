@@ -80,6 +80,20 @@ def _point(text: str) -> tuple[float, float, float]:
 _point.__name__ = "point X,Y,Z"  # argparse names the expected type after it
 
 
+def _command(commands, name: str, summary: str, description: str, source: str, *,
+             output=("OUT", "output file; its extension sets the format"), epilog=None,
+             raw=False):
+    """A subcommand reading IN and writing OUT: its parser, with the two positional arguments
+    (`source`: IN's help; `output`: OUT's metavar and help; `raw`: the epilog is laid out
+    already, and printed as it is)."""
+    formatter = argparse.RawDescriptionHelpFormatter if raw else argparse.HelpFormatter
+    parser = commands.add_parser(name, help=summary, description=description, epilog=epilog,
+                                 formatter_class=formatter)
+    parser.add_argument("input", metavar="IN", help=source)
+    parser.add_argument("output", metavar=output[0], help=output[1])
+    return parser
+
+
 def _parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog=PROG,
@@ -87,17 +101,13 @@ def _parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("--version", action="version", version=f"{PROG} {__version__}")
     commands = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
-    deform = commands.add_parser(
-        "deform",
-        help="bend a mesh or point cloud from one spine to another",
-        description="Bend IN (any format trimesh reads) from the rest spine (--from, or found "
-        "on the medial axis) to a bent spine (--to, or an arc turning by --bend-angle) and "
-        "write OUT in the format of its extension.",
-        epilog=SPINE_FORMAT,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
+    deform = _command(
+        commands, "deform", "bend a mesh or point cloud from one spine to another",
+        "Bend IN (any format trimesh reads) from the rest spine (--from, or found on the medial "
+        "axis) to a bent spine (--to, or an arc turning by --bend-angle) and write OUT in the "
+        "format of its extension.",
+        "input mesh or point cloud", epilog=SPINE_FORMAT, raw=True,
     )
-    deform.add_argument("input", metavar="IN", help="input mesh or point cloud")
-    deform.add_argument("output", metavar="OUT", help="output file; its extension sets the format")
     rest = deform.add_mutually_exclusive_group()
     rest.add_argument(
         "--from", dest="source", metavar="A.json", help="rest spine (default: from the medial axis)"
@@ -158,15 +168,13 @@ def _parser() -> argparse.ArgumentParser:
         "mesh may be torn between them and their neighbours); without it such a bend is not "
         "written and the exit status is 3",
     )
-    medial = commands.add_parser(
-        "medial",
-        help="compute the medial mesh of a closed mesh (Q-MAT .ma file)",
-        description="Compute the medial mesh of IN (a closed mesh) and write it to OUT in "
-        "Q-MAT's .ma format; print its size, its two one-sided Hausdorff distances to IN (as "
-        "fractions of the bounding-box diagonal) and the time taken.",
+    medial = _command(
+        commands, "medial", "compute the medial mesh of a closed mesh (Q-MAT .ma file)",
+        "Compute the medial mesh of IN (a closed mesh) and write it to OUT in Q-MAT's .ma "
+        "format; print its size, its two one-sided Hausdorff distances to IN (as fractions of "
+        "the bounding-box diagonal) and the time taken.",
+        "input mesh (closed)", output=("OUT.ma", "output medial mesh (.ma)"),
     )
-    medial.add_argument("input", metavar="IN", help="input mesh (closed)")
-    medial.add_argument("output", metavar="OUT.ma", help="output medial mesh (.ma)")
     medial.add_argument("--spheres", type=int, default=200, metavar="N", help="default: 200")
     medial.add_argument("--seed", type=int, default=0, help="seed of the surface samples")
     medial.add_argument(
@@ -178,17 +186,14 @@ def _parser() -> argparse.ArgumentParser:
         action="store_true",
         help="print every sphere: index, centre and radius (to choose handles)",
     )
-    medial_deform = commands.add_parser(
-        "medial-deform",
-        help="deform a mesh by moving spheres of its medial mesh (Lan et al. 2017)",
-        description="Bind IN to its medial mesh (--medial, from `medial`), move the handle "
-        "spheres to their targets (--handles) as rigidly as possible, skin IN from the "
-        "deformed medial mesh and write OUT in the format of its extension; print the volumes "
-        "before and after.",
-        epilog="handle files (JSON): " + _handles_format(),
+    medial_deform = _command(
+        commands, "medial-deform",
+        "deform a mesh by moving spheres of its medial mesh (Lan et al. 2017)",
+        "Bind IN to its medial mesh (--medial, from `medial`), move the handle spheres to their "
+        "targets (--handles) as rigidly as possible, skin IN from the deformed medial mesh and "
+        "write OUT in the format of its extension; print the volumes before and after.",
+        "input mesh", epilog="handle files (JSON): " + _handles_format(),
     )
-    medial_deform.add_argument("input", metavar="IN", help="input mesh")
-    medial_deform.add_argument("output", metavar="OUT", help="output file (format from extension)")
     medial_deform.add_argument("--medial", required=True, metavar="IN.ma", help="medial mesh")
     medial_deform.add_argument(
         "--handles", required=True, metavar="H.json", help="handle spheres and their targets"
@@ -200,33 +205,28 @@ def _parser() -> argparse.ArgumentParser:
         "--no-implicit", action="store_true", help="skip the implicit-skinning correction"
     )
     medial_deform.add_argument("--cap-holes", action="store_true", help="close IN's holes first")
-    skeleton = commands.add_parser(
-        "skeleton",
-        help="find the limbs of a closed mesh on its medial mesh (JSON skeleton)",
-        description="Find the limbs of IN (a closed mesh) on its medial mesh, each with its "
-        "rest spine, its parent and the vertices it moves; print them (index, parent, spine "
-        "length, joint, region size, the spine's end point) and write the skeleton to OUT.json "
+    skeleton = _command(
+        commands, "skeleton", "find the limbs of a closed mesh on its medial mesh (JSON skeleton)",
+        "Find the limbs of IN (a closed mesh) on its medial mesh, each with its rest spine, its "
+        "parent and the vertices it moves; print them (index, parent, spine length, joint, "
+        "region size, the spine's end point) and write the skeleton to OUT.json "
         "(fj.load_skeleton reads it).",
+        "input mesh (closed)", output=("OUT.json", "output skeleton (JSON)"),
     )
-    skeleton.add_argument("input", metavar="IN", help="input mesh (closed)")
-    skeleton.add_argument("output", metavar="OUT.json", help="output skeleton (JSON)")
     skeleton.add_argument(
         "--spheres", type=int, default=200, metavar="N", help="spheres of the medial mesh (200)"
     )
     skeleton.add_argument("--seed", type=int, default=0, help="seed of the surface samples")
-    pose = commands.add_parser(
-        "pose",
-        help="pose a closed mesh limb by limb on its skeleton (each limb bent, the rest still)",
-        description="Bend limbs of IN, each along its own spine from its joint (its child limbs "
+    pose = _command(
+        commands, "pose",
+        "pose a closed mesh limb by limb on its skeleton (each limb bent, the rest still)",
+        "Bend limbs of IN, each along its own spine from its joint (its child limbs "
         "follow; the body and the other limbs stay exactly still), and write OUT in the format "
         "of its extension. Each limb is named by --limb K (its index in the skeleton) or --at "
         "X,Y,Z (the limb holding the vertex nearest to that point), followed by its --bend "
         "(and optionally --direction and --twist), in degrees; or all of them in --poses.",
-        epilog=POSES_FORMAT,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
+        "input mesh (closed)", epilog=POSES_FORMAT, raw=True,
     )
-    pose.add_argument("input", metavar="IN", help="input mesh (closed)")
-    pose.add_argument("output", metavar="OUT", help="output file; its extension sets the format")
     pose.add_argument("--skeleton", metavar="S.json",
                       help="skeleton (from `skeleton`; default: found on IN's medial mesh)")
     pose.add_argument("--spheres", type=int, default=200, metavar="N",

@@ -100,6 +100,15 @@ def test_rest_pose_and_unposed_parts_stay_bit_for_bit(tube, skeleton, registrati
     assert np.max(np.abs(vertices[region == 1] - rest[region == 1])) > 0.5
 
 
+def test_a_region_s_bucket_padding_is_never_posed(skeleton, registration):
+    # All regions are padded to one bucket with copies of their last vertex, marked invalid so
+    # that a pose leaves them and runs no check on them (`invalid_past`).
+    for reg, ids in zip(registration.registrations, registration.indices):
+        n = ids.shape[0]
+        assert reg.valid.shape[0] > n
+        assert not np.asarray(reg.valid)[n:].any() and np.asarray(reg.valid)[:n].all()
+
+
 def test_a_child_follows_its_parent_rigidly_then_bends(tube, skeleton, registration):
     rest = np.asarray(tube.vertices)
     child = np.asarray(skeleton.region) == 1
