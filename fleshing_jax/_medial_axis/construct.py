@@ -65,26 +65,7 @@ def medial_mesh(mesh, spheres: int = 200, *, seed: int = 0, samples: int = 20_00
     query = SurfaceQuery(vertices, faces)
     diagonal = float(np.linalg.norm(np.ptp(vertices, axis=0)))
     rng = np.random.default_rng(seed)
-    points, normals, on_face = sample_surface(vertices, faces, int(samples), rng)
-    sample_faces = on_face[:, None]
-    weights = np.full(len(points), 1.0 / len(points))
-    if len(vertices) <= samples // 4:
-        # Vertices shape the Delaunay tetrahedra but add no planes: a corner has no single
-        # tangent plane, and its faces' planes already come from the random samples.
-        normal = query.vertex_normal / np.maximum(
-            np.linalg.norm(query.vertex_normal, axis=1, keepdims=True), 1e-300)
-        points = np.concatenate([points, vertices])
-        normals = np.concatenate([normals, normal])
-        weights = np.concatenate([weights, np.zeros(len(vertices))])
-        # A vertex lies on the faces around it; one of them suffices (`around` adds the rest).
-        one_face = np.zeros(len(vertices), dtype=np.int64)
-        one_face[faces.reshape(-1)] = np.repeat(np.arange(len(faces)), 3)
-        sample_faces = np.concatenate([sample_faces, one_face[:, None]])
-        points, first = np.unique(points, axis=0, return_index=True)
-        normals, weights, sample_faces = normals[first], weights[first], sample_faces[first]
-    # Samples on planar faces are coplanar, which makes Qhull's Delaunay 30x slower (it
-    # merges coplanar facets); a jitter of 1e-7 of the diagonal avoids that.
-    points = points + 1e-7 * diagonal * rng.standard_normal(points.shape)
+    points, normals, weights, sample_faces = axis_samples(query, int(samples), rng)
     axis = initial_medial_axis(query, points, normals, weights, sample_faces)
     if len(axis.centers) < spheres:
         raise ValueError(f"the initial medial axis has only {len(axis.centers)} spheres, fewer "
@@ -117,3 +98,36 @@ def medial_mesh(mesh, spheres: int = 200, *, seed: int = 0, samples: int = 20_00
                                         scale=diagonal, surface=query,
                                         iterations=int(refine))
     return MedialMesh(centers, radii, edges, tris)
+
+
+def axis_samples(query: SurfaceQuery, samples: int, rng: np.random.Generator):
+    """The surface samples of the initial axis (step 1 of `medial_mesh`): `samples`
+    area-uniform random points of the closed mesh of `query`, and its vertices when there
+    are at most `samples / 4` of them (weight 0), jittered by 1e-7 of the diagonal.
+
+    **Returns:** `(points (s, 3), normals (s, 3), weights (s,), sample_faces (s, 1))`: the
+    outward unit normals, the area shares and a face that each point lies on.
+    """
+    vertices, faces = query.vertices, query.faces
+    diagonal = float(np.linalg.norm(np.ptp(vertices, axis=0)))
+    points, normals, on_face = sample_surface(vertices, faces, samples, rng)
+    sample_faces = on_face[:, None]
+    weights = np.full(len(points), 1.0 / len(points))
+    if len(vertices) <= samples // 4:
+        # Vertices shape the Delaunay tetrahedra but add no planes: a corner has no single
+        # tangent plane, and its faces' planes already come from the random samples.
+        normal = query.vertex_normal / np.maximum(
+            np.linalg.norm(query.vertex_normal, axis=1, keepdims=True), 1e-300)
+        points = np.concatenate([points, vertices])
+        normals = np.concatenate([normals, normal])
+        weights = np.concatenate([weights, np.zeros(len(vertices))])
+        # A vertex lies on the faces around it; one of them suffices (`around` adds the rest).
+        one_face = np.zeros(len(vertices), dtype=np.int64)
+        one_face[faces.reshape(-1)] = np.repeat(np.arange(len(faces)), 3)
+        sample_faces = np.concatenate([sample_faces, one_face[:, None]])
+        points, first = np.unique(points, axis=0, return_index=True)
+        normals, weights, sample_faces = normals[first], weights[first], sample_faces[first]
+    # Samples on planar faces are coplanar, which makes Qhull's Delaunay 30x slower (it
+    # merges coplanar facets); a jitter of 1e-7 of the diagonal avoids that.
+    points = points + 1e-7 * diagonal * rng.standard_normal(points.shape)
+    return points, normals, weights, sample_faces
