@@ -42,7 +42,10 @@ def medial_distance(medial: MedialMesh, mesh, *, samples: int = 20_000, resoluti
     vertices, faces = _mesh_arrays(mesh)
     diagonal = float(np.linalg.norm(np.ptp(vertices, axis=0)))
     centers, radii, edges, tris = medial.numpy()
-    env_vertices, env_faces = envelope_arrays(centers, radii, edges, tris, resolution=resolution)
+    # Every vertex on the union (not kept off it where a face would turn over): the
+    # distances are unsigned.
+    env_vertices, env_faces = envelope_arrays(centers, radii, edges, tris, resolution=resolution,
+                                              unfold=False)
     rng = np.random.default_rng(seed)
     points = np.concatenate([vertices, sample_surface(vertices, faces, samples, rng)[0]])
     signed = union_distance(points, centers, radii, edges, tris, cutoff=0.05 * diagonal)

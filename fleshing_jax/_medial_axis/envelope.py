@@ -42,12 +42,16 @@ MAXIMUM_RESOLUTION = 512
 
 
 def envelope_arrays(centers, radii, edges, faces, *, resolution: int = 128,
-                    newton_steps: int = 1):
+                    newton_steps: int = 1, unfold: bool = True):
     """Vertices `(V, 3)` and outward faces `(F, 3)` of the envelope of a medial mesh.
 
     **Arguments:** the medial mesh's arrays; `resolution`: grid cells along the longest side
     of the union's bounding box (the mesh's error is second order in the cell size), an
-    integer in `[4, MAXIMUM_RESOLUTION]`.
+    integer in `[4, MAXIMUM_RESOLUTION]`; `unfold`: vertices whose projection onto the
+    union would turn a face over are not projected (`_unfolded`: a mesh that does not pass
+    through itself); False: every vertex projected (onto the union, within a cell's
+    round-off of it: what `medial_distance` measures, for which a face turned over does
+    not matter).
     """
     resolution = check_number(resolution, "resolution", 4, MAXIMUM_RESOLUTION, integer=True)
     centers, radii = np.asarray(centers, float), np.asarray(radii, float)
@@ -71,8 +75,8 @@ def envelope_arrays(centers, radii, edges, faces, *, resolution: int = 128,
                                                cutoff=2 * h)
     vertices, tris = _marching_tetrahedra(field, lo, h)
     for _ in range(newton_steps):
-        vertices = _unfolded(vertices, _project(vertices, centers, radii, edges, faces, h),
-                             tris)
+        projected = _project(vertices, centers, radii, edges, faces, h)
+        vertices = _unfolded(vertices, projected, tris) if unfold else projected
     return vertices, tris
 
 
