@@ -85,14 +85,16 @@ def initial_medial_axis(query: SurfaceQuery, points, normals, weights, sample_fa
     # thick: radii up to 0.07 sticking out of it, 6 % of the diagonal after the fit). A
     # centre inside the shape lies behind the tangent plane of each of its samples (its
     # sphere is tangent there from inside); the few that lie in front of one (on the
-    # animal 400 of 77,000, most of them inside, where the surface is concave) are queried
-    # again, certified.
+    # animal 400 of 77,000, most of them inside, where the surface is concave) take their
+    # side from a certified query. Their radius stays that of the faces searched, as for
+    # every other vertex: certified, two of spot's 79,000 radii shrank by 2e-4 of the
+    # diagonal, and the collapses and the fit took spot at 200 spheres from 0.72 to 0.89 %.
     contact = tets[candidates]
     front = np.einsum("ijk,ijk->ij", centre[candidates, None] - points[contact],
                       normals[contact]).max(axis=1) > 0
     doubt = np.flatnonzero(front & inside)
     if len(doubt):
-        distance[doubt], _, inside[doubt] = query.query(centre[candidates[doubt]])
+        inside[doubt] = query.query(centre[candidates[doubt]])[2]
     keep = np.zeros(len(tets), dtype=bool)
     keep[candidates[inside & (distance > 0)]] = True
     radius = np.zeros(len(tets))
