@@ -239,7 +239,7 @@ def test_envelope_is_closed_and_manifold_where_it_is_a_cell_thin(resolution):
 
 def test_envelope_does_not_pass_through_itself_where_it_is_a_cell_thin():
     """The animal's tail is thinner than a cell at resolution 28: the projection of the
-    vertices onto the union turned 33 faces over, and around the tail the closest point's
+    vertices onto the union turned four faces over, and around the tail the closest point's
     side (`SurfaceQuery`) said inside where the winding number says outside (a point 0.07
     away, 5 % of the diagonal). Points around the tail now agree."""
     vertices, faces = closed_mesh_arrays(animal(28))

@@ -89,9 +89,9 @@ def _unfolded(before, after, tris):
     """`after`, the vertices projected from `before`, except those of the faces that the
     projection turned over (their normal against its direction before), kept `before`,
     until no face is turned over. Where the union is thinner than a cell (the coarse
-    animal's tail), vertices on either side of it projected onto the same side: 33
-    faces of the animal at resolution 28 turned over, a mesh through itself, on which
-    inside and outside are not defined (a point 0.07 from its tail took for inside)."""
+    animal's tail), vertices on either side of it projected onto the same side: at
+    resolution 28 four faces turned over, one in the tail, a mesh through itself, on which
+    inside and outside are not defined (points 0.07 from the tail taken for inside)."""
     normal = _normals(before, tris)
     for _ in range(100):
         over = np.einsum("ij,ij->i", _normals(after, tris), normal) <= 0
