@@ -93,14 +93,13 @@ def _unfolded(before, after, tris):
     resolution 28 four faces turned over, one in the tail, a mesh through itself, on which
     inside and outside are not defined (points 0.07 from the tail taken for inside)."""
     normal = _normals(before, tris)
-    for _ in range(100):
-        over = np.einsum("ij,ij->i", _normals(after, tris), normal) <= 0
+    while True:  # a face with its three vertices kept `before` is not turned over: it ends
+        over = np.einsum("ij,ij->i", _normals(after, tris), normal) < 0
         if not over.any():
-            break
+            return after
         moved = np.unique(tris[over])
         after = after.copy()
         after[moved] = before[moved]
-    return after
 
 
 # The six tetrahedra of a cell around its diagonal from corner (0, 0, 0) to (1, 1, 1), one
