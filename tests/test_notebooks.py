@@ -16,9 +16,11 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 NOTEBOOKS = ROOT / "notebooks"
 PATHS = sorted(NOTEBOOKS.glob("*.ipynb"))
-# Notebooks that run for minutes, with `python -m pytest -m slow` (07: spot's posing compared
-# with medial deformation, LBS and DQS, and a gradient: about 9 minutes on 2 busy cores).
-SLOW = {"07_posing_limbs"}
+# Notebooks run with `python -m pytest -m slow` only: 07 runs for minutes (spot's posing
+# compared with medial deformation, LBS and DQS, and a gradient: about 9 minutes on 2 busy
+# cores); 04 runs the paper's experiments (`benchmarks/paper`), which `test_paper.py` runs
+# and checks too (30 s of the 10-minute suite).
+SLOW = {"04_paper_experiments", "07_posing_limbs"}
 
 
 def test_notebooks_exist():
