@@ -146,8 +146,9 @@ class Poser(eqx.Module):
     check (`_spines.table`) and its valid region with the margin (`region`).
 
     The projection check is certified on the way for the images closer to the target than the
-    lower bound of its reach with the margin (`reach`); the few others are bent again and run
-    the region's sampled test (`update_where`; O(samples) a point, no global search), so that
+    lower bound of its reach with the margin (`reach`); the others are bent again and run the
+    region's pruned test, and the few it leaves its sampled test (`region.clear_where`; O(runs),
+    then O(samples) a point, no global search), so that
     the images are consumed once (by the output) and XLA computes them in the same kernel as
     the frames they are made of. Lines and arcs are checked in closed form instead
     (`projects_back`, from `s₁` alone): no region and no spine table to build (most of the
