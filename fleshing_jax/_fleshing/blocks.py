@@ -6,13 +6,14 @@ padded with copies of the last sample: bounds over the same values). For a point
 
 - **Distances.** A run lies in the capsule of the segment `A B` from its first sample to its
   last, of radius `ε` (its farthest sample from the segment): every `P_j` of it is `Q_j + e_j`
-  with `Q_j` on the segment and `|e_j| ≤ ε`, so `dist(X, AB) − ε ≤ |X − P_j| ≤ max(|X − A|,
-  |X − B|) + ε`. (A ball around the run would bound the distances only to within its half
-  length; a gently curved run's capsule is as thin as its sagitta, `κ L²/8`.)
+  with `Q_j` on the segment and `|e_j| ≤ ε`, so `|X − P_j| ≥ dist(X, AB) − ε`. (A ball
+  around the run would bound the distances only to within its half length; a gently curved
+  run's capsule is as thin as its sagitta, `κ L²/8`.) Above, `|X − P_j| ≤ |X − A| + ρ`, with
+  `ρ` the largest `|P_j − A|` (the bound multiplies small terms only).
 - **Convexity.** The test's `1 − k_j·(X − P_j) − J_j (|X − P_j| + h + δ) − κ̂_j (h + δ)` is
   `b_j + k_j·(A − X) − J_j |X − P_j|` with `b_j = 1 + k_j·(P_j − A) − (J_j + κ̂_j)(h + δ)`
   free of `X`; with `k̄` the run's mean curvature vector and `σ` the largest `|k_j − k̄|`, it is
-  at least `min b_j + k̄·(A − X) − σ |A − X| − max J_j · max |X − P_j|` on the whole run.
+  at least `min b_j + k̄·(A − X) − (σ + max J_j) |A − X| − max J_j ρ` on the whole run.
 """
 
 from __future__ import annotations
@@ -41,8 +42,8 @@ class SampleBlocks(eqx.Module):
 
     **Fields:** `size` (static): samples a run; `start`, `axis` (3, B): each run's segment
     `A`, `B − A`; `inverse` (B,): `1/|B − A|²` (0 when `A = B`); `spread` (B,): the capsule's
-    radius `ε`; `base` (B,): `min b_j`; `mean` (3, B): `k̄`; `deviation` (B,): `σ`; `wiggle`
-    (B,): `max J_j`.
+    radius `ε`; `radius` (B,): `ρ`; `base` (B,): `min b_j`; `mean` (3, B): `k̄`; `deviation`
+    (B,): `σ`; `wiggle` (B,): `max J_j`.
     """
 
     size: int = eqx.field(static=True)
@@ -50,6 +51,7 @@ class SampleBlocks(eqx.Module):
     axis: Array
     inverse: Array
     spread: Array
+    radius: Array
     base: Array
     mean: Array
     deviation: Array
@@ -68,6 +70,7 @@ class SampleBlocks(eqx.Module):
         self.inverse = safe_divide(1.0, sum(u * u for u in self.axis))
         column = (self.start[:, :, None], self.axis[:, :, None], self.inverse[:, None])
         self.spread = jnp.max(_length(_segment_offset(runs, *column)), axis=1)
+        self.radius = jnp.max(_length([p - a[:, None] for p, a in zip(runs, self.start)]), axis=1)
         along = sum(kc * (p - a[:, None]) for kc, p, a in zip(k, runs, self.start))
         self.base = jnp.min(1 + along - (wiggle[index] + kappa[index]) * reach, axis=1)
         self.mean = jnp.mean(k, axis=2)
@@ -80,12 +83,10 @@ class SampleBlocks(eqx.Module):
 
     def farthest(self, x: Array) -> Array:
         """An upper bound of `|X − P_j|` over each run (B,); `x` (3,)."""
-        to_start = sum((xi - a) ** 2 for xi, a in zip(x, self.start))
-        to_end = sum((xi - a - u) ** 2 for xi, a, u in zip(x, self.start, self.axis))
-        return jnp.sqrt(jnp.maximum(to_start, to_end)) + self.spread
+        return _length([xi - a for xi, a in zip(x, self.start)]) + self.radius
 
     def convex(self, x: Array) -> Array:
         """A lower bound of the sampled test's convexity term over each run (B,); `x` (3,)."""
         u = [a - xi for a, xi in zip(self.start, x)]  # A − X
         return (self.base + sum(m * ui for m, ui in zip(self.mean, u))
-                - self.deviation * _length(u) - self.wiggle * self.farthest(x))
+                - (self.deviation + self.wiggle) * _length(u) - self.wiggle * self.radius)
