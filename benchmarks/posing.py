@@ -2,6 +2,7 @@
 
     python benchmarks/posing.py                   # all three tables and the figure
     python benchmarks/posing.py --skip-skeleton   # reuse no time on the skeleton's build
+    python benchmarks/posing.py --only-frames     # the per-frame table only (2 below)
 
 Prints Markdown tables:
 
@@ -192,6 +193,7 @@ def main():
     parser.add_argument("--skip-skeleton", action="store_true")
     parser.add_argument("--figure", type=Path, default=None)
     parser.add_argument("--frames", type=int, default=50)
+    parser.add_argument("--only-frames", action="store_true", help="the per-frame table only")
     args = parser.parse_args()
     jax.config.update("jax_enable_x64", True)  # float64 for the volumes; the pose is float32
     fj.use_compilation_cache()
@@ -206,6 +208,8 @@ def main():
     print("| posed | first frame (s) | per frame (ms, median) |\n|---|---:|---:|")
     for name, first, ms in rows:
         print(f"| {name} | {first:.1f} | {ms:.2f} |")
+    if args.only_frames:
+        return
     rows, det, stretch, still = volume_table(spot, skeleton, args.figure)
     print("\n| method | ΔV/V | invalid vertices |\n|---|---:|---:|")
     for name, change, invalid in rows:

@@ -13,6 +13,7 @@ import pytest
 
 import fleshing_jax as fj
 from fleshing_jax._fleshing.diagnose import diagnose
+from fleshing_jax._fleshing.region import ValidRegion, clear_where
 
 STEP = 0.1  # lattice spacing: edges of this length, margin half of it
 
@@ -131,6 +132,35 @@ def test_one_point_batched_and_jit_paths_agree_on_the_region():
         np.testing.assert_allclose(np.asarray(images), np.asarray(one[0]), atol=1e-9)
     # The hairpin's middle (y = 0.35 … 0.45 is not on this lattice: y = 0.35) is flagged.
     assert not np.asarray(one[1])[np.abs(points[:, 1] - 0.35) < 1e-9].any()
+
+
+@pytest.mark.parametrize("dtype", ["float64", "float32"])
+def test_pruned_region_test_agrees_with_the_sampled_test(dtype):
+    # Random points around the hairpin (its cut locus and focal sets among them), each with a
+    # foot near its own: the pruned test (`surely_clear`, O(runs) a point) passes only points
+    # that the sampled test passes, and most of them; the batched two passes (`clear_where`)
+    # give the sampled test's flags, bit for bit, with and without a margin.
+    rng = np.random.default_rng(3)
+    spine = fj.BSpline(HAIRPIN.astype(dtype), degree=3)
+    n = 4096
+    s = rng.uniform(-0.3, float(spine.length) + 0.3, n).astype(dtype)
+    points = np.asarray(jax.vmap(spine)(jnp.asarray(s))) + rng.normal(0, 0.3, (n, 3))
+    points, s = points.astype(dtype), (s + rng.normal(0, 0.02, n)).astype(dtype)
+
+    @jax.jit
+    def tests(margin):
+        region = ValidRegion(spine, margin)
+        every = jnp.ones(n, bool)
+        batched = clear_where(every, region, lambda one: one, ~every, (points, s))
+        return (jax.vmap(region.clear)(points, s), jax.vmap(region.surely_clear)(points, s),
+                batched)
+
+    for margin in (0.0, STEP / 2):
+        sampled, sure, batched = map(np.asarray, tests(jnp.asarray(margin, dtype)))
+        assert 0.3 < sampled.mean() < 0.9  # both answers, many of each
+        assert not np.any(sure & ~sampled)
+        assert sure[sampled].mean() > 0.5
+        np.testing.assert_array_equal(batched, sampled)
 
 
 def test_margin_and_beyond_are_checked():

@@ -24,7 +24,6 @@ from jaxtyping import Array, ArrayLike, Bool, Float
 from .._batching import chunks as _chunks
 from .._batching.buckets import bucket, pad_batch, unpad_batch
 from .._batching.chunks import batch_axes, map_chunks
-from .._batching.compact import update_where
 from .._checks import as_margin, as_points, as_twist, is_concrete
 from .._numerics import cast_floats, dot, norm, per_component
 from .._spines.spine import AbstractSpine
@@ -35,7 +34,7 @@ from .maps import BEND, UNBEND
 from .methods import check_method
 from .projection import Registrar, Registration, invalid_past, register_point
 from .reach import search_range
-from .region import ValidRegion
+from .region import ValidRegion, clear_where
 from .target import TargetFrames
 
 
@@ -147,8 +146,9 @@ class Poser(eqx.Module):
     check (`_spines.table`) and its valid region with the margin (`region`).
 
     The projection check is certified on the way for the images closer to the target than the
-    lower bound of its reach with the margin (`reach`); the few others are bent again and run
-    the region's sampled test (`update_where`; O(samples) a point, no global search), so that
+    lower bound of its reach with the margin (`reach`); the others are bent again and run the
+    region's pruned test, and the few it leaves its sampled test (`region.clear_where`; O(runs),
+    then O(samples) a point, no global search), so that
     the images are consumed once (by the output) and XLA computes them in the same kernel as
     the frames they are made of. Lines and arcs are checked in closed form instead
     (`projects_back`, from `s₁` alone): no region and no spine table to build (most of the
@@ -195,7 +195,7 @@ class Poser(eqx.Module):
         point): `(images (n, 3), valid (n,))`."""
         image, _, valid, pending = self._bent_images(registration)
         if self.region is not None:  # the sampled test, for the images left pending
-            valid = update_where(pending, self._projects, valid, registration)
+            valid = clear_where(pending, self.region, self._image, valid, registration)
         image = jnp.where(valid[:, None], image, registration.points)
         return self.rigid(registration, image, valid)
 
@@ -251,7 +251,8 @@ class Poser(eqx.Module):
 
     def projects(self, registration: Registration) -> Array:
         """The region's sampled check of each registered point's image (n,), bent again."""
-        return jax.vmap(self._projects, in_axes=(batch_axes(registration),))(registration)
+        none = jnp.zeros(registration.points.shape[0], bool)
+        return clear_where(~none, self.region, self._image, none, registration)
 
     def _bent_images(self, registration: Registration) -> tuple[Array, Array, Array, Array]:
         """`(images, valid, certified, pending)`: valid before the projection check; certified
@@ -275,9 +276,10 @@ class Poser(eqx.Module):
         checked = jax.vmap(lambda s: self.target._foot_is_unique(s, lo, hi))(s1)
         return valid & checked, jnp.zeros_like(valid)
 
-    def _projects(self, reg: Registration) -> Array:
+    def _image(self, reg: Registration) -> tuple[Array, Array]:
+        """One registered point's image, bent again, and its arc length `s₁` on the target."""
         image, _, s1, _ = bend_point(reg, self.frames, self.method)
-        return self.region.clear(image, s1)
+        return image, s1
 
     def pose_all(self, registration: Registration) -> tuple[Array, Array]:
         """`pose` for any number of registered points: in chunks (`map_chunks`) with exact

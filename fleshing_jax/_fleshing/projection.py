@@ -24,7 +24,7 @@ from .._spines.spine import AbstractSpine
 from .._spines.table import SpineTable, fast_evaluator, runs_whole
 from .ends import EndFrames
 from .reach import LocalReach, search_range
-from .region import ValidRegion, closed_form_clear
+from .region import ValidRegion, clear_where, closed_form_clear
 
 NEWTON_STEPS = 8
 FAST_STEPS = 3  # Newton steps of the certified fast path (from a sample at most h away)
@@ -274,8 +274,8 @@ class Registrar(eqx.Module):
             region = self.region
             clear = jax.vmap(region.certified)(reg.arc_length, norm(reg.offset))
             if sampled:
-                clear = update_where(reg.valid & ~clear, lambda a: region.clear(*a), clear,
-                                     (reg.points, reg.arc_length))
+                clear = clear_where(reg.valid & ~clear, region, _same, clear,
+                                    (reg.points, reg.arc_length))
             else:
                 unclear = reg.valid & ~clear
         reg = eqx.tree_at(
@@ -286,8 +286,9 @@ class Registrar(eqx.Module):
     def clear_pending(self, registration: Registration, index: Array) -> Registration:
         """`registration` with the sampled test run on the points at `index` (valid before
         `cleared(..., sampled=False)` flagged them)."""
-        clear = jax.vmap(self.region.clear)(registration.points[index],
-                                            registration.arc_length[index])
+        none = jnp.zeros(index.shape, bool)
+        clear = clear_where(~none, self.region, _same, none,
+                            (registration.points[index], registration.arc_length[index]))
         fields = (registration.valid.at[index].set(clear),
                   registration.discontinuous.at[index].set(~clear))
         return eqx.tree_at(lambda r: (r.valid, r.discontinuous), registration, fields)
@@ -321,6 +322,10 @@ class Registrar(eqx.Module):
         return eqx.tree_at(
             lambda r: (r.length, r.ends), registration, (self.spine.length, EndFrames(self.exact))
         )
+
+
+def _same(inputs):
+    return inputs
 
 
 def _finite_or_zero(points: Array) -> Array:

@@ -28,21 +28,38 @@ focal set. (With `δ = 0` the test is the projection check, to within `h/2`.)
 
 The test costs one pass over the `S` samples a point. The batched paths first try the
 direction-free certificate of `reach.LocalReach` built with the same margin (O(1) a point,
-certifies the inner tube) and run the sampled test on the others only (`update_where`).
+certifies the inner tube), then the *pruned test* on the others (`surely_clear`, O(S/16) a
+point), and run the sampled test on the few that neither certifies (`clear_where`). The pruned
+test rests on this: the sampled test passes if and only if every sample from the foot's to the
+farthest sample, on either side, that is not far (fails the second condition) is convex
+(passes the first), since the window is then the whole run and holds every sample that is not
+far. `blocks.SampleBlocks` bounds both conditions on runs of 16 samples; the point passes when
+every run from the foot's to the farthest run that is not surely far is surely convex. The
+bounds beat the samples' own tests by a thousand rounding errors, so that a point passed by
+the pruned test is passed by the sampled test too, in float32 as in float64: the two passes
+give the sampled test's flags (on spot's head posed, the pruned test passes all the points the
+reach bound leaves: 20× faster).
 Lines (no cut locus) and arcs (the axis, `1 − k·d > δ κ`; wrapping handled in closed form by
 `_foot_is_unique`) are tested in closed form (`closed_form_clear`).
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
-from jaxtyping import Array
+from jaxtyping import Array, PyTree
 
+from .._batching.compact import update_where
 from .._numerics import dot, norm
 from .._spines.spine import AbstractSpine
+from .blocks import SampleBlocks
 from .reach import REACH_SAMPLES, LocalReach, search_range
+
+RUN = 16  # samples a run of the pruned test (`blocks`)
+SURE_CHUNK = 256  # points a trip of `clear_where`'s pruned test
 
 
 class ValidRegion(eqx.Module):
@@ -63,6 +80,9 @@ class ValidRegion(eqx.Module):
     curvature: Array
     wiggle: Array
     kappa: Array
+    blocks: SampleBlocks
+    extent: Array
+    stiffness: Array
 
     def __init__(self, spine: AbstractSpine, margin: Array, samples: int = REACH_SAMPLES):
         spine = jax.lax.stop_gradient(spine._prepare())
@@ -79,6 +99,10 @@ class ValidRegion(eqx.Module):
         change = jnp.maximum(jnp.pad(change, (1, 0)), jnp.pad(change, (0, 1)))
         self.wiggle = 2 * change
         self.kappa = norm(k) + self.wiggle
+        self.blocks = SampleBlocks(self.positions, self.curvature, self.wiggle, self.kappa,
+                                   self.h + self.margin, RUN)
+        self.extent = jnp.max(jnp.sum(jnp.abs(positions), axis=1))
+        self.stiffness = jnp.max(self.kappa + self.wiggle)
 
     def certified(self, s: Array, distance: Array) -> Array:
         """The O(1) direction-free test: a point at `distance` from the spine at its foot `s`
@@ -88,11 +112,9 @@ class ValidRegion(eqx.Module):
     def clear(self, x: Array, s: Array) -> Array:
         """Whether the ball of radius `margin` around `x` (3,), whose foot is at `s`, misses the
         cut locus and the focal set (the sampled test above; one point, scalar bool)."""
-        samples = self.positions.shape[1]
         h, margin = self.h, self.margin
-        c = self.spine(s)
-        r = norm(x - c)
-        i = jnp.clip(jnp.round((s - self.lo) / h), 0, samples - 1).astype(jnp.int32)
+        samples = self.positions.shape[1]
+        c, r, i = self._foot(x, s)
         offsets = [p - xi for p, xi in zip(self.positions, x)]  # P_j − X, per coordinate
         distance = jnp.sqrt(sum(o * o for o in offsets))
         convex = 1 + sum(k * o for k, o in zip(self.curvature, offsets)) - self.wiggle * (
@@ -105,6 +127,50 @@ class ValidRegion(eqx.Module):
         chord = jnp.sqrt(sum((p - ci) ** 2 for p, ci in zip(self.positions, c)))
         gap = jnp.maximum(distance - 0.5 * h, 0) ** 2 - r * r
         return convex[i] & jnp.all(~far | (gap > 2 * margin * (chord + 0.5 * h)))
+
+    def surely_clear(self, x: Array, s: Array) -> Array:
+        """The pruned test (above): `True` only where `clear(x, s)` is, in O(runs) (one point,
+        scalar bool; `False` says nothing)."""
+        h, margin, blocks = self.h, self.margin, self.blocks
+        c, r, i = self._foot(x, s)
+        # Bounds that beat the samples' own tests by a thousand rounding errors of either.
+        size = jnp.sum(jnp.abs(x)) + self.extent + r + h + margin
+        rounding = 1000 * jnp.finfo(h.dtype).eps
+        near = jnp.maximum(blocks.nearest(x) - 0.5 * h - rounding * size, 0)
+        far = near * near > r * r + 2 * margin * (blocks.farthest(c) + 0.5 * h)
+        convex = blocks.convex(x) > rounding * (1 + self.stiffness * size)
+        # The runs from the foot's to the farthest one that is not far on either side.
+        run = jnp.arange(far.shape[0])
+        own = i // blocks.size
+        first = jnp.minimum(own, jnp.min(jnp.where(far, far.shape[0], run)))
+        last = jnp.maximum(own, jnp.max(jnp.where(far, -1, run)))
+        inside = (run >= first) & (run <= last)
+        return jnp.all(convex | ~inside) & jnp.isfinite(s) & jnp.all(jnp.isfinite(x))
+
+    def _foot(self, x: Array, s: Array) -> tuple[Array, Array, Array]:
+        """`(C(s), |x − C(s)|, i)`: the foot, the distance to it and the foot's sample."""
+        samples = self.positions.shape[1]
+        c = self.spine(s)
+        i = jnp.clip(jnp.round((s - self.lo) / self.h), 0, samples - 1).astype(jnp.int32)
+        return c, norm(x - c), i
+
+
+def clear_where(
+    needed: Array, region: ValidRegion, point: Callable, values: Array, inputs: PyTree
+) -> Array:
+    """`values` (n,) bool with entry `i` replaced by `region.clear(*point(inputs[i]))` wherever
+    `needed[i]` (`update_where`): the pruned test first, the sampled one on the points it does
+    not certify only (on spot's head, none of them)."""
+
+    def surely(one):
+        return region.surely_clear(*point(one))
+
+    # Cheap a point: in larger chunks than the sampled test's, fewer trips of the loop.
+    sure = update_where(needed, surely, jnp.zeros_like(needed), inputs, chunk=SURE_CHUNK)
+    return update_where(needed & ~sure, lambda one: region.clear(*point(one)), values | sure,
+                        inputs)
+
+
 def closed_form_clear(offset: Array, curvature: Array, margin: Array) -> Array:
     """The margin test on a line or an arc, where the only cut set inside the search range is
     the axis of the arc: `1 − k·d > δ |k|` (the distance to the axis is `(1 − k·d)/κ`).
