@@ -1,7 +1,7 @@
 """Posing spot limb by limb (issue 33): the targets of speed and volume.
 
     python benchmarks/posing.py                   # all three tables and the figure
-    python benchmarks/posing.py --skip-skeleton   # reuse no time on the skeleton's build
+    python benchmarks/posing.py --skip-skeleton   # spot's saved skeleton, not built again
     python benchmarks/posing.py --only-frames     # the per-frame table only (2 below)
 
 Prints Markdown tables:
@@ -29,6 +29,7 @@ import trimesh
 
 import fleshing_jax as fj
 
+SAVED_SKELETON = Path(__file__).resolve().parents[1] / "notebooks" / "data" / "spot-skeleton.json"
 HEAD, LEG = 0, 8  # spot's head/neck and a leg that is fully valid at rest (see the README)
 POSES = {HEAD: (10.0, 90.0), LEG: (30.0, 0.0)}  # bend, direction (degrees): all valid
 
@@ -198,11 +199,14 @@ def main():
     jax.config.update("jax_enable_x64", True)  # float64 for the volumes; the pose is float32
     fj.use_compilation_cache()
     spot = fj.data.spot()
-    skeleton, seconds = skeleton_time(spot)
-    print(
-        f"| mesh | vertices | limbs | skeleton incl. medial mesh (s) |\n|---|---:|---:|---:|\n"
-        f"| spot | {len(spot.vertices)} | {len(skeleton.limbs)} | {seconds:.1f} |\n"
-    )
+    if args.skip_skeleton:  # the skeleton the notebooks load (the same build, saved)
+        skeleton = fj.load_skeleton(SAVED_SKELETON)
+    else:
+        skeleton, seconds = skeleton_time(spot)
+        print(
+            f"| mesh | vertices | limbs | skeleton incl. medial mesh (s) |\n|---|---:|---:|---:|\n"
+            f"| spot | {len(spot.vertices)} | {len(skeleton.limbs)} | {seconds:.1f} |\n"
+        )
     n, registered, rows = pose_speed(spot, skeleton, args.frames)
     print(f"{n} vertices, float32, registered once in {registered:.1f} s\n")
     print("| posed | first frame (s) | per frame (ms, median) |\n|---|---:|---:|")

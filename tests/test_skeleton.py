@@ -51,8 +51,12 @@ def test_spot_has_a_head_with_ears_and_horns_and_four_legs(spot):
     tips = _tips(skeleton)
     body = [i for i, limb in enumerate(skeleton.limbs) if limb.parent == -1]
     legs = [i for i in body if tips[i, 1] < -0.6]  # y up: hooves at the bottom
-    heads = [i for i in body if tips[i, 2] < -0.4 and tips[i, 1] > 0]  # head towards −z
+    # The head: the upper limb whose region holds the snout (the foremost vertex, towards −z;
+    # its spine may end at the snout or at the crown, as the medial mesh's branches go).
+    heads = [i for i in body if tips[i, 1] > 0]
+    snout = int(np.argmin(np.asarray(mesh.vertices)[:, 2]))
     assert len(legs) == 4 and len(heads) == 1 and len(body) == 5
+    assert int(skeleton.region[snout]) == heads[0]
     # One leg per quarter: left/right (x) × front/back (z).
     assert {(bool(tips[i, 0] > 0), bool(tips[i, 2] > 0.4)) for i in legs} == {
         (a, b) for a in (False, True) for b in (False, True)
