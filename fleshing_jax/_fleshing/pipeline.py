@@ -34,7 +34,7 @@ from .maps import BEND, UNBEND
 from .methods import check_method
 from .projection import Registrar, Registration, invalid_past, register_point
 from .reach import search_range
-from .region import ValidRegion, clear_where
+from .region import ValidRegion, clear_all, clear_where
 from .target import TargetFrames
 
 
@@ -251,8 +251,7 @@ class Poser(eqx.Module):
 
     def projects(self, registration: Registration) -> Array:
         """The region's sampled check of each registered point's image (n,), bent again."""
-        none = jnp.zeros(registration.points.shape[0], bool)
-        return clear_where(~none, self.region, self._image, none, registration)
+        return clear_all(self.region, self._image, registration)
 
     def _bent_images(self, registration: Registration) -> tuple[Array, Array, Array, Array]:
         """`(images, valid, certified, pending)`: valid before the projection check; certified

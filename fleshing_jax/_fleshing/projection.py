@@ -24,7 +24,7 @@ from .._spines.spine import AbstractSpine
 from .._spines.table import SpineTable, fast_evaluator, runs_whole
 from .ends import EndFrames
 from .reach import LocalReach, search_range
-from .region import ValidRegion, clear_where, closed_form_clear
+from .region import ValidRegion, clear_all, clear_where, closed_form_clear
 
 NEWTON_STEPS = 8
 FAST_STEPS = 3  # Newton steps of the certified fast path (from a sample at most h away)
@@ -286,9 +286,8 @@ class Registrar(eqx.Module):
     def clear_pending(self, registration: Registration, index: Array) -> Registration:
         """`registration` with the sampled test run on the points at `index` (valid before
         `cleared(..., sampled=False)` flagged them)."""
-        none = jnp.zeros(index.shape, bool)
-        clear = clear_where(~none, self.region, _same, none,
-                            (registration.points[index], registration.arc_length[index]))
+        clear = clear_all(self.region, _same,
+                          (registration.points[index], registration.arc_length[index]))
         fields = (registration.valid.at[index].set(clear),
                   registration.discontinuous.at[index].set(~clear))
         return eqx.tree_at(lambda r: (r.valid, r.discontinuous), registration, fields)

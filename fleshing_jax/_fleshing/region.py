@@ -171,6 +171,12 @@ def clear_where(
                         inputs)
 
 
+def clear_all(region: ValidRegion, point: Callable, inputs: PyTree) -> Array:
+    """`region.clear(*point(inputs[i]))` for every `i` (n,): `clear_where` on all of them."""
+    none = jnp.zeros(jax.tree.leaves(inputs)[0].shape[0], bool)
+    return clear_where(~none, region, point, none, inputs)
+
+
 def closed_form_clear(offset: Array, curvature: Array, margin: Array) -> Array:
     """The margin test on a line or an arc, where the only cut set inside the search range is
     the axis of the arc: `1 − k·d > δ |k|` (the distance to the axis is `(1 − k·d)/κ`).
