@@ -41,6 +41,7 @@ from ._mesh.shapes import (
     genus2_slab as genus2_slab,
     voxel_surface as voxel_surface,
 )
+from ._mesh.stretch import edge_stretch as edge_stretch
 from ._mesh.volume import (
     face_volumes as face_volumes,
     triangulate as triangulate,

@@ -10,7 +10,7 @@
     fleshing-jax skeleton IN OUT.json [--spheres N] [--seed S]
     fleshing-jax pose IN OUT [--skeleton S.json] ((--limb K | --at X,Y,Z) --bend DEG
                              [--direction DEG] [--twist DEG])... | --poses P.json)
-                             [--method M] [--allow-invalid] [--spheres N]
+                             [--method M] [--max-stretch X] [--allow-invalid] [--spheres N]
     fleshing-jax demo [--out DIR]
     fleshing-jax --version
 
@@ -30,6 +30,10 @@ from . import __version__
 from ._fleshing.methods import METHODS
 
 PROG = "fleshing-jax"
+# `pose`'s default largest change of an edge's length: spot's leg bent 60° stretches one 2.2×
+# (radial), its head bent 15° with the binormal method 7.5× (a spike), both with no vertex
+# invalid.
+MAX_STRETCH = 3.0
 
 SPINE_FORMAT = """\
 spine files (JSON), e.g.
@@ -78,6 +82,17 @@ def _point(text: str) -> tuple[float, float, float]:
 
 
 _point.__name__ = "point X,Y,Z"  # argparse names the expected type after it
+
+
+def _factor(text: str) -> float:
+    """A finite float ≥ 1: a factor by which a length may change."""
+    value = float(text)
+    if not 1.0 <= value < float("inf"):
+        raise ValueError(text)
+    return value
+
+
+_factor.__name__ = "factor ≥ 1"
 
 
 def _command(commands, name: str, summary: str, description: str, source: str, *,
@@ -243,6 +258,12 @@ def _parser() -> argparse.ArgumentParser:
     pose.add_argument("--poses", metavar="P.json", help="the limbs' poses in a file (below)")
     pose.add_argument("--method", choices=METHODS[:3], default="radial",
                       help="fleshing method (default: radial)")
+    pose.add_argument(
+        "--max-stretch", type=_factor, default=MAX_STRETCH, metavar="X",
+        help="the largest factor by which an edge may change length (default "
+        f"{MAX_STRETCH:g}: a valid pose near the edge of a limb's range keeps volume but can "
+        "draw a part out into a spike); beyond it the pose is not written and the status is 3",
+    )
     pose.add_argument(
         "--allow-invalid",
         action="store_true",
@@ -620,6 +641,7 @@ def _pose(args) -> int:
     import trimesh
 
     from ._mesh.files import check_output_path, write_mesh_atomic
+    from ._mesh.stretch import edge_stretch
     from ._mesh.volume import volume
     from ._skeleton.posing import limb_causes, pose_skeleton, register_skeleton
 
@@ -653,6 +675,11 @@ def _pose(args) -> int:
         print(f"limb {limb}: bend {float(pose.bend):g}, direction {float(pose.direction):g}, "
               f"twist {float(pose.twist):g} degrees")
     print(f"invalid vertices: {int(np.sum(~valid))} of {len(valid)}")
+    stretch = np.asarray(edge_stretch(mesh, posed.vertices))
+    worst = int(np.argmax(stretch))
+    where = int(skeleton.region[worst])
+    print(f"largest edge stretch: {stretch[worst]:.3g}× "
+          f"({f'limb {where}' if where >= 0 else 'body'}, vertex {worst})")
     if not valid.all():
         for limb, causes in limb_causes(registration, skeleton, poses, args.method).items():
             if causes.invalid:
@@ -663,6 +690,11 @@ def _pose(args) -> int:
                   "place, tearing the mesh around them; bend less, or pass --allow-invalid to "
                   "write it anyway", file=sys.stderr)
             return 3
+    if stretch[worst] > args.max_stretch:
+        print(f"not written: an edge changes length {stretch[worst]:.3g}× (more than "
+              f"--max-stretch {args.max_stretch:g}): the pose distorts the mesh there; bend "
+              "less, or pass a larger --max-stretch", file=sys.stderr)
+        return 3
     write_mesh_atomic(bent, args.output)
     print(f"wrote {args.output} ({args.method}, {time.perf_counter() - started:.1f} s)")
     return 0

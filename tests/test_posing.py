@@ -215,6 +215,9 @@ def test_pose_command(tube, skeleton, tmp_path, capsys):
     printed = capsys.readouterr().out
     assert "volume after" in printed and "invalid vertices: 0 of" in printed
     posed = fj.load_mesh(out)
+    stretch = np.asarray(fj.edge_stretch(tube, posed.vertices))
+    worst = int(np.argmax(stretch))
+    assert f"largest edge stretch: {stretch[worst]:.3g}× (limb {skeleton.region[worst]}" in printed
     rest, region = np.asarray(tube.vertices), np.asarray(skeleton.region)
     np.testing.assert_allclose(posed.vertices[region == -1], rest[region == -1], atol=1e-6)
     moved = np.linalg.norm(posed.vertices - rest, axis=1)
@@ -226,6 +229,11 @@ def test_pose_command(tube, skeleton, tmp_path, capsys):
     assert main(["pose", str(mesh), str(again), "--skeleton", str(saved),
                  "--poses", str(poses)]) == 0
     np.testing.assert_array_equal(fj.load_mesh(again).vertices, posed.vertices)
+    # Valid but more distorted than allowed: not written, status 3.
+    distorted = tmp_path / "distorted.obj"
+    assert main([*arguments[:2], str(distorted), *arguments[3:], "--poses", str(poses),
+                 "--max-stretch", f"{0.99 * stretch[worst]:.6f}"]) == 3
+    assert "--max-stretch" in capsys.readouterr().err and not distorted.exists()
     # Too far: not written, status 3, the causes printed.
     folded = tmp_path / "folded.obj"
     assert main([*arguments[:2], str(folded), *arguments[3:], "--limb", "2", "--bend", "175"]) == 3
@@ -243,6 +251,7 @@ def test_pose_command(tube, skeleton, tmp_path, capsys):
         (["--at", "3,0,0", "--bend", "10"], "on the body"),
         (["--limb", "0", "--bend", "10", "--limb", "0", "--bend", "5"], "posed twice"),
         ([], "--limb/--at groups or with --poses"),
+        (["--limb", "0", "--bend", "10", "--max-stretch", "0.5"], "--max-stretch"),
     ],
 )
 def test_pose_command_refuses_bad_poses(tube, skeleton, tmp_path, capsys, options, message):
