@@ -30,7 +30,7 @@ import trimesh
 import fleshing_jax as fj
 
 SAVED_SKELETON = Path(__file__).resolve().parents[1] / "notebooks" / "data" / "spot-skeleton.json"
-HEAD, LEG = 0, 8  # spot's head/neck and a leg that is fully valid at rest (see the README)
+HEAD, LEG = 0, 8  # spot's head/neck and a hind leg (every limb is valid at rest)
 POSES = {HEAD: (10.0, 90.0), LEG: (30.0, 0.0)}  # bend, direction (degrees): all valid
 
 

@@ -154,6 +154,23 @@ def test_curvature_below_the_medial_radius_and_regions_in_reach(case, request):
         assert np.all(distance * curvature[foot] < 1.0), f"limb {i}: a vertex beyond reach"
 
 
+@pytest.mark.parametrize("case", ["spot", "table_case"])
+def test_every_region_vertex_is_valid_at_rest(case, request):
+    """A limb's spine is straight at both ends (its continuations past them, where points move
+    rigidly, are its tangent lines) and bounded in curvature by the radius plus the margin:
+    no vertex of its region lies near its cut locus or focal set, so a small bend moves them
+    all (on spot, a circle continuing a curved start used to flag 3–13 vertices of five
+    limbs at rest)."""
+    mesh, _, skeleton = request.getfixturevalue(case)
+    registration = fj.register_skeleton(mesh, skeleton)
+    for k, limb in enumerate(skeleton.limbs):
+        ends = [limb.spine.curvature_vector(s) for s in (0.0, limb.spine.length)]
+        np.testing.assert_allclose(np.asarray(ends), 0.0, atol=1e-9)
+        n = registration.indices[k].shape[0]
+        valid = np.asarray(registration.registrations[k].valid)[:n]
+        assert valid.all(), f"limb {k}: {int(np.sum(~valid))} of {n} vertices invalid at rest"
+
+
 def test_limb_at_and_children(spot):
     _, _, skeleton = spot
     vertices, region = np.asarray(skeleton.vertices), np.asarray(skeleton.region)

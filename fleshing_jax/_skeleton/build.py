@@ -7,6 +7,7 @@ from scipy.spatial import cKDTree
 
 from .._checks import check_number
 from .._medial_axis.medial_mesh import MedialMesh
+from .._mesh.deform import longest_edge
 from .fit import extend_beyond, fit_bspline
 from .limbs import LimbPath, find_limbs
 from .regions import limb_region, mesh_adjacency, spine_samples
@@ -78,13 +79,15 @@ def skeleton(mesh, *, medial: MedialMesh | None = None, spheres: int = 200,
     centers, radii, edges, _ = medial.numpy()
     _check_belongs(centers, radii, vertices)
     adjacency = mesh_adjacency(vertices, faces)
+    margin = 0.5 * longest_edge(vertices, faces)  # `register_skeleton`'s default
     region = np.full(len(vertices), -1)
     limbs, index = [], {}  # index: a found limb's number → its index in `limbs` (kept ones)
     for number, found in enumerate(find_limbs(centers, radii, edges)):
         parent = index.get(found.parent, -1) if found.parent >= 0 else -1
         if found.parent >= 0 and found.parent not in index:
             continue  # its parent had no region: neither has it
-        spine, part = _fit_limb(found, centers, radii, vertices, adjacency, region == parent)
+        spine, part = _fit_limb(found, centers, radii, vertices, adjacency, region == parent,
+                                margin)
         if part is None:
             continue
         index[number] = len(limbs)
@@ -97,31 +100,38 @@ def skeleton(mesh, *, medial: MedialMesh | None = None, spheres: int = 200,
     return Skeleton(tuple(limbs), region.astype(np.int32), given)
 
 
-def _fit_limb(found: LimbPath, centers, radii, vertices, adjacency, allowed):
-    """The limb's rest spine and its region among the `allowed` vertices (`None` if none)."""
-    spine, cut, tip, arc, local = _limb_spine(found, centers, radii, vertices)
+def _fit_limb(found: LimbPath, centers, radii, vertices, adjacency, allowed, margin):
+    """The limb's rest spine and its region among the `allowed` vertices (`None` if none);
+    `margin`: the valid region's that posing will use."""
+    spine, cut, tip, arc, local = _limb_spine(found, centers, radii, vertices, margin)
     part = limb_region(spine, cut, tip, arc, local, vertices, adjacency, allowed)
     for _ in range(REFITS):
-        # The region's far vertices (the back of a head, beyond its medial spheres) may lie
-        # beyond the spine's reach: a straighter fit where they are.
-        far = _reach_needed(spine, part, vertices, arc) if part is not None else None
+        # The region's far vertices (the back of a head beyond its medial spheres, a haunch
+        # beside a leg's start) may lie beyond the spine's reach: a straighter fit there.
+        far = _reach_needed(spine, part, vertices, arc, margin) if part is not None else None
         if far is None:
             break
-        spine, cut, tip, arc, local = _limb_spine(found, centers, radii, vertices, far)
+        spine, cut, tip, arc, local = _limb_spine(found, centers, radii, vertices, margin, far)
         part = limb_region(spine, cut, tip, arc, local, vertices, adjacency, allowed)
     return spine, part
 
 
-def _reach_needed(spine, part, vertices, arc):
-    """`None` when every vertex of the region `part` lies within the reach of `spine` (nearer
-    than the radius of curvature where it projects), else (k,) the largest distance of the
-    region's vertices around the arc lengths `arc`."""
+def _reach_needed(spine, part, vertices, arc, margin, chunk=2048):
+    """`None` when every vertex `X` of the region `part` lies within the reach of `spine`
+    with the `margin` `δ` around it: `κ(t) (|X − C(t)| + δ) < 1` at every spine point `C(t)`
+    nearer than its foot's distance plus `2δ` (the points the valid region's test reads
+    around the foot). Else (k,) the largest distance of the region's vertices to the spine
+    points near them, around the arc lengths `arc` (for a straighter fit)."""
     s, points, curvature = map(np.asarray, spine_samples(spine))
-    distance, foot = cKDTree(points).query(vertices[part.vertices])
-    if np.all(distance * curvature[foot] < 1.0):
+    far, short = np.zeros(len(s)), False
+    for start in range(0, len(part.vertices), chunk):
+        x = vertices[part.vertices[start : start + chunk]]
+        distance = np.linalg.norm(x[:, None] - points[None], axis=-1)  # (m, samples)
+        near = distance < distance.min(axis=1, keepdims=True) + 2 * margin
+        short |= bool(np.any(near & (curvature * (distance + margin) >= 1.0)))
+        far = np.maximum(far, np.max(np.where(near, distance, 0.0), axis=0))
+    if not short:
         return None
-    far = np.zeros(len(s))
-    np.maximum.at(far, foot, distance)
     # Over a window of arc lengths: the refitted spine's feet move a little.
     window = len(s) // 16
     padded = np.pad(far, window, mode="edge")
@@ -129,7 +139,7 @@ def _reach_needed(spine, part, vertices, arc):
     return np.interp(arc, s, far)
 
 
-def _limb_spine(found: LimbPath, centers, radii, vertices, far=None):
+def _limb_spine(found: LimbPath, centers, radii, vertices, margin, far=None):
     """The limb's rest spine, the arc length where it leaves its parent, the point at its
     tip, and the medial radius at arc lengths along it (at least `far` at each path point, when
     given: the curvature bound then keeps those distances within reach)."""
@@ -146,11 +156,16 @@ def _limb_spine(found: LimbPath, centers, radii, vertices, far=None):
     # At the start, the parent's radius: the spine may not turn there tighter than the
     # parent is thick (an ear's spine, from inside the head).
     local = radii[np.r_[found.inside, found.path, found.path[-1]]]
-    if far is not None:
-        local = np.maximum(local, far)
-    spine = fit_bspline(
-        points, local, LIMB_CONTROL_POINTS, bounded=True, subdivisions=LIMB_SUBDIVISIONS
-    )
+    bound = local if far is None else np.maximum(local, far)
+    # Straight at both ends: the spine's continuations past its ends (osculating circles,
+    # the closest-point search's range) are then its tangent lines, as the rigid motion of
+    # the points beyond them is; a circle curving back towards the region (a haunch behind
+    # a leg's start) put a cut locus among its vertices, which no pose could then move.
+    # The curvature bound holds a margin beyond the radius (or beyond the distance of the
+    # vertices that needed a straighter fit): the surface around the spine must stay clear
+    # of its focal set by the valid region's margin.
+    spine = fit_bspline(points, bound + margin, LIMB_CONTROL_POINTS, bounded=True,
+                        subdivisions=LIMB_SUBDIVISIONS, straight_ends=True)
     s, samples, _ = map(np.asarray, spine_samples(spine))
     chord = np.r_[0, np.cumsum(np.linalg.norm(np.diff(points, axis=0), axis=1))]
     arc = chord * (s[-1] / chord[-1])

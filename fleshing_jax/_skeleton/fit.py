@@ -79,7 +79,7 @@ def extend_beyond(inward: np.ndarray, r: float, surface) -> np.ndarray:
 
 
 def fit_bspline(points, radii, control_points=None, degree=5, *, bounded=None,
-                subdivisions=None) -> BSpline:  # fmt: skip
+                subdivisions=None, straight_ends=False) -> BSpline:  # fmt: skip
     """A B-spline through `points` ((k, 3), in order) in least squares, its ends nearly at the
     first and last point.
 
@@ -87,7 +87,8 @@ def fit_bspline(points, radii, control_points=None, degree=5, *, bounded=None,
     `control_points`: of the B-spline (default: about one per two radii, between `degree + 1`
     and 16); `degree`; `bounded`: whether to bound the curvature (default: unless
     `control_points` is given); `subdivisions`: passed to `fj.BSpline` (given, with the same
-    `control_points`, spines share their compiled programs).
+    `control_points`, spines share their compiled programs); `straight_ends`: with no
+    curvature at either end (a limb's: see `_skeleton.build`).
 
     **Returns:** an `fj.BSpline` (float64) whose curvature stays below
     `CURVATURE_MARGIN / r` (`r` the radii interpolated along it) when `bounded`: the smoothing
@@ -118,8 +119,15 @@ def fit_bspline(points, radii, control_points=None, degree=5, *, bounded=None,
     second = np.diff(np.eye(count), 2, axis=0)
     penalty = second.T @ second
     scale = np.trace(normal) / np.trace(penalty)
+    # Straight ends: the second derivative vanishes at both (equality constraints, solved
+    # with their Lagrange multipliers).
+    ends = ScipyBSpline(knots, np.eye(count), degree).derivative(2)(np.array([0.0, 1.0]))
+    ends = ends if straight_ends else np.zeros((0, count))
+    zeros = np.zeros((len(ends), len(ends)))
     for smoothing in (0.0, *(scale * 4.0 ** np.arange(-12, 12))):
-        coefficients = np.linalg.solve(normal + smoothing * penalty, right)
+        system = np.block([[normal + smoothing * penalty, ends.T], [ends, zeros]])
+        solution = np.linalg.solve(system, np.concatenate([right, np.zeros((len(ends), 3))]))
+        coefficients = solution[:count]
         curve = ScipyBSpline(knots, coefficients, degree)
         if not bounded or np.all(curvature(curve, at) < bound):
             break
