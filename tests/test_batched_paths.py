@@ -265,7 +265,8 @@ def test_flesh_in_chunks_equals_one_point_path(monkeypatch):
     jax.clear_caches()
 
 
-@pytest.mark.parametrize("dtype", ["float32", "float64"])
+# float64 in the slow set: its chunks are checked by `test_flesh_in_chunks_equals_one_point_path`.
+@pytest.mark.parametrize("dtype", ["float32", pytest.param("float64", marks=pytest.mark.slow)])
 def test_eager_two_phase_paths_equal_the_one_program_paths(dtype, monkeypatch):
     # Called eagerly, `register` and `pose` run the global searches in a second program, on
     # the pending points only; under `jit`, in one program. Same results, point for point, on

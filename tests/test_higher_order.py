@@ -15,6 +15,7 @@ from jax.test_util import check_grads
 
 import fleshing_jax as fj
 from fleshing_jax._fleshing.maps import cubic_root
+from fleshing_jax._numerics import polish_root
 
 CONTROL = np.array(
     [[0, 0, 0], [1, 0.4, 0.1], [2, 1.2, 0.6], [3, 0.5, 1.4], [4, -0.6, 1.2], [5, 0, 0.4],
@@ -120,6 +121,42 @@ def _images(points, control_points, twist):
     return _fleshed(points, control_points, twist)[0]
 
 
+def test_polish_root_to_third_order():
+    """`polish_root`'s implicit-function rule (the projection's and the arc-length inverse's)
+    composes: the real root of `s³ + p s − q` (one root for `p > 0`) in `(p, q)`, forward and
+    reverse, to third order against finite differences."""
+
+    def residual(s, params):
+        p, q = params
+        return s**3 + p * s - q, 3 * s**2 + p
+
+    def root(p, q):
+        s = jax.lax.fori_loop(0, 30, lambda _, s: s - jnp.divide(*residual(s, (p, q))), q / p)
+        return polish_root(residual, jax.lax.stop_gradient(s), (p, q))
+
+    args = (jnp.asarray(1.3), jnp.asarray(0.7))
+    s = root(*args)
+    np.testing.assert_allclose(s**3 + 1.3 * s, 0.7, atol=1e-14)
+    check_grads(jax.jit(root), args, order=3, modes=("fwd", "rev"), eps=1e-3)
+
+
+def test_projection_and_arc_length_to_second_order():
+    """The closest projection on a source with torsion in the point (on a circle the second
+    derivative at the foot vanishes and would hide a first-order-only rule), and a free-form
+    spine's arc-length inverse in its control points: second order, reverse over reverse."""
+    x = jnp.asarray(_points()[1])
+    foot = jax.jit(lambda x: fj.closest_arc_length(SOURCE, x)[0])
+    check_grads(foot, (x,), order=2, modes=("rev",), eps=1e-4, atol=1e-6, rtol=1e-6)
+    s = jnp.asarray(2.1)
+
+    def point(control_points, s):
+        return fj.BSpline(control_points, degree=3)(s)
+
+    check_grads(jax.jit(point), (jnp.asarray(TARGET), s), order=2, modes=("rev",), eps=1e-4,
+                atol=1e-6, rtol=1e-6)
+
+
+@pytest.mark.slow  # (the custom rules stay checked to second order above, in smaller programs)
 def test_check_grads_of_flesh_to_second_order():
     """`check_grads` order 2 (reverse over reverse, the mode of Newton-type solvers and
     `jax.hessian`'s inner pass) with respect to points, the target's control points and the
