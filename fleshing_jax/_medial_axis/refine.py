@@ -214,10 +214,12 @@ def refine_spheres(points, targets, centers, radii, edges, faces, *, scale: floa
         upper = None if attained is None else _interpolated(points, *attained, params)
         return _search(points, union, params, margin, upper)
 
-    def evaluate(params, pairs):
-        """Residuals and Jacobian of the samples, then of the spheres' containment."""
+    def evaluate(params, pairs, attained=None):
+        """Residuals and Jacobian of the samples, then of the spheres' containment;
+        `attained`: as in `search`."""
         union = UnionPrimitives(params[:, :3], params[:, 3], edges, faces)
-        pairs = prune(pairs, union, params, len(points), 1e-9 * scale)
+        upper = None if attained is None else _interpolated(points, *attained, params)
+        pairs = prune(pairs, union, params, len(points), 1e-9 * scale, upper)
         value, spheres, weights = _closest(points, *pairs, union)
         residual, jac = value - targets, _jacobian(points, spheres, weights, params)
         attained = spheres, weights
@@ -279,7 +281,7 @@ def refine_spheres(points, targets, centers, radii, edges, faces, *, scale: floa
                     # budget, they serve this trial still (their anchor), and the steps
                     # after it shorten with their margin.
                     pairs = search(trial, margin, attained)
-                t_residual, t_jac, t_attained = evaluate(trial, pairs)
+                t_residual, t_jac, t_attained = evaluate(trial, pairs, attained)
                 if np.sum(weight * t_residual**2) < current:
                     params, residual, jac, attained = trial, t_residual, t_jac, t_attained
                     damping = max(damping / 3, 1e-7)

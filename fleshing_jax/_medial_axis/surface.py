@@ -218,6 +218,19 @@ def _bisect_long(a, b, c):
     return tuple(np.concatenate(x) for x in zip(*done))
 
 
+def _first_occurrences(candidates):
+    """`candidates (N, K)` with each face's repeats within a row replaced by -1: the faces
+    around a pole's four samples are two-fifths repeats (spot), and each costs a closest
+    point. The first occurrence stays where it was, so ties between faces break as before."""
+    order = np.argsort(candidates, axis=1, kind="stable")
+    ordered = np.take_along_axis(candidates, order, axis=1)
+    repeat = np.zeros(ordered.shape, dtype=bool)
+    repeat[:, 1:] = ordered[:, 1:] == ordered[:, :-1]
+    out = np.empty_like(candidates)
+    np.put_along_axis(out, order, np.where(repeat, -1, ordered), axis=1)
+    return out
+
+
 class SurfaceQuery:
     """Exact closest points and inside/outside signs for one closed triangle mesh.
 
@@ -284,7 +297,7 @@ class SurfaceQuery:
         inside = np.empty(n, dtype=bool)
         for start in range(0, n, chunk):
             sl = slice(start, start + chunk)
-            cand = candidates[sl]
+            cand = _first_occurrences(candidates[sl])
             row, col = np.nonzero(cand >= 0)
             d, q, f = self._exact(points[sl][row], cand[row, col])
             order = np.lexsort((d, row))
