@@ -65,7 +65,7 @@ class _Cones:
     def _parts(self, p, i):
         """The distances to the two end spheres, to the lateral surface (`inf` where its
         minimiser is off the segment) and the minimiser's position `t` along the axis."""
-        row = self.table[i]
+        row = np.take(self.table, i, axis=0)  # (not `table[i]`: see `in_blocks`)
         r0, r1, s, co, length, proper = row[:, 9:].T
         d0 = p - row[:, :3]
         dd = _dot(d0, d0)
@@ -115,7 +115,7 @@ class _Slabs:
         The closed form only where a shorter form of the foot's coordinates puts it in the
         triangle or near (`FOOT`): most pairs are elsewhere (on spot at 200 spheres, 7k of
         the fit's 1.3M slab pairs are finite), and the form that decides is the same."""
-        row = self.test[i]
+        row = np.take(self.test, i, axis=0)
         d = p - row[:, :3]
         lift = np.abs(_dot(d, row[:, 3:6]))
         b1 = _dot(d, row[:, 6:9]) - lift * row[:, 12]
@@ -123,7 +123,7 @@ class _Slabs:
         near = np.flatnonzero((row[:, 14] > 0) & (b1 >= -FOOT) & (b2 >= -FOOT)
                               & (b1 + b2 <= 1 + FOOT))
         value = np.full(len(p), np.inf)
-        value[near] = self._parts(p[near], i[near])[0]
+        value[near] = self._parts(np.take(p, near, axis=0), i.take(near))[0]
         return value
 
     def closest(self, p, i):
@@ -139,7 +139,7 @@ class _Slabs:
         Gram matrix folded in, changed the distances by 1e-16, which broke exact ties between
         a capsule's primitives differently, and its fit at 200 spheres ended at 0.27 %
         instead of 0.03 %.)"""
-        row = self.table[i]
+        row = np.take(self.table, i, axis=0)
         r0, g, ok = row[:, 18:].T
         d = p - row[:, :3]
         m = row[:, 3:6]
@@ -276,8 +276,11 @@ def in_blocks(evaluate, points, pts, prim):
 
     Why: the closed forms make a few dozen `(pairs, 3)` temporaries, which for millions of
     pairs (the fit, the binding) would be fresh memory, page faults included, on every call;
-    in blocks they stay in the cache (the fit's distances 10× faster, the same values)."""
-    parts = [evaluate(points[pts[start:start + PAIRS]], prim[start:start + PAIRS])
+    in blocks they stay in the cache (the fit's distances 10× faster, the same values).
+    Rows are gathered by `np.take(x, i, axis=0)`, not `x[i]`: the same copy, 4-5× faster
+    for 2-D arrays (NumPy 2.4: 0.13 against 0.52 ms for 32k points)."""
+    parts = [evaluate(np.take(points, pts[start:start + PAIRS], axis=0),
+                      prim[start:start + PAIRS])
              for start in range(0, len(pts), PAIRS)]
     if not parts:
         parts = [evaluate(points[pts], prim)]

@@ -84,7 +84,8 @@ def _jacobian(points, spheres, weights, params):
     """Sparse Jacobian `(N, 4n)` of the samples' distances with respect to the spheres'
     `(x, y, z, r)`: `−w_k (u, 1)` in the columns of sphere `k` (see the module's notes)."""
     n = len(params)
-    foot = np.einsum("ij,ijk->ik", weights, params[spheres, :3])
+    # (`np.take`, not `params[spheres]`: the same rows, several times faster.)
+    foot = np.einsum("ij,ijk->ik", weights, np.take(params[:, :3], spheres, axis=0))
     u = points - foot
     u /= np.maximum(np.linalg.norm(u, axis=1, keepdims=True), 1e-300)
     rows = np.repeat(np.arange(len(points)), 12)
@@ -98,7 +99,7 @@ def _interpolated(points, spheres, weights, params):
     """`|p − c| − r` `(N,)` of each sample `p` for the sphere `(c, r)` interpolated with
     `weights (N, 3)` between its `spheres (N, 3)` of `params (n, 4)`: an upper bound of its
     distance to the primitive of those spheres (which holds every interpolated sphere)."""
-    sphere = np.einsum("ij,ijk->ik", weights, params[spheres])
+    sphere = np.einsum("ij,ijk->ik", weights, np.take(params, spheres, axis=0))
     return np.linalg.norm(points - sphere[:, :3], axis=1) - sphere[:, 3]
 
 

@@ -125,7 +125,7 @@ def initial_medial_axis(query: SurfaceQuery, points, normals, weights, sample_fa
             hull_keys.append(lo_ * n_points + hi_)
     hull_keys = distinct(np.concatenate(hull_keys))
     order = np.argsort(key, kind="stable")
-    key, owner = key[order], owner[order]
+    key, owner = key.take(order), owner.take(order)
     start = np.flatnonzero(np.r_[True, key[1:] != key[:-1]])
     size = np.diff(np.r_[start, len(key)])
     ring_kept = np.minimum.reduceat(keep[owner].astype(np.int8), start).astype(bool)
