@@ -157,6 +157,12 @@ def sample_surface(vertices, faces, count: int, rng: np.random.Generator):
     return points, normals, face
 
 
+def _dot(a, b):
+    """Row-wise dot products `(M,)` of `(M, 3)` arrays: NumPy's (2.4) `einsum("ij,ij->i")`
+    bit for bit (it sums the first and last terms first), at half its time."""
+    return (a[:, 0] * b[:, 0] + a[:, 2] * b[:, 2]) + a[:, 1] * b[:, 1]
+
+
 def _closest_on_triangles(p, a, b, c):
     """Closest points of triangles `(a, b, c)` (each (M, 3)) to points `p` (M, 3).
 
@@ -165,11 +171,11 @@ def _closest_on_triangles(p, a, b, c):
     ab/bc/ca.
     """
     ab, ac, ap = b - a, c - a, p - a
-    d1, d2 = np.einsum("ij,ij->i", ab, ap), np.einsum("ij,ij->i", ac, ap)
+    d1, d2 = _dot(ab, ap), _dot(ac, ap)
     bp = p - b
-    d3, d4 = np.einsum("ij,ij->i", ab, bp), np.einsum("ij,ij->i", ac, bp)
+    d3, d4 = _dot(ab, bp), _dot(ac, bp)
     cp = p - c
-    d5, d6 = np.einsum("ij,ij->i", ab, cp), np.einsum("ij,ij->i", ac, cp)
+    d5, d6 = _dot(ab, cp), _dot(ac, cp)
     va, vb, vc = d3 * d6 - d5 * d4, d5 * d2 - d1 * d6, d1 * d4 - d3 * d2
     with np.errstate(divide="ignore", invalid="ignore"):
         t_ab = d1 / (d1 - d3)
