@@ -301,12 +301,14 @@ class SurfaceQuery:
         return np.concatenate([face_ids, self._across[face_ids].reshape(len(face_ids),
                                                                                 -1)], axis=1)
 
-    def query_candidates(self, points, candidates, *, chunk: int = 20_000):
+    def query_candidates(self, points, candidates, *, chunk: int = 4096):
         """Closest points of `points (N, 3)` among the faces `candidates (N, K)` (-1 padded).
 
         Exact when the closest face is a candidate; used for medial poles, whose closest
         faces lie around their contact samples, because a k-d tree search from the centre of
         a curved region visits nearly every node (the nearest neighbours form a ring).
+        `chunk` points at a time: their arrays stay in the cache (spot's poles 0.43 s in
+        chunks of 20,000, 0.36 s in 4096; the same values).
 
         **Returns:** `(distance (N,), closest (N, 3), inside (N,) bool)`.
         """
@@ -332,7 +334,7 @@ class SurfaceQuery:
         closest, feature = _closest_on_triangles(points, a, b, c)
         return np.linalg.norm(points - closest, axis=1), closest, feature
 
-    def query(self, points, *, exact: bool = True, chunk: int = 50_000):
+    def query(self, points, *, exact: bool = True, chunk: int = 8192):
         """Closest points of `points` (N, 3) on the mesh.
 
         With `exact=True` every answer is certified. With `exact=False` a point whose answer
@@ -340,6 +342,9 @@ class SurfaceQuery:
         points deep inside (medial poles), where many faces are nearly equidistant, so that
         certifying costs many exact tests while the best candidate is already within a
         face's sagitta of the truth (and the inside sign is unambiguous).
+
+        `chunk` points at a time (16 faces each): 68k points inside the animal 0.46 s in
+        chunks of 50,000, 0.34 s in 8192 (the same values).
 
         **Returns:** `(distance (N,), closest (N, 3), inside (N,) bool)`.
         """
