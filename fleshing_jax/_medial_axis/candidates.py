@@ -113,8 +113,9 @@ def search(points, union: UnionPrimitives, params, margin: float,
         np.minimum.at(best, pts, value)
         # Only the pairs within the band of the best so far (a superset of the final band):
         # on a sphere, all pairs at once took 1.5 GB.
-        near = value <= best[pts] + 2 * margin
-        pts, prim, value = pts[near], prim[near], value[near]
+        # (Positions and `take`, not a boolean mask per array: 5× faster, the same pairs.)
+        near = np.flatnonzero(value <= best[pts] + 2 * margin)
+        pts, prim, value = pts.take(near), prim.take(near), value.take(near)
         found_pts.append(pts), found_prim.append(prim), found_val.append(value)
         held += len(pts)
         if held > 2 * PAIRS and margin > floor:  # narrowed early: memory stays capped
@@ -129,7 +130,7 @@ def search(points, union: UnionPrimitives, params, margin: float,
     if len(keep) > PAIRS:
         margin = _narrowed(gap[keep], margin, floor)
         keep = keep[gap[keep] <= 2 * margin]
-    return Candidates(pts[keep], prim[keep], value[keep], params, margin)
+    return Candidates(pts.take(keep), prim.take(keep), value.take(keep), params, margin)
 
 
 def upper_bound(points, union: UnionPrimitives, neighbours: int = 8):
@@ -163,18 +164,22 @@ def _primitive_moves(union: UnionPrimitives, moved):
 
 
 def prune(candidates: Candidates, union: UnionPrimitives, params, n_points: int,
-          tolerance: float):
+          tolerance: float, upper=None):
     """`(pts, prim)`: the candidates that may attain a sample's distance to the `union` of
-    the spheres `params (n, 4)` (see the module's notes; `tolerance` absorbs round-off)."""
+    the spheres `params (n, 4)` (see the module's notes; `tolerance` absorbs round-off).
+    `upper (N,)`: known upper bounds of the samples' distances (e.g. the sphere that
+    attained a sample's distance at spheres near `params`, interpolated at `params`: on
+    spot at 200 spheres it keeps 0.35M pairs a step after a search where the cones' bounds
+    alone kept 0.55M; the same pairs attain, so the same result)."""
     moved = np.linalg.norm(params[:, :3] - candidates.anchor[:, :3], axis=1) + np.abs(
         params[:, 3] - candidates.anchor[:, 3])
     pts, prim, value = candidates.pts, candidates.prim, candidates.value
     change = _primitive_moves(union, moved)[prim]
-    upper = np.full(n_points, np.inf)
-    solid = union.kind[prim] != 2
-    np.minimum.at(upper, pts[solid], (value + change)[solid])
-    keep = value - change <= upper[pts] + tolerance
-    return pts[keep], prim[keep]
+    upper = np.full(n_points, np.inf) if upper is None else upper.copy()
+    solid = np.flatnonzero(union.kind[prim] != 2)
+    np.minimum.at(upper, pts.take(solid), value.take(solid) + change.take(solid))
+    keep = np.flatnonzero(value - change <= upper[pts] + tolerance)
+    return pts.take(keep), prim.take(keep)
 
 
 def closest(points, pts, prim, union: UnionPrimitives):

@@ -31,14 +31,30 @@ def distinct(values):
     return values[np.r_[True, values[1:] != values[:-1]]] if len(values) else values
 
 
+def sorted_rows(rows):
+    """Integer `rows (m, k)` sorted within each row: `np.sort(rows, axis=1)`, by columns for
+    `k` of 2 or 3 (several times faster on such short rows; the same values)."""
+    if rows.shape[1] == 2:
+        a, b = rows[:, 0], rows[:, 1]
+        return np.stack([np.minimum(a, b), np.maximum(a, b)], 1)
+    if rows.shape[1] == 3:
+        a, b, c = rows[:, 0], rows[:, 1], rows[:, 2]
+        low, high = np.minimum(np.minimum(a, b), c), np.maximum(np.maximum(a, b), c)
+        return np.stack([low, a + b + c - low - high, high], 1)
+    return np.sort(rows, axis=1)
+
+
 def unique_rows(rows, n: int):
     """The distinct rows of `rows (m, k)` (indices below `n`), each sorted, in lexicographic
     order: as `np.unique(np.sort(rows, axis=1), axis=0)`, by one integer per row (a row sort
     of structured values took 1 s for a Voronoi complex of spot)."""
-    rows = np.sort(rows, axis=1)
+    rows = sorted_rows(rows)
     if float(n) ** rows.shape[1] >= 2.0**62:  # the keys would overflow
         return np.unique(rows, axis=0)
-    key = distinct(rows @ (n ** np.arange(rows.shape[1] - 1, -1, -1, dtype=np.int64)))
+    key = rows[:, 0]  # by columns, not `rows @ powers of n` (integer products are slow)
+    for k in range(1, rows.shape[1]):
+        key = key * n + rows[:, k]
+    key = distinct(key)
     out = np.empty((len(key), rows.shape[1]), np.int64)
     for k in range(rows.shape[1] - 1, -1, -1):
         key, out[:, k] = np.divmod(key, n)
@@ -63,7 +79,7 @@ def volumes(face_shell, shell_count: int, contact_faces) -> tuple[int, np.ndarra
     return count, shell_volume[touched[:, 0]]
 
 
-def _inside_links(other, gap, piece, start, end, inside):
+def _inside_links(other, gap, piece, start, end, inside, known=None):
     """`other (m, k)` with the links (row, column) that leave the shape dropped: those
     whose points at a quarter, half and three quarters of the way from `start (m, 3)` to
     `end (m, k, 3)` are not all `inside`. Only each piece's nearest link is looked for (by
@@ -72,7 +88,9 @@ def _inside_links(other, gap, piece, start, end, inside):
     dropped too. Each piece then keeps its nearest inside link as it would
     with every link tested (ties in gap by row, then column, as `join_pieces` breaks them):
     on the thin-limbed animal most of the tests were of links never used (1.2 s of 4.5 s of
-    its Voronoi complex)."""
+    its Voronoi complex). `known`: `(keys (m, k), found)` with `found` a dict of the links'
+    keys already tested and their outcome (read and written here): a piece that looks
+    further (larger `k`) would test its nearer links again (the animal: 38k of them)."""
     row, col = np.nonzero(other)
     order = np.lexsort((col, row, gap[row, col], piece[row]))
     row, col = row[order], col[order]
@@ -83,11 +101,26 @@ def _inside_links(other, gap, piece, start, end, inside):
     valid = np.zeros(len(row), bool)
 
     def test(sel):
+        if known is not None:
+            keys, memo = known
+            key = keys[row[sel], col[sel]]
+            seen = np.array([k in memo for k in key.tolist()], bool)
+            tested[sel[seen]] = True
+            valid[sel[seen]] = [memo[k] for k in key[seen].tolist()]
+            sel = sel[~seen]
         a, b = start[row[sel]], end[row[sel], col[sel]]
-        ok = np.ones(len(sel), bool)
-        for t in (0.25, 0.5, 0.75):
-            ok &= inside(a + t * (b - a))
+        # The middle first, then the quarters of the links still inside only: the same
+        # conjunction, and a link across a gap (most of the links tested) is out at once
+        # (the animal's points queried 311k -> 108k, its Voronoi complex 3.1 -> 2.3 s).
+        left = np.arange(len(sel))
+        for t in (0.5, 0.25, 0.75):
+            if len(left):
+                left = left[inside(a[left] + t * (b[left] - a[left]))]
+        ok = np.zeros(len(sel), bool)
+        ok[left] = True
         tested[sel], valid[sel] = True, ok
+        if known is not None:
+            memo.update(zip(keys[row[sel], col[sel]].tolist(), ok.tolist()))
 
     low = 0
     while low < len(row):
@@ -127,6 +160,7 @@ def join_pieces(centers, edges, volume, inside=None) -> np.ndarray:
             return edges
         k, strict = 8, inside is not None
         nearest = np.full(n, -1)
+        tested = {}  # link key (sphere · n + sphere) → inside, for the rounds of larger k
         while len(todo):
             kk = min(k, n)
             gap, idx = tree.query(centers[todo], k=kk)
@@ -136,7 +170,7 @@ def join_pieces(centers, edges, volume, inside=None) -> np.ndarray:
                 # Only links inside the shape: the nearest piece may lie in the next leg,
                 # and a cone across the gap would stand outside the surface.
                 other = _inside_links(other, gap, piece[todo], centers[todo], centers[idx],
-                                      inside)
+                                      inside, (todo[:, None] * n + idx, tested))
             hit = other.any(axis=1)
             nearest[todo[hit]] = idx[hit, np.argmax(other[hit], axis=1)]
             # The spheres of pieces with no link yet look further (a piece deep inside others

@@ -27,7 +27,10 @@ from scipy.spatial import cKDTree
 
 
 def _dot(a, b):
-    return np.einsum("ij,ij->i", a, b)
+    """Row-wise dot products `(M,)` of `(M, 3)` arrays, summed as NumPy's (2.4)
+    `einsum("ij,ij->i")` does, first and last terms first (the same values bit for bit, on
+    contiguous and strided rows alike), at half its time."""
+    return (a[:, 0] * b[:, 0] + a[:, 2] * b[:, 2]) + a[:, 1] * b[:, 1]
 
 
 class _Cones:
@@ -42,10 +45,14 @@ class _Cones:
         self.s = np.where(self.proper, (r0 - r1) / self.length, 0.0)
         self.co = np.sqrt(np.maximum(1 - self.s**2, 1e-300))
         self.c0, self.r0, self.c1, self.r1 = c0, r0, c1, r1
-        # One row per cone, gathered once per pair (`_parts`), not nine separate arrays.
-        self.table = np.concatenate([c0, self.u, c1, np.stack([r0, r1, self.s, self.co,
-                                                               self.length, self.proper], 1)],
-                                    axis=1)
+        # Gathered per pair by `np.take` (`_parts`) as contiguous (M, 3) blocks and (M,)
+        # columns, whose arithmetic is 10-20 % faster than on the strided columns of one
+        # packed row per pair; split from one table, so that all share its dtype.
+        table = np.concatenate([c0, self.u, c1, np.stack([r0, r1, self.s, self.co,
+                                                          self.length, self.proper], 1)],
+                               axis=1)
+        self.rows = [np.ascontiguousarray(table[:, k:k + 3]) for k in (0, 3, 6)]
+        self.scalars = np.ascontiguousarray(table[:, 9:].T)
 
     def distance(self, p, i):
         """Signed distances of points `p` (M, 3) to cones `i` (M,)."""
@@ -65,14 +72,15 @@ class _Cones:
     def _parts(self, p, i):
         """The distances to the two end spheres, to the lateral surface (`inf` where its
         minimiser is off the segment) and the minimiser's position `t` along the axis."""
-        row = self.table[i]
-        r0, r1, s, co, length, proper = row[:, 9:].T
-        d0 = p - row[:, :3]
+        r0, r1, s, co, length, proper = (x.take(i) for x in self.scalars)
+        c0, u, c1 = self.rows
+        d0 = p - np.take(c0, i, axis=0)  # (not `c0[i]`: see `in_blocks`)
         dd = _dot(d0, d0)
         end0 = np.sqrt(dd) - r0
-        d1 = p - row[:, 6:9]  # (not |d0|² − 2 (c1 − c0)·d0 + |c1 − c0|²: it cancels near c1)
+        # (Not |d0|² − 2 (c1 − c0)·d0 + |c1 − c0|²: it cancels near c1.)
+        d1 = p - np.take(c1, i, axis=0)
         end1 = np.sqrt(_dot(d1, d1)) - r1
-        x = _dot(d0, row[:, 3:6])
+        x = _dot(d0, np.take(u, i, axis=0))
         y = np.sqrt(np.maximum(dd - x * x, 0))
         t = x - y * s / co
         lateral = np.where((proper > 0) & (t >= 0) & (t <= length), x * s + y * co - r0,
@@ -105,8 +113,11 @@ class _Slabs:
         gi = self.gram_inv
         p1 = gi[:, :1] * self.e1 + gi[:, 1:2] * self.e2
         p2 = gi[:, 1:2] * self.e1 + gi[:, 2:] * self.e2
-        self.test = np.concatenate([c0, self.m, p1, p2, np.stack(
+        test = np.concatenate([c0, self.m, p1, p2, np.stack(
             [_dot(p1, self.a) / self.g, _dot(p2, self.a) / self.g, self.ok], 1)], axis=1)
+        # Contiguous parts, gathered by `np.take` (see `_Cones`).
+        self.test = [np.ascontiguousarray(test[:, k:k + 3]) for k in (0, 3, 6, 9)]
+        self.test_scalars = np.ascontiguousarray(test[:, 12:].T)
 
     def distance(self, p, i):
         """Signed distances of `p` (M, 3) to the tangent-plane parts of slabs `i` (M,), `inf`
@@ -115,15 +126,16 @@ class _Slabs:
         The closed form only where a shorter form of the foot's coordinates puts it in the
         triangle or near (`FOOT`): most pairs are elsewhere (on spot at 200 spheres, 7k of
         the fit's 1.3M slab pairs are finite), and the form that decides is the same."""
-        row = self.test[i]
-        d = p - row[:, :3]
-        lift = np.abs(_dot(d, row[:, 3:6]))
-        b1 = _dot(d, row[:, 6:9]) - lift * row[:, 12]
-        b2 = _dot(d, row[:, 9:12]) - lift * row[:, 13]
-        near = np.flatnonzero((row[:, 14] > 0) & (b1 >= -FOOT) & (b2 >= -FOOT)
+        c0, m, p1, p2 = (np.take(x, i, axis=0) for x in self.test)
+        k1, k2, ok = (x.take(i) for x in self.test_scalars)
+        d = p - c0
+        lift = np.abs(_dot(d, m))
+        b1 = _dot(d, p1) - lift * k1
+        b2 = _dot(d, p2) - lift * k2
+        near = np.flatnonzero((ok > 0) & (b1 >= -FOOT) & (b2 >= -FOOT)
                               & (b1 + b2 <= 1 + FOOT))
         value = np.full(len(p), np.inf)
-        value[near] = self._parts(p[near], i[near])[0]
+        value[near] = self._parts(np.take(p, near, axis=0), i.take(near))[0]
         return value
 
     def closest(self, p, i):
@@ -139,7 +151,7 @@ class _Slabs:
         Gram matrix folded in, changed the distances by 1e-16, which broke exact ties between
         a capsule's primitives differently, and its fit at 200 spheres ended at 0.27 %
         instead of 0.03 %.)"""
-        row = self.table[i]
+        row = np.take(self.table, i, axis=0)
         r0, g, ok = row[:, 18:].T
         d = p - row[:, :3]
         m = row[:, 3:6]
@@ -276,8 +288,11 @@ def in_blocks(evaluate, points, pts, prim):
 
     Why: the closed forms make a few dozen `(pairs, 3)` temporaries, which for millions of
     pairs (the fit, the binding) would be fresh memory, page faults included, on every call;
-    in blocks they stay in the cache (the fit's distances 10× faster, the same values)."""
-    parts = [evaluate(points[pts[start:start + PAIRS]], prim[start:start + PAIRS])
+    in blocks they stay in the cache (the fit's distances 10× faster, the same values).
+    Rows are gathered by `np.take(x, i, axis=0)`, not `x[i]`: the same copy, 4-5× faster
+    for 2-D arrays (NumPy 2.4: 0.13 against 0.52 ms for 32k points)."""
+    parts = [evaluate(np.take(points, pts[start:start + PAIRS], axis=0),
+                      prim[start:start + PAIRS])
              for start in range(0, len(pts), PAIRS)]
     if not parts:
         parts = [evaluate(points[pts], prim)]

@@ -84,7 +84,8 @@ def _jacobian(points, spheres, weights, params):
     """Sparse Jacobian `(N, 4n)` of the samples' distances with respect to the spheres'
     `(x, y, z, r)`: `−w_k (u, 1)` in the columns of sphere `k` (see the module's notes)."""
     n = len(params)
-    foot = np.einsum("ij,ijk->ik", weights, params[spheres, :3])
+    # (`np.take`, not `params[spheres]`: the same rows, several times faster.)
+    foot = np.einsum("ij,ijk->ik", weights, np.take(params[:, :3], spheres, axis=0))
     u = points - foot
     u /= np.maximum(np.linalg.norm(u, axis=1, keepdims=True), 1e-300)
     rows = np.repeat(np.arange(len(points)), 12)
@@ -98,7 +99,7 @@ def _interpolated(points, spheres, weights, params):
     """`|p − c| − r` `(N,)` of each sample `p` for the sphere `(c, r)` interpolated with
     `weights (N, 3)` between its `spheres (N, 3)` of `params (n, 4)`: an upper bound of its
     distance to the primitive of those spheres (which holds every interpolated sphere)."""
-    sphere = np.einsum("ij,ijk->ik", weights, params[spheres])
+    sphere = np.einsum("ij,ijk->ik", weights, np.take(params, spheres, axis=0))
     return np.linalg.norm(points - sphere[:, :3], axis=1) - sphere[:, 3]
 
 
@@ -214,10 +215,12 @@ def refine_spheres(points, targets, centers, radii, edges, faces, *, scale: floa
         upper = None if attained is None else _interpolated(points, *attained, params)
         return _search(points, union, params, margin, upper)
 
-    def evaluate(params, pairs):
-        """Residuals and Jacobian of the samples, then of the spheres' containment."""
+    def evaluate(params, pairs, attained=None):
+        """Residuals and Jacobian of the samples, then of the spheres' containment;
+        `attained`: as in `search`."""
         union = UnionPrimitives(params[:, :3], params[:, 3], edges, faces)
-        pairs = prune(pairs, union, params, len(points), 1e-9 * scale)
+        upper = None if attained is None else _interpolated(points, *attained, params)
+        pairs = prune(pairs, union, params, len(points), 1e-9 * scale, upper)
         value, spheres, weights = _closest(points, *pairs, union)
         residual, jac = value - targets, _jacobian(points, spheres, weights, params)
         attained = spheres, weights
@@ -279,7 +282,7 @@ def refine_spheres(points, targets, centers, radii, edges, faces, *, scale: floa
                     # budget, they serve this trial still (their anchor), and the steps
                     # after it shorten with their margin.
                     pairs = search(trial, margin, attained)
-                t_residual, t_jac, t_attained = evaluate(trial, pairs)
+                t_residual, t_jac, t_attained = evaluate(trial, pairs, attained)
                 if np.sum(weight * t_residual**2) < current:
                     params, residual, jac, attained = trial, t_residual, t_jac, t_attained
                     damping = max(damping / 3, 1e-7)

@@ -52,7 +52,7 @@ import functools
 
 import numpy as np
 
-from .connect import components, distinct
+from .connect import components, distinct, sorted_rows
 from .primitives import _Cones, _Slabs
 
 
@@ -89,18 +89,22 @@ def _error(A, b, c, m):
 def _edge_costs(spheres, A, b, c, edges, k, length_weight, scale, stable, hausdorff=0.0,
                 uncovered=None):
     i, j = edges[:, 0], edges[:, 1]
-    Ae, be, ce = A[i] + A[j], b[i] + b[j], c[i] + c[j]
-    mid = (spheres[i] + spheres[j]) / 2
+    # (`np.take`, not `A[i]`: the same rows, several times faster in NumPy 2.4.)
+    Ae = np.take(A, i, axis=0) + np.take(A, j, axis=0)
+    be = np.take(b, i, axis=0) + np.take(b, j, axis=0)
+    ce = c[i] + c[j]
+    si, sj = np.take(spheres, i, axis=0), np.take(spheres, j, axis=0)
+    mid = (si + sj) / 2
     eps = 1e-6 * np.trace(Ae, axis1=1, axis2=2) / 4 + 1e-300
     reg = Ae + eps[:, None, None] * np.eye(4)
     best = np.linalg.solve(reg, (eps[:, None] * mid - be)[..., None])[..., 0]
-    options = np.stack([best, spheres[i], spheres[j], mid], 1)  # (e, 4 options, 4)
+    options = np.stack([best, si, sj, mid], 1)  # (e, 4 options, 4)
     errors = np.stack([_error(Ae, be, ce, options[:, k]) for k in range(4)], 1)
     errors = np.where(options[..., 3] >= 0, np.maximum(errors, 0), np.inf)
     pick = np.argmin(errors, axis=1)
     rows = np.arange(len(edges))
-    length = np.linalg.norm(spheres[i, :3] - spheres[j, :3], axis=1)
-    dr = np.abs(spheres[i, 3] - spheres[j, 3])
+    length = np.linalg.norm(si[:, :3] - sj[:, :3], axis=1)
+    dr = np.abs(si[:, 3] - sj[:, 3])
     stability = np.clip((length - dr) / np.where(length > 0, length, 1.0), 0, 1)
     # Saturated: ratios above `stable` count as 1 (see the module's notes).
     stability = np.minimum(stability / stable, 1.0) if stable > 0 else stability
@@ -345,19 +349,25 @@ def simplify(centers, radii, edges, faces, quadrics, target: int, *, scale: floa
         changed[keep] = True
         relabel = (np.cumsum(alive) - 1)[target_of]
         member = relabel[member]
-        spheres, A, b, c, piece = spheres[alive], A[alive], b[alive], c[alive], piece[alive]
-        touched = changed[edges].any(axis=1) | (~alive[edges]).any(axis=1)
-        edges = np.sort(relabel[edges], axis=1)
+        survivors = np.flatnonzero(alive)  # (positions and `np.take`: see `_edge_costs`)
+        spheres, A, b, c, piece = (np.take(x, survivors, axis=0)
+                                   for x in (spheres, A, b, c, piece))
+        # Column by column, not `.any(axis=1)`, `np.sort(axis=1)` and `@` over rows of two
+        # or three integers: the same values, and these lines took a third of the time.
+        touched = changed[edges[:, 0]] | changed[edges[:, 1]] | ~alive[edges[:, 0]] \
+            | ~alive[edges[:, 1]]
+        edges = sorted_rows(relabel[edges])
         live = edges[:, 0] != edges[:, 1]
         m = len(spheres)
-        _, first = np.unique(edges[live] @ np.array([m, 1]), return_index=True)
+        _, first = np.unique(edges[live, 0] * m + edges[live, 1], return_index=True)
         first = np.flatnonzero(live)[first]
-        edges, cost, optimum = edges[first], cost[first], optimum[first]
+        edges, cost, optimum = (np.take(x, first, axis=0) for x in (edges, cost, optimum))
         cost[touched[first]] = np.nan
         if len(faces):
-            faces = np.sort(relabel[faces], axis=1)
+            faces = sorted_rows(relabel[faces])
             faces = faces[(faces[:, 0] != faces[:, 1]) & (faces[:, 1] != faces[:, 2])]
-            faces = faces[np.unique(faces @ np.array([m * m, m, 1]), return_index=True)[1]]
+            faces = faces[np.unique((faces[:, 0] * m + faces[:, 1]) * m + faces[:, 2],
+                                    return_index=True)[1]]
         if progress is not None:
             progress.update(len(chosen))
     order = np.lexsort(edges.T[::-1])

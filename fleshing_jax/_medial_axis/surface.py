@@ -157,6 +157,12 @@ def sample_surface(vertices, faces, count: int, rng: np.random.Generator):
     return points, normals, face
 
 
+def _dot(a, b):
+    """Row-wise dot products `(M,)` of `(M, 3)` arrays: NumPy's (2.4) `einsum("ij,ij->i")`
+    bit for bit (it sums the first and last terms first), at half its time."""
+    return (a[:, 0] * b[:, 0] + a[:, 2] * b[:, 2]) + a[:, 1] * b[:, 1]
+
+
 def _closest_on_triangles(p, a, b, c):
     """Closest points of triangles `(a, b, c)` (each (M, 3)) to points `p` (M, 3).
 
@@ -165,11 +171,11 @@ def _closest_on_triangles(p, a, b, c):
     ab/bc/ca.
     """
     ab, ac, ap = b - a, c - a, p - a
-    d1, d2 = np.einsum("ij,ij->i", ab, ap), np.einsum("ij,ij->i", ac, ap)
+    d1, d2 = _dot(ab, ap), _dot(ac, ap)
     bp = p - b
-    d3, d4 = np.einsum("ij,ij->i", ab, bp), np.einsum("ij,ij->i", ac, bp)
+    d3, d4 = _dot(ab, bp), _dot(ac, bp)
     cp = p - c
-    d5, d6 = np.einsum("ij,ij->i", ab, cp), np.einsum("ij,ij->i", ac, cp)
+    d5, d6 = _dot(ab, cp), _dot(ac, cp)
     va, vb, vc = d3 * d6 - d5 * d4, d5 * d2 - d1 * d6, d1 * d4 - d3 * d2
     with np.errstate(divide="ignore", invalid="ignore"):
         t_ab = d1 / (d1 - d3)
@@ -216,6 +222,32 @@ def _bisect_long(a, b, c):
         a, b, c, face = (np.concatenate([a, m]), np.concatenate([m, b]),
                          np.concatenate([c, c]), np.concatenate([face, face]))
     return tuple(np.concatenate(x) for x in zip(*done))
+
+
+def _first_occurrences(candidates):
+    """`candidates (N, K)` with each face's repeats within a row replaced by -1: the faces
+    around a pole's four samples are two-fifths repeats (spot), and each costs a closest
+    point. The first occurrence stays where it was, so ties between faces break as before."""
+    order = np.argsort(candidates, axis=1, kind="stable")
+    ordered = np.take_along_axis(candidates, order, axis=1)
+    repeat = np.zeros(ordered.shape, dtype=bool)
+    repeat[:, 1:] = ordered[:, 1:] == ordered[:, :-1]
+    out = np.empty_like(candidates)
+    np.put_along_axis(out, order, np.where(repeat, -1, ordered), axis=1)
+    return out
+
+
+def _first_least(value, row, rows: int):
+    """The position `(rows,)` of each row's least `value (M,)`, the first of equals, for
+    `row (M,)` ascending (every row present): a reduction by row, the same choice as a
+    lexsort of all the pairs by (row, value) at a fifth of its time."""
+    start = np.searchsorted(row, np.arange(rows))
+    hit = np.flatnonzero(value == np.fmin.reduceat(value, start)[row])
+    first = hit[np.r_[True, row[hit[1:]] != row[hit[:-1]]]]
+    if len(first) != rows:  # a row of NaNs only: ordered as the lexsort does
+        order = np.lexsort((value, row))
+        first = order[np.searchsorted(row[order], np.arange(rows))]
+    return first
 
 
 class SurfaceQuery:
@@ -269,12 +301,14 @@ class SurfaceQuery:
         return np.concatenate([face_ids, self._across[face_ids].reshape(len(face_ids),
                                                                                 -1)], axis=1)
 
-    def query_candidates(self, points, candidates, *, chunk: int = 20_000):
+    def query_candidates(self, points, candidates, *, chunk: int = 4096):
         """Closest points of `points (N, 3)` among the faces `candidates (N, K)` (-1 padded).
 
         Exact when the closest face is a candidate; used for medial poles, whose closest
         faces lie around their contact samples, because a k-d tree search from the centre of
         a curved region visits nearly every node (the nearest neighbours form a ring).
+        `chunk` points at a time: their arrays stay in the cache (spot's poles 0.43 s in
+        chunks of 20,000, 0.36 s in 4096; the same values).
 
         **Returns:** `(distance (N,), closest (N, 3), inside (N,) bool)`.
         """
@@ -284,22 +318,23 @@ class SurfaceQuery:
         inside = np.empty(n, dtype=bool)
         for start in range(0, n, chunk):
             sl = slice(start, start + chunk)
-            cand = candidates[sl]
+            cand = _first_occurrences(candidates[sl])
             row, col = np.nonzero(cand >= 0)
-            d, q, f = self._exact(points[sl][row], cand[row, col])
-            order = np.lexsort((d, row))
-            first = order[np.searchsorted(row[order], np.arange(len(cand)))]
+            face = cand[row, col]
+            d, q, f = self._exact(np.take(points[sl], row, axis=0), face)
+            first = _first_least(d, row, len(cand))
             distance[sl], closest[sl] = d[first], q[first]
-            inside[sl] = self._inside(points[sl], q[first], cand[row, col][first], f[first])
+            inside[sl] = self._inside(points[sl], q[first], face[first], f[first])
         return distance, closest, inside
 
     def _exact(self, points, candidates):
         """Distances, closest points and features of `points` (M, 3) to faces (M,)."""
-        a, b, c = (x[candidates] for x in self.corners)
+        # (`np.take`, not `x[candidates]`: the same rows, 4-5× faster in NumPy 2.4.)
+        a, b, c = (np.take(x, candidates, axis=0) for x in self.corners)
         closest, feature = _closest_on_triangles(points, a, b, c)
         return np.linalg.norm(points - closest, axis=1), closest, feature
 
-    def query(self, points, *, exact: bool = True, chunk: int = 50_000):
+    def query(self, points, *, exact: bool = True, chunk: int = 8192):
         """Closest points of `points` (N, 3) on the mesh.
 
         With `exact=True` every answer is certified. With `exact=False` a point whose answer
@@ -307,6 +342,9 @@ class SurfaceQuery:
         points deep inside (medial poles), where many faces are nearly equidistant, so that
         certifying costs many exact tests while the best candidate is already within a
         face's sagitta of the truth (and the inside sign is unambiguous).
+
+        `chunk` points at a time (16 faces each): 68k points inside the animal 0.46 s in
+        chunks of 50,000, 0.34 s in 8192 (the same values).
 
         **Returns:** `(distance (N,), closest (N, 3), inside (N,) bool)`.
         """
