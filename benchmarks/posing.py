@@ -3,6 +3,7 @@
     python benchmarks/posing.py                   # all three tables and the figure
     python benchmarks/posing.py --skip-skeleton   # spot's saved skeleton, not built again
     python benchmarks/posing.py --only-frames     # the per-frame table only (2 below)
+    python benchmarks/posing.py --skip-skeleton --only-volumes  # the volume table only (3)
 
 Prints Markdown tables:
 
@@ -10,9 +11,11 @@ Prints Markdown tables:
 2. A new pose of spot subdivided to about 100k vertices (trimesh's `subdivide` keeps the old
    vertices first; a new vertex takes the region of its nearest old one), registered once in
    float32; `jax.jit(lambda poses: fj.pose_skeleton(...).vertices)` per frame, medians.
-3. A front leg and the head posed together on spot in float64: whole-mesh volume change of ours
-   against medial deformation, LBS and DQS given the same intent (the medial mesh's spheres of
-   each posed limb's region sent where our map sends their centres, the body's held), max
+3. A hind leg and the head posed together on spot in float64, the bends' directions turned by
+   0, 90, 180 and 270°: whole-mesh volume change of ours
+   against medial deformation, LBS and DQS given the same intent (every sphere of the medial
+   mesh a handle: those of a posed limb's region sent where our map sends their centres,
+   those of the limbs below it by its end motion, the others held), max
    |det J − 1| in the posed regions, the largest stretch of an edge crossing a region border,
    whether the body is bit for bit still. `--figure PATH` writes the before/after picture.
 """
@@ -28,6 +31,7 @@ import numpy as np
 import trimesh
 
 import fleshing_jax as fj
+from fleshing_jax._skeleton.posing import end_motion  # a posed limb's motion of its children
 
 SAVED_SKELETON = Path(__file__).resolve().parents[1] / "notebooks" / "data" / "spot-skeleton.json"
 HEAD, LEG = 0, 8  # spot's head/neck and a hind leg (every limb is valid at rest)
@@ -96,11 +100,21 @@ def _sphere_regions(medial, vertices, region):
     return region[cKDTree(vertices).query(np.asarray(medial.centers))[1]]
 
 
-def volume_table(spot, skeleton, figure=None):
+def _descendants(skeleton, k):
+    """The limbs below limb `k` (its children, theirs, …)."""
+    below, grew = {k}, True
+    while grew:
+        more = {i for i, limb in enumerate(skeleton.limbs) if limb.parent in below} - below
+        below, grew = below | more, bool(more)
+    return sorted(below - {k})
+
+
+def volume_table(spot, skeleton, medial, figure=None, turn=0.0):
+    """The volume table for `POSES`, each bend's direction turned by `turn` degrees."""
     import jax.numpy as jnp
 
     registration = fj.register_skeleton(spot, skeleton)
-    poses = {k: fj.LimbPose(*POSES[k]) for k in POSES}
+    poses = {k: fj.LimbPose(bend, direction + turn) for k, (bend, direction) in POSES.items()}
     out = fj.pose_skeleton(registration, skeleton, poses)
     vertices, valid = np.asarray(out.vertices), np.asarray(out.valid)
     rest = np.asarray(spot.vertices)
@@ -123,16 +137,19 @@ def volume_table(spot, skeleton, figure=None):
     stretch = float(np.max(length(vertices)[crossing] / length(rest)[crossing]))
     body = region < 0
     still = bool(np.array_equal(vertices[body], rest[body]))
-    # The same intent for the medial mesh: each posed limb's spheres carried by our map.
-    medial = fj.medial_mesh(spot, 200, progress=False)
+    # The same intent for the medial mesh, every sphere a handle: a posed limb's spheres
+    # carried by our map, those of the limbs below it (the head's ears and horns) by its end
+    # motion, the others (the body, the legs not posed) held where they are.
     centers = np.asarray(medial.centers)
     owner = _sphere_regions(medial, rest, region)
-    moved = [np.flatnonzero(owner == k) for k in POSES]
-    targets = [np.asarray(fj.flesh(jnp.asarray(centers[m]), *bents[k], beyond="rigid")[0])
-               for m, k in zip(moved, POSES)]  # fmt: skip
-    held = np.flatnonzero(owner < 0)
-    handles = np.concatenate([*moved, held])
-    targets = np.concatenate([*targets, centers[held]])
+    targets = centers.copy()
+    for k in POSES:
+        moved = owner == k
+        targets[moved] = np.asarray(fj.flesh(jnp.asarray(centers[moved]), *bents[k],
+                                             beyond="rigid")[0])
+        below = np.isin(owner, _descendants(skeleton, k))
+        targets[below] = np.asarray(end_motion(*bents[k])(jnp.asarray(centers[below])))
+    handles = np.arange(len(centers))
     rows = [("Fleshing (ours)", ours, int((~valid).sum()))]
     deformed = {}
     for method, implicit in (("medial", True), ("lbs", False), ("dqs", False)):
@@ -195,6 +212,7 @@ def main():
     parser.add_argument("--figure", type=Path, default=None)
     parser.add_argument("--frames", type=int, default=50)
     parser.add_argument("--only-frames", action="store_true", help="the per-frame table only")
+    parser.add_argument("--only-volumes", action="store_true", help="the volume table only")
     args = parser.parse_args()
     jax.config.update("jax_enable_x64", True)  # float64 for the volumes; the pose is float32
     fj.use_compilation_cache()
@@ -207,21 +225,28 @@ def main():
             f"| mesh | vertices | limbs | skeleton incl. medial mesh (s) |\n|---|---:|---:|---:|\n"
             f"| spot | {len(spot.vertices)} | {len(skeleton.limbs)} | {seconds:.1f} |\n"
         )
-    n, registered, rows = pose_speed(spot, skeleton, args.frames)
-    print(f"{n} vertices, float32, registered once in {registered:.1f} s\n")
-    print("| posed | first frame (s) | per frame (ms, median) |\n|---|---:|---:|")
-    for name, first, ms in rows:
-        print(f"| {name} | {first:.1f} | {ms:.2f} |")
+    if not args.only_volumes:
+        n, registered, rows = pose_speed(spot, skeleton, args.frames)
+        print(f"{n} vertices, float32, registered once in {registered:.1f} s\n")
+        print("| posed | first frame (s) | per frame (ms, median) |\n|---|---:|---:|")
+        for name, first, ms in rows:
+            print(f"| {name} | {first:.1f} | {ms:.2f} |")
     if args.only_frames:
         return
-    rows, det, stretch, still = volume_table(spot, skeleton, args.figure)
-    print("\n| method | ΔV/V | invalid vertices |\n|---|---:|---:|")
-    for name, change, invalid in rows:
-        print(f"| {name} | {100 * change:+.4f} % | {invalid} |")
-    print(
-        f"\nmax |det J − 1| in the posed regions: {det:.2e}; largest stretch of an edge "
-        f"crossing a region border: {stretch:.3f}; body bit-for-bit still: {still}"
-    )
+    medial = fj.medial_mesh(spot, 200, progress=False)
+    turns = (0.0, 90.0, 180.0, 270.0)  # the bends' directions turned: the same angles
+    tables = [volume_table(spot, skeleton, medial, args.figure if not t else None, t)
+              for t in turns]  # fmt: skip
+    print("\n| method | " + " | ".join(f"ΔV/V, turned {t:.0f}°" for t in turns) + " |")
+    print("|---|" + "---:|" * len(turns))
+    for i, (name, *_) in enumerate(tables[0][0]):
+        cells = [f"{100 * rows[i][1]:+.4f} % ({rows[i][2]})" for rows, *_ in tables]
+        print(f"| {name} | " + " | ".join(cells) + " |")
+    for t, (_, det, stretch, still) in zip(turns, tables):
+        print(
+            f"turned {t:.0f}°: max |det J − 1| in the posed regions {det:.2e}; largest stretch "
+            f"of an edge crossing a region border {stretch:.3f}; body bit-for-bit still: {still}"
+        )
 
 
 if __name__ == "__main__":
