@@ -142,7 +142,7 @@ def test_local_reach_bounds_are_sound(shape):
     assert np.median(np.asarray(reach.bounds)) > 0.2
 
 
-@pytest.mark.parametrize("shape", ["u_turn", "coil"])
+@pytest.mark.parametrize("shape", ["u_turn", pytest.param("coil", marks=pytest.mark.slow)])
 def test_batched_projection_equals_global_search(shape):
     spine = fj.BSpline(U_TURN, degree=3) if shape == "u_turn" else _coil()
     rng = np.random.default_rng(2)
@@ -187,7 +187,7 @@ def test_closed_form_feet_of_lines_and_arcs_equal_the_global_search(dtype):
     assert 0.2 < converged.mean() < 0.8  # the wrapped arc: many points have two feet
 
 
-@pytest.mark.parametrize("method", ["radial", "binormal"])
+@pytest.mark.parametrize("method", ["radial", pytest.param("binormal", marks=pytest.mark.slow)])
 def test_flesh_onto_u_turn_flags_images_near_the_other_branch(method):
     target = fj.BSpline(U_TURN, degree=3)
     source = fj.Line(float(target.length))
@@ -265,8 +265,11 @@ def test_flesh_in_chunks_equals_one_point_path(monkeypatch):
     jax.clear_caches()
 
 
-# float64 in the slow set: its chunks are checked by `test_flesh_in_chunks_equals_one_point_path`.
-@pytest.mark.parametrize("dtype", ["float32", pytest.param("float64", marks=pytest.mark.slow)])
+# In the slow set (25 s a dtype): the eager paths' results are checked point for point against
+# the one-point map by `test_flesh_in_chunks_equals_one_point_path`, and in float32 against
+# exact float64 by `test_table.py::test_float32_batched_paths_agree_with_exact_float64`.
+@pytest.mark.slow
+@pytest.mark.parametrize("dtype", ["float32", "float64"])
 def test_eager_two_phase_paths_equal_the_one_program_paths(dtype, monkeypatch):
     # Called eagerly, `register` and `pose` run the global searches in a second program, on
     # the pending points only; under `jit`, in one program. Same results, point for point, on

@@ -136,7 +136,12 @@ SPINES = {
 }
 
 
-@pytest.mark.parametrize("name", SPINES)
+# The cubic B-spline with a double knot and the resampled polyline with `-m slow` (8-10 s each).
+@pytest.mark.parametrize(
+    "name",
+    [pytest.param(n, marks=pytest.mark.slow) if n in ("bspline-cubic-knots", "polyline-step")
+     else n for n in SPINES],
+)
 def test_padded_spines_evaluate_and_differentiate_as_the_spines(name):
     spine = SPINES[name]()
     assert type(spine._bucketed()) is not type(spine)  # (the bucket's own type: shared)

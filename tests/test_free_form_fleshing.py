@@ -23,8 +23,12 @@ def _points_around(spine, count, seed, radius=(0.05, 0.3)):
     return np.asarray(c + r * (np.cos(angle) * i + np.sin(angle) * j))
 
 
-@pytest.mark.parametrize("kind", ["bspline", "polynomial"])
-def test_det_j_on_free_form_pairs(kind):
+@pytest.mark.parametrize(
+    "kind,methods",
+    [("bspline", ("binormal",)), ("polynomial", ("radial",)),
+     pytest.param("bspline", ("radial", "normal"), marks=pytest.mark.slow)],
+)
+def test_det_j_on_free_form_pairs(kind, methods):
     # A spine with torsion (a quintic B-spline, or the cubic through 4 of its points) → one
     # with an inflection.
     if kind == "bspline":
@@ -36,10 +40,8 @@ def test_det_j_on_free_form_pairs(kind):
     assert float(jnp.linalg.norm(target.curvature_vector(mid))) < 1e-10  # the inflection
     points = _points_around(source, 8, 0)
 
-    # The three methods on the B-spline source; the polynomial's own code is the projection,
-    # which one method exercises (one compiled method, not three: 10 s of the suite).
-    methods = ("radial", "normal", "binormal") if kind == "bspline" else ("radial",)
-
+    # The polynomial's own code is the projection, which one method exercises; the B-spline
+    # source's other methods run with `-m slow` (each method is a compiled program: 10 s).
     @jax.jit
     def determinants(points):
         out = []
@@ -117,7 +119,8 @@ def test_projection_is_global(shape):
         assert ok[-1] and float(s[-1]) > float(spine.length) / 2
 
 
-def test_polyline_converges_and_works_in_the_core():
+@pytest.mark.slow  # two jacobian_determinant programs (two polyline buckets): 40 s
+def test_polyline_converges_to_second_order():
     # A polyline sampled from an arc, fleshed to another: volume error shrinks with the step.
     arc0, arc1 = fj.Arc(3.0, 4.0), fj.Arc(2.0, 4.0, normal=(0, 0, 1))
     points = _points_around(arc0, 6, 2, radius=(0.1, 0.3))
@@ -130,10 +133,20 @@ def test_polyline_converges_and_works_in_the_core():
         det = fj.jacobian_determinant(fleshing, points)
         assert np.all(np.isfinite(det))
         errors.append(float(jnp.max(jnp.abs(det - 1))))
-    out, valid = fj.flesh(points, line0, line1, method="normal", twist=0.2)
-    assert np.all(valid) and np.all(np.isfinite(out))
     assert errors[1] < errors[0] / 4  # second order in the step
     assert errors[0] > 1e-6  # not exact: the polyline is an approximation
+
+
+def test_polyline_works_in_the_core():
+    arc0, arc1 = fj.Arc(3.0, 4.0), fj.Arc(2.0, 4.0, normal=(0, 0, 1))
+    points = _points_around(arc0, 6, 2, radius=(0.1, 0.3))
+    t = jnp.linspace(0, 4.0, 17)
+    line0, line1 = fj.Polyline(jax.vmap(arc0)(t)), fj.Polyline(jax.vmap(arc1)(t))
+    out, valid = fj.flesh(points, line0, line1, method="normal", twist=0.2)
+    assert np.all(valid) and np.all(np.isfinite(out))
+    # Near the arc's image: the polyline's error is second order in its step (0.25).
+    exact, _ = fj.flesh(points, arc0, arc1, method="normal", twist=0.2)
+    assert 1e-6 < float(jnp.max(jnp.abs(out - exact))) < 0.05
     with pytest.raises(ValueError, match="turn back"):
         fj.Polyline([[0, 0, 0], [1, 0, 0], [0, 0, 0.0]])
     with pytest.raises(ValueError, match="`step`"):

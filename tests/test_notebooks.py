@@ -16,11 +16,16 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 NOTEBOOKS = ROOT / "notebooks"
 PATHS = sorted(NOTEBOOKS.glob("*.ipynb"))
-# Notebooks run with `python -m pytest -m slow` only: 07 runs for minutes (spot's posing
-# compared with medial deformation, LBS and DQS, and a gradient: about 9 minutes on 2 busy
-# cores); 04 runs the paper's experiments (`benchmarks/paper`), which `test_paper.py` runs
-# and checks too (30 s of the 10-minute suite).
-SLOW = {"04_paper_experiments", "07_posing_limbs"}
+# Notebooks run with `python -m pytest -m slow` only, but for the quick start: 07 runs for
+# minutes (spot's posing compared with medial deformation, LBS and DQS, and a gradient: about
+# 9 minutes on 2 busy cores); 04 runs the paper's experiments (`benchmarks/paper`), which
+# `test_paper.py` runs and checks too; 02, 03, 05 and 06 take 25-60 s each on 2 busy cores
+# (160 s of the suite, mostly compilation), and what they show is checked by the tests of its
+# subsystem: det J of every method (`test_fleshing`, `test_free_form_fleshing`), the fits
+# (`test_fit`), the medial meshes (`test_medial*`) and their deformation (`test_medial_deform`,
+# `test_arap`).
+SLOW = {"02_verify_det_jacobian", "03_fit_spine", "04_paper_experiments", "05_medial_axis",
+        "06_medial_deformation", "07_posing_limbs"}
 
 
 def test_notebooks_exist():

@@ -48,6 +48,7 @@ def test_cube_cloud_errors():
     assert np.all(normal * 100 < skinning)
 
 
+@pytest.mark.slow  # 14 s (notebook 04 and `benchmarks/paper` run the same figure)
 def test_sliding_frames():
     starts, deviations, _, _ = fig7_sliding.run(frames=3, methods=("skinning", "radial"))
     skin, radial = np.abs(deviations["skinning"]), np.abs(deviations["radial"])

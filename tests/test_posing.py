@@ -30,26 +30,28 @@ def test_bent_spine_is_the_base_up_to_the_joint_and_rigid_past_its_stop():
                                 [4, 0, 0], [5, 0.1, 0.1]]))
     bent = fj.BentSpine(base, joint=1.0, stop=3.5, bend=1.2, direction=0.7, twist=0.5)
     assert float(bent.length) == float(base.length)
-    # (Each check compiled as one program: evaluated eagerly, a spine is many small ones.)
-    before = jax.jit(lambda b, s: (b(s), b.jet_and_normals(s)))
-    for a, b in zip(jax.tree.leaves(before(bent, 0.8)), jax.tree.leaves(before(base, 0.8))):
-        np.testing.assert_array_equal(a, b)
 
-    # Exactly arc length, with the jet's derivatives consistent to round-off (det J = 1).
+    # (The checks compiled as one program: evaluated eagerly, a spine is many small ones.)
     @jax.jit
-    @jax.vmap
-    def derivatives(s):
-        return (jax.jacfwd(bent)(s), bent.tangent(s), jax.jacfwd(bent.tangent)(s),
-                bent.curvature_vector(s))
+    def values(before, inside, past):
+        def derivatives(s):
+            return (jax.jacfwd(bent)(s), bent.tangent(s), jax.jacfwd(bent.tangent)(s),
+                    bent.curvature_vector(s))
 
-    s = jnp.asarray([1.2, 2.0, 3.0, 3.6, float(base.length) - 0.1])
-    dc, tangent, dt, k = derivatives(s)
+        return ((bent(before), bent.jet_and_normals(before)),
+                (base(before), base.jet_and_normals(before)),
+                jax.vmap(derivatives)(inside), jax.vmap(bent)(past), jax.vmap(base)(past))
+
+    inside = jnp.asarray([1.2, 2.0, 3.0, 3.6, float(base.length) - 0.1])
+    past = jnp.linspace(3.5, float(base.length), 5)
+    bent_before, base_before, (dc, tangent, dt, k), a, b = values(0.8, inside, past)
+    for x, y in zip(jax.tree.leaves(bent_before), jax.tree.leaves(base_before)):
+        np.testing.assert_array_equal(x, y)
+    # Exactly arc length, with the jet's derivatives consistent to round-off (det J = 1).
     np.testing.assert_allclose(dc, tangent, atol=1e-14)
     np.testing.assert_allclose(dt, k, atol=1e-13)
     np.testing.assert_allclose(np.linalg.norm(tangent, axis=1), 1, atol=1e-14)
     # Past the stop, the base moved rigidly: distances kept, and moved.
-    s = jnp.linspace(3.5, float(base.length), 5)
-    a, b = jax.jit(jax.vmap(bent))(s), jax.jit(jax.vmap(base))(s)
     np.testing.assert_allclose(np.linalg.norm(a[:, None] - a[None], axis=-1),
                                np.linalg.norm(b[:, None] - b[None], axis=-1), atol=1e-13)
     assert float(jnp.max(jnp.abs(a - b))) > 0.5
@@ -163,21 +165,25 @@ def test_float32_posing_reads_its_rest_spines_from_tables(tube, skeleton, regist
     np.testing.assert_array_equal(np.asarray(posed.vertices)[region == -1], rest[region == -1])
 
 
-def test_gradients_of_the_angles(skeleton, registration):
+@pytest.mark.parametrize("posed_child", [False, pytest.param(True, marks=pytest.mark.slow)])
+def test_gradients_of_the_angles(skeleton, registration, posed_child):
+    # Limb 0's three angles, its child carried by its end motion; with `-m slow` the child's
+    # own bend too (two limbs' programs differentiated: 66 s of the suite, against 30).
     tip = int(np.argmax(np.asarray(skeleton.vertices)[:, 0]))
 
     def tip_height(angles):
-        poses = {0: fj.LimbPose(angles[0], 90.0, angles[1]), 1: fj.LimbPose(angles[2])}
+        poses = {0: fj.LimbPose(angles[0], angles[1], angles[2])}
+        if posed_child:
+            poses[1] = fj.LimbPose(angles[3])
         return fj.pose_skeleton(registration, skeleton, poses).vertices[tip, 2]
 
-    angles = np.array([40.0, 10.0, 20.0])
+    angles = np.array([40.0, 90.0, 10.0, 20.0][: 4 if posed_child else 3])
     gradient = jax.grad(tip_height)(jnp.asarray(angles))
     eps = 1e-3
-    for i in range(3):  # central differences of the eager path
-        step = eps * np.eye(3)[i]
+    for i, step in enumerate(eps * np.eye(len(angles))):  # central differences, eager path
         difference = (tip_height(angles + step) - tip_height(angles - step)) / (2 * eps)
         assert float(gradient[i]) == pytest.approx(float(difference), rel=1e-6, abs=1e-9)
-    assert abs(float(gradient[0])) > 1e-3
+    assert abs(float(gradient[0])) > 1e-3 and abs(float(gradient[1])) > 1e-4
 
 
 def test_bad_poses(tube, skeleton, registration):

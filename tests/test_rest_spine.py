@@ -157,6 +157,7 @@ def test_spot_rest_spine_turns_no_tighter_than_the_shape_is_thick(spot_medial):
         rest_spine(spot, surface=spot)
 
 
+@pytest.mark.slow  # 16 s: spot bent by the command line (the capsule's test runs by default)
 def test_deform_with_medial_ends_and_saved_spine(tmp_path, capsys, spot_medial):
     fj.save_medial(spot_medial, tmp_path / "spot.ma")
     spine_file = tmp_path / "rest.json"
@@ -172,7 +173,12 @@ def test_deform_with_medial_ends_and_saved_spine(tmp_path, capsys, spot_medial):
     expected = rest_spine(spot_medial, ends=[HEAD, TAIL], surface=fj.data.spot())
     np.testing.assert_allclose(saved.control_points, expected.control_points, atol=1e-12)
     assert f"wrote {spine_file}" in printed and not list(tmp_path.glob(".rest.json.*"))
+
+
+def test_deform_refuses_rest_spine_options_with_from(tmp_path, capsys):
     # --medial and --ends find the rest spine: refused with --from, before any work.
+    spine_file = tmp_path / "rest.json"
+    args = ["deform", str(fj.data.spot_path()), str(tmp_path / "bent.obj")]
     code = main([*args[:3], "--from", str(spine_file), "--medial", str(tmp_path / "spot.ma"),
                  "--bend-angle", "20"])  # fmt: skip
     assert code == 2 and "--medial" in capsys.readouterr().err
