@@ -93,7 +93,7 @@ def _brute_force(spine, points, count=20001):
     return np.asarray(s[jnp.argmin(d, axis=1)]), np.sqrt(np.asarray(jnp.min(d, axis=1)))
 
 
-@pytest.mark.parametrize("shape", ["u_turn", "coil"])
+@pytest.mark.parametrize("shape", ["u_turn", pytest.param("coil", marks=pytest.mark.slow)])
 def test_projection_is_global(shape):
     if shape == "u_turn":  # two parallel branches 1 apart, joined by a tight turn
         spine = fj.BSpline([[0, 0, 0], [4, 0, 0], [5, 0, 0], [5.5, 0.5, 0], [5, 1, 0],

@@ -71,7 +71,11 @@ def _s_derivatives(spine, s, polyline):
     return derivatives
 
 
-@pytest.mark.parametrize("name", sorted(SPINES))
+# The quintic B-spline with `-m slow`: the cubic runs the same code (5 s a spine).
+@pytest.mark.parametrize(
+    "name",
+    [pytest.param(n, marks=pytest.mark.slow) if n == "bspline5" else n for n in sorted(SPINES)],
+)
 def test_derivatives_in_s(name):
     spine = SPINES[name]()
     length = float(spine.length)
