@@ -20,7 +20,8 @@ _CHILD = textwrap.dedent(
     from pathlib import Path
     import jax
     settings = lambda: (jax.config.jax_compilation_cache_dir,
-                        jax.config.jax_persistent_cache_min_compile_time_secs)
+                        jax.config.jax_persistent_cache_min_compile_time_secs,
+                        jax.config.jax_enable_x64)  # x64 is the caller's choice, never set
     before = settings()
     import fleshing_jax as fj
     fj.Line(1.0)  # importing and using the library changes nothing
@@ -31,7 +32,7 @@ _CHILD = textwrap.dedent(
     mine = Path(sys.argv[1]) / "mine"
     os.environ["FLESHING_JAX_CACHE"] = str(mine)
     assert fj.use_compilation_cache(min_compile_seconds=0) == mine and mine.is_dir()
-    assert settings() == (str(mine), 0.0)
+    assert settings() == (str(mine), 0.0, False)
     assert not os.listdir(mine)
     jax.jit(lambda x: x * 3 - 1)(2.0)  # compiled after: stored, although JAX had compiled
     assert len(os.listdir(mine)) == 1, os.listdir(mine)
