@@ -23,25 +23,14 @@ import scipy.sparse
 import scipy.sparse.csgraph
 from scipy.spatial import cKDTree
 
+from .rows import row_keys, sorted_rows
+
 
 def distinct(values):
     """The distinct values of an integer array, ascending: `np.unique(values)` by a sort
     (NumPy 2's hash-based `np.unique` took 1.5 s for 1.5M keys, a sort 0.08 s)."""
     values = np.sort(np.asarray(values).reshape(-1))
     return values[np.r_[True, values[1:] != values[:-1]]] if len(values) else values
-
-
-def sorted_rows(rows):
-    """Integer `rows (m, k)` sorted within each row: `np.sort(rows, axis=1)`, by columns for
-    `k` of 2 or 3 (several times faster on such short rows; the same values)."""
-    if rows.shape[1] == 2:
-        a, b = rows[:, 0], rows[:, 1]
-        return np.stack([np.minimum(a, b), np.maximum(a, b)], 1)
-    if rows.shape[1] == 3:
-        a, b, c = rows[:, 0], rows[:, 1], rows[:, 2]
-        low, high = np.minimum(np.minimum(a, b), c), np.maximum(np.maximum(a, b), c)
-        return np.stack([low, a + b + c - low - high, high], 1)
-    return np.sort(rows, axis=1)
 
 
 def unique_rows(rows, n: int):
@@ -51,10 +40,7 @@ def unique_rows(rows, n: int):
     rows = sorted_rows(rows)
     if float(n) ** rows.shape[1] >= 2.0**62:  # the keys would overflow
         return np.unique(rows, axis=0)
-    key = rows[:, 0]  # by columns, not `rows @ powers of n` (integer products are slow)
-    for k in range(1, rows.shape[1]):
-        key = key * n + rows[:, k]
-    key = distinct(key)
+    key = distinct(row_keys(rows, n))
     out = np.empty((len(key), rows.shape[1]), np.int64)
     for k in range(rows.shape[1] - 1, -1, -1):
         key, out[:, k] = np.divmod(key, n)

@@ -25,12 +25,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial import cKDTree
 
-
-def _dot(a, b):
-    """Row-wise dot products `(M,)` of `(M, 3)` arrays, summed as NumPy's (2.4)
-    `einsum("ij,ij->i")` does, first and last terms first (the same values bit for bit, on
-    contiguous and strided rows alike), at half its time."""
-    return (a[:, 0] * b[:, 0] + a[:, 2] * b[:, 2]) + a[:, 1] * b[:, 1]
+from .rows import dot
 
 
 class _Cones:
@@ -75,12 +70,12 @@ class _Cones:
         r0, r1, s, co, length, proper = (x.take(i) for x in self.scalars)
         c0, u, c1 = self.rows
         d0 = p - np.take(c0, i, axis=0)  # (not `c0[i]`: see `in_blocks`)
-        dd = _dot(d0, d0)
+        dd = dot(d0, d0)
         end0 = np.sqrt(dd) - r0
         # (Not |d0|² − 2 (c1 − c0)·d0 + |c1 − c0|²: it cancels near c1.)
         d1 = p - np.take(c1, i, axis=0)
-        end1 = np.sqrt(_dot(d1, d1)) - r1
-        x = _dot(d0, np.take(u, i, axis=0))
+        end1 = np.sqrt(dot(d1, d1)) - r1
+        x = dot(d0, np.take(u, i, axis=0))
         y = np.sqrt(np.maximum(dd - x * x, 0))
         t = x - y * s / co
         lateral = np.where((proper > 0) & (t >= 0) & (t <= length), x * s + y * co - r0,
@@ -98,7 +93,7 @@ class _Slabs:
         self.a, self.m, self.gamma = slab_tangent_normals(c0, r0, c1, r1, c2, r2)
         self.c0, self.r0 = c0, r0
         self.e1, self.e2 = c1 - c0, c2 - c0
-        g11, g12, g22 = _dot(self.e1, self.e1), _dot(self.e1, self.e2), _dot(self.e2, self.e2)
+        g11, g12, g22 = dot(self.e1, self.e1), dot(self.e1, self.e2), dot(self.e2, self.e2)
         det = g11 * g22 - g12 * g12
         det = np.where(det > 0, det, 1.0)
         self.gram_inv = np.stack([g22 / det, -g12 / det, g11 / det], 1)
@@ -114,7 +109,7 @@ class _Slabs:
         p1 = gi[:, :1] * self.e1 + gi[:, 1:2] * self.e2
         p2 = gi[:, 1:2] * self.e1 + gi[:, 2:] * self.e2
         test = np.concatenate([c0, self.m, p1, p2, np.stack(
-            [_dot(p1, self.a) / self.g, _dot(p2, self.a) / self.g, self.ok], 1)], axis=1)
+            [dot(p1, self.a) / self.g, dot(p2, self.a) / self.g, self.ok], 1)], axis=1)
         # Contiguous parts, gathered by `np.take` (see `_Cones`).
         self.test = [np.ascontiguousarray(test[:, k:k + 3]) for k in (0, 3, 6, 9)]
         self.test_scalars = np.ascontiguousarray(test[:, 12:].T)
@@ -129,9 +124,9 @@ class _Slabs:
         c0, m, p1, p2 = (np.take(x, i, axis=0) for x in self.test)
         k1, k2, ok = (x.take(i) for x in self.test_scalars)
         d = p - c0
-        lift = np.abs(_dot(d, m))
-        b1 = _dot(d, p1) - lift * k1
-        b2 = _dot(d, p2) - lift * k2
+        lift = np.abs(dot(d, m))
+        b1 = dot(d, p1) - lift * k1
+        b2 = dot(d, p2) - lift * k2
         near = np.flatnonzero((ok > 0) & (b1 >= -FOOT) & (b2 >= -FOOT)
                               & (b1 + b2 <= 1 + FOOT))
         value = np.full(len(p), np.inf)
@@ -155,15 +150,15 @@ class _Slabs:
         r0, g, ok = row[:, 18:].T
         d = p - row[:, :3]
         m = row[:, 3:6]
-        height = _dot(d, m)
+        height = dot(d, m)
         n = row[:, 6:9] + (np.where(height >= 0, 1.0, -1.0) * g)[:, None] * m
         w = d - (np.abs(height) / g)[:, None] * n  # the foot, relative to c0
-        w1, w2 = _dot(w, row[:, 9:12]), _dot(w, row[:, 12:15])
+        w1, w2 = dot(w, row[:, 9:12]), dot(w, row[:, 12:15])
         gi = row[:, 15:18]
         b1 = gi[:, 0] * w1 + gi[:, 1] * w2
         b2 = gi[:, 1] * w1 + gi[:, 2] * w2
         inside = (ok > 0) & (b1 >= 0) & (b2 >= 0) & (b1 + b2 <= 1)
-        return np.where(inside, _dot(n, d) - r0, np.inf), b1, b2
+        return np.where(inside, dot(n, d) - r0, np.inf), b1, b2
 
 
 def cone_distance(p, c0, r0, c1, r1):
@@ -178,7 +173,7 @@ def slab_tangent_normals(c0, r0, c1, r1, c2, r2):
     m = np.cross(e1, e2)
     norm = np.linalg.norm(m, axis=1)
     m = m / np.where(norm > 0, norm, 1.0)[:, None]
-    g11, g12, g22 = _dot(e1, e1), _dot(e1, e2), _dot(e2, e2)
+    g11, g12, g22 = dot(e1, e1), dot(e1, e2), dot(e2, e2)
     det = g11 * g22 - g12 * g12
     ok = det > 1e-14 * np.maximum(g11 * g22, 1e-300)
     det = np.where(ok, det, 1.0)
@@ -186,7 +181,7 @@ def slab_tangent_normals(c0, r0, c1, r1, c2, r2):
     alpha = (g22 * h1 - g12 * h2) / det
     beta = (g11 * h2 - g12 * h1) / det
     a = alpha[:, None] * e1 + beta[:, None] * e2
-    gamma2 = 1 - _dot(a, a)
+    gamma2 = 1 - dot(a, a)
     gamma = np.where(ok & (gamma2 > 1e-12), np.sqrt(np.maximum(gamma2, 0)), np.nan)
     return a, m, gamma
 

@@ -52,8 +52,9 @@ import functools
 
 import numpy as np
 
-from .connect import components, distinct, sorted_rows
+from .connect import components, distinct
 from .primitives import _Cones, _Slabs
+from .rows import row_keys, sorted_rows
 
 
 def contact_quadrics(axis, slide: float = 1.0):
@@ -359,15 +360,14 @@ def simplify(centers, radii, edges, faces, quadrics, target: int, *, scale: floa
         edges = sorted_rows(relabel[edges])
         live = edges[:, 0] != edges[:, 1]
         m = len(spheres)
-        _, first = np.unique(edges[live, 0] * m + edges[live, 1], return_index=True)
+        _, first = np.unique(row_keys(edges[live], m), return_index=True)
         first = np.flatnonzero(live)[first]
         edges, cost, optimum = (np.take(x, first, axis=0) for x in (edges, cost, optimum))
         cost[touched[first]] = np.nan
         if len(faces):
             faces = sorted_rows(relabel[faces])
             faces = faces[(faces[:, 0] != faces[:, 1]) & (faces[:, 1] != faces[:, 2])]
-            faces = faces[np.unique((faces[:, 0] * m + faces[:, 1]) * m + faces[:, 2],
-                                    return_index=True)[1]]
+            faces = faces[np.unique(row_keys(faces, m), return_index=True)[1]]
         if progress is not None:
             progress.update(len(chosen))
     order = np.lexsort(edges.T[::-1])

@@ -27,6 +27,7 @@ import numpy as np
 from scipy.spatial import Delaunay
 
 from .connect import distinct, join_pieces, unique_rows, volumes
+from .rows import cross
 from .shells import shells
 from .surface import SurfaceQuery
 
@@ -51,20 +52,10 @@ class InitialAxis:
     volumes: int
 
 
-def _cross(a, b):
-    """`np.cross` of `(M, 3)` arrays, by columns: the same products and differences (bit
-    for bit), 3× faster."""
-    out = np.empty(np.broadcast_shapes(a.shape, b.shape))
-    np.subtract(a[:, 1] * b[:, 2], a[:, 2] * b[:, 1], out=out[:, 0])
-    np.subtract(a[:, 2] * b[:, 0], a[:, 0] * b[:, 2], out=out[:, 1])
-    np.subtract(a[:, 0] * b[:, 1], a[:, 1] * b[:, 0], out=out[:, 2])
-    return out
-
-
 def circumcentres(a, b, c, d):
     """Circumcentres `(T, 3)` of tetrahedra and a validity mask `(T,)` (False when flat)."""
     u, v, w = b - a, c - a, d - a
-    vw, wu, uv = _cross(v, w), _cross(w, u), _cross(u, v)
+    vw, wu, uv = cross(v, w), cross(w, u), cross(u, v)
     det = 2 * np.einsum("ij,ij->i", u, vw)
     num = ((u * u).sum(1)[:, None] * vw + (v * v).sum(1)[:, None] * wu
            + (w * w).sum(1)[:, None] * uv)
@@ -151,9 +142,9 @@ def initial_medial_axis(query: SurfaceQuery, points, normals, weights, sample_fa
         # A reference direction perpendicular to the axis, then the angle of each circumcentre
         # around the axis (the polygon is convex and perpendicular to it).
         helper = np.where((np.abs(axis[:, 0]) < 0.9)[:, None], [1.0, 0, 0], [0, 1.0, 0])
-        e1 = _cross(axis, helper)
+        e1 = cross(axis, helper)
         e1 /= np.linalg.norm(e1, axis=1, keepdims=True)
-        e2 = _cross(axis, e1)
+        e2 = cross(axis, e1)
         offset = centre[owner] - (points[i] + points[j]) / 2
         angle = np.arctan2(np.einsum("ij,ij->i", offset, e2), np.einsum("ij,ij->i", offset, e1))
         order = np.lexsort((angle, group))

@@ -1,0 +1,49 @@
+"""Row-wise arithmetic on short rows, written out by columns.
+
+NumPy's general routines (`einsum`, `np.cross`, `np.sort(axis=1)`, an integer `@`) pay a
+per-row overhead that dominates on rows of two to four numbers; the medial pipeline calls
+them on millions of rows. These give the same values, bit for bit, several times faster.
+"""
+
+import numpy as np
+
+
+def dot(a, b):
+    """Row-wise dot products `(M,)` of `(M, 3)` arrays, summed as NumPy's (2.4)
+    `einsum("ij,ij->i")` does on rows of contiguous numbers, first and last terms first (the
+    same values bit for bit, also for columns `x[:, j:j + 3]` of a wider array), at half its
+    time. (On columns with a step, `x[:, ::2]`, einsum sums in another order.)"""
+    return (a[:, 0] * b[:, 0] + a[:, 2] * b[:, 2]) + a[:, 1] * b[:, 1]
+
+
+def cross(a, b):
+    """`np.cross` of `(M, 3)` arrays, by columns: the same products and differences (bit for
+    bit), 3× faster."""
+    out = np.empty(np.broadcast_shapes(a.shape, b.shape))
+    np.subtract(a[:, 1] * b[:, 2], a[:, 2] * b[:, 1], out=out[:, 0])
+    np.subtract(a[:, 2] * b[:, 0], a[:, 0] * b[:, 2], out=out[:, 1])
+    np.subtract(a[:, 0] * b[:, 1], a[:, 1] * b[:, 0], out=out[:, 2])
+    return out
+
+
+def sorted_rows(rows):
+    """Integer `rows (m, k)` sorted within each row: `np.sort(rows, axis=1)`, by columns for
+    `k` of 2 or 3 (several times faster on such short rows; the same values)."""
+    if rows.shape[1] == 2:
+        a, b = rows[:, 0], rows[:, 1]
+        return np.stack([np.minimum(a, b), np.maximum(a, b)], 1)
+    if rows.shape[1] == 3:
+        a, b, c = rows[:, 0], rows[:, 1], rows[:, 2]
+        low, high = np.minimum(np.minimum(a, b), c), np.maximum(np.maximum(a, b), c)
+        return np.stack([low, a + b + c - low - high, high], 1)
+    return np.sort(rows, axis=1)
+
+
+def row_keys(rows, n: int):
+    """One integer `(m,)` per row of indices below `n` (`rows (m, k)`), in the rows'
+    lexicographic order: `Σ rows[:, j] n^(k−1−j)`, by columns (an integer `@` is slow). The
+    caller makes sure that `n^k` stays below `2^63`."""
+    key = rows[:, 0].astype(np.int64)
+    for k in range(1, rows.shape[1]):
+        key = key * n + rows[:, k]
+    return key
