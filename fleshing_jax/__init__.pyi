@@ -19,7 +19,10 @@ from ._fleshing.projection import (
     Registration as Registration,
     closest_arc_length as closest_arc_length,
 )
-from ._fleshing.verify import jacobian_determinant as jacobian_determinant
+from ._fleshing.verify import (
+    jacobian_determinant as jacobian_determinant,
+    principal_stretch as principal_stretch,
+)
 from ._medial_axis.construct import medial_mesh as medial_mesh
 from ._medial_axis.distance import medial_distance as medial_distance
 from ._medial_axis.figure import plot_medial as plot_medial
@@ -60,6 +63,7 @@ from ._skeleton.posing import (
 )
 from ._skeleton.rest_spine import rest_spine as rest_spine
 from ._skeleton.skeleton import Limb as Limb, Skeleton as Skeleton
+from ._skeleton.stretch import pose_stretch as pose_stretch
 from ._spines.analytic import Arc as Arc, Helix as Helix, Line as Line
 from ._spines.bent import BentSpine as BentSpine
 from ._spines.bspline import BSpline as BSpline

@@ -202,10 +202,24 @@ def test_bad_poses(tube, skeleton, registration):
 
 def test_a_bend_beyond_the_limb_s_reach_is_flagged(skeleton, registration):
     # The left limb folded back on itself within its short ramp: its inner side crosses.
-    _, valid = _pose(registration, skeleton, {2: fj.LimbPose(175, 0)})
+    poses = {2: fj.LimbPose(175, 0)}
+    _, valid = _pose(registration, skeleton, poses)
     region = np.asarray(skeleton.region)
     assert not valid[region == 2].all()
     assert valid[region != 2].all()
+    # The map has no stretch at the vertices left in place: NaN exactly there.
+    stretch = np.asarray(fj.pose_stretch(registration, skeleton, poses))
+    np.testing.assert_array_equal(np.isnan(stretch), ~valid)
+
+
+def test_pose_stretch_is_the_posed_map_s_and_one_elsewhere(skeleton, registration):
+    np.testing.assert_array_equal(fj.pose_stretch(registration, skeleton, {}), 1.0)
+    stretch = np.asarray(fj.pose_stretch(registration, skeleton, {0: fj.LimbPose(40, 90)}))
+    # The body and the still limb untouched, the child carried rigidly: 1 there.
+    region = np.asarray(skeleton.region)
+    np.testing.assert_array_equal(stretch[region != 0], 1.0)
+    inside = stretch[region == 0]
+    assert np.all(np.isfinite(inside)) and np.all(inside >= 1) and inside.max() > 1.2
 
 
 def test_pose_command(tube, skeleton, tmp_path, capsys):
@@ -235,16 +249,28 @@ def test_pose_command(tube, skeleton, tmp_path, capsys):
     assert main(["pose", str(mesh), str(again), "--skeleton", str(saved),
                  "--poses", str(poses)]) == 0
     np.testing.assert_array_equal(fj.load_mesh(again).vertices, posed.vertices)
+    # The map's own principal stretch, and the vertex where it is largest.
+    principal = np.asarray(fj.pose_stretch(tube, skeleton, {0: fj.LimbPose(40, 90),
+                                                            2: fj.LimbPose(30)}))
+    most = int(np.argmax(principal))
+    assert (f"largest principal stretch of the map: {principal[most]:.3g}× (limb "
+            f"{skeleton.region[most]}, vertex ") in printed  # (ties: the file's rounding)
     # Valid but more distorted than allowed: not written, status 3.
     distorted = tmp_path / "distorted.obj"
     assert main([*arguments[:2], str(distorted), *arguments[3:], "--poses", str(poses),
-                 "--max-stretch", f"{0.99 * stretch[worst]:.6f}"]) == 3
-    assert "--max-stretch" in capsys.readouterr().err and not distorted.exists()
+                 "--max-stretch", f"{0.99 * principal[most]:.6f}"]) == 3
+    assert "stretches or squeezes the shape" in capsys.readouterr().err
+    assert not distorted.exists()
     # Too far: not written, status 3, the causes printed.
     folded = tmp_path / "folded.obj"
     assert main([*arguments[:2], str(folded), *arguments[3:], "--limb", "2", "--bend", "175"]) == 3
     captured = capsys.readouterr()
     assert "limb 2:" in captured.out and "not written" in captured.err and not folded.exists()
+    # Written anyway, the mesh is torn around the vertices left in place: only the edges
+    # see it (the map there is no more than 2.5× squeezed, the torn edges 13× longer).
+    assert main([*arguments[:2], str(folded), *arguments[3:], "--limb", "2", "--bend", "175",
+                 "--allow-invalid", "--max-stretch", "5"]) == 3
+    assert "an edge changes length" in capsys.readouterr().err and not folded.exists()
 
 
 @pytest.mark.parametrize(

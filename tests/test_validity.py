@@ -225,6 +225,9 @@ def test_rigid_beyond_moves_with_the_end_frames_and_keeps_volume():
     fleshing = fj.Fleshing(source, target, beyond="rigid")
     det = fj.jacobian_determinant(fleshing, jnp.asarray(beyond))
     np.testing.assert_allclose(np.asarray(det), 1.0, atol=1e-12)
+    # (Both measured on the map with its `beyond`: the determinant alone cannot tell.)
+    stretch = fj.principal_stretch(fleshing, jnp.asarray(beyond))
+    np.testing.assert_allclose(np.asarray(stretch), 1.0, atol=1e-12)
 
 
 def _tangent(z):
