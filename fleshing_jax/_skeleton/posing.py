@@ -35,7 +35,7 @@ from .._batching.buckets import bucket, pad_batch, unpad_batch
 from .._checks import as_margin
 from .._fleshing.ends import EndFrames, aligned_twist, target_ends
 from .._fleshing.methods import check_method
-from .._fleshing.pipeline import pose as pose_registration, register
+from .._fleshing.pipeline import pose_prepared, prepare_target, register
 from .._fleshing.projection import Registration, invalid_past
 from .._mesh.deform import longest_edge, polygon_mesh
 from .._numerics import cast_floats
@@ -247,11 +247,15 @@ def end_motion(rest: AbstractSpine, posed: AbstractSpine) -> Rigid:
     `posed` (its normals carried from the rest's start, as the fleshing's: `aligned_twist`):
     where a posed limb carries its children. Differentiable in `posed`."""
     target = posed._prepare()
-    zero = jnp.zeros((), target.length.dtype)
     ends = EndFrames(rest)
-    twist = aligned_twist(ends, target, zero)
-    c0, *f0 = ends.frame(1)
-    c1, *f1 = target_ends(target, twist).frame(1)
+    twist = aligned_twist(ends, target, jnp.zeros((), target.length.dtype))
+    return motion_between(ends, target_ends(target, twist))
+
+
+def motion_between(rest: EndFrames, posed: EndFrames) -> Rigid:
+    """The rigid motion taking the frame `rest` at its end (`EndFrames`) to `posed`'s."""
+    c0, *f0 = rest.frame(1)
+    c1, *f1 = posed.frame(1)
     rotation = jnp.stack(f1, axis=1) @ jnp.stack(f0, axis=0)
     return Rigid(rotation, c1 - rotation @ c0)
 
@@ -295,12 +299,14 @@ def _pose_limb(registration, rest, pose, joint, stop, method, check=True):
     # The margin keeps edges whole on the rest side (the registration's); the images are
     # checked to project back onto the bent spine (margin 0): with the margin there too, the
     # region's bounds on a bend's changing curvature flagged most of a thin leg bent 60°.
-    images, ok = pose_registration(registration, target, method=method, check_projection=check,
-                                   margin=0.0, beyond="rigid")
-    return images, ok, _end_motion(rest, target)
+    poser = prepare_target(target, dtype, method=method, check_projection=check, margin=0.0,
+                           start=registration.ends, beyond="rigid")
+    images, ok = pose_prepared(registration, poser)
+    # The children move as the region's points past the end do (`beyond="rigid"`): with the
+    # target's end frame the preparation made, not a second preparation of the target.
+    return images, ok, motion_between(registration.ends, poser.ends)
 
 
-_end_motion = eqx.filter_jit(end_motion)
 # In single precision a limb's bent spines read its rest spine from a table made once here
 # (`_spines.looked_up`): preparing a frame's target 3× faster on spot.
 _looked_up = eqx.filter_jit(LookedUpSpine)
