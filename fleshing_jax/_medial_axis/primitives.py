@@ -25,7 +25,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial import cKDTree
 
-from .rows import dot
+from .rows import column_dot, dot, gather_columns
 
 
 class _Cones:
@@ -40,14 +40,12 @@ class _Cones:
         self.s = np.where(self.proper, (r0 - r1) / self.length, 0.0)
         self.co = np.sqrt(np.maximum(1 - self.s**2, 1e-300))
         self.c0, self.r0, self.c1, self.r1 = c0, r0, c1, r1
-        # Gathered per pair by `np.take` (`_parts`) as contiguous (M, 3) blocks and (M,)
-        # columns, whose arithmetic is 10-20 % faster than on the strided columns of one
-        # packed row per pair; split from one table, so that all share its dtype.
-        table = np.concatenate([c0, self.u, c1, np.stack([r0, r1, self.s, self.co,
-                                                          self.length, self.proper], 1)],
-                               axis=1)
-        self.rows = [np.ascontiguousarray(table[:, k:k + 3]) for k in (0, 3, 6)]
-        self.scalars = np.ascontiguousarray(table[:, 9:].T)
+        # Gathered per pair as contiguous columns (`gather_columns`, in `_parts`), whose
+        # arithmetic is faster than on the strided columns of one packed row per pair; one
+        # table, so that all share its dtype.
+        self.columns = np.ascontiguousarray(np.concatenate(
+            [c0, self.u, c1, np.stack([r0, r1, self.s, self.co, self.length, self.proper], 1)],
+            axis=1).T)
 
     def distance(self, p, i):
         """Signed distances of points `p` (M, 3) to cones `i` (M,)."""
@@ -67,15 +65,17 @@ class _Cones:
     def _parts(self, p, i):
         """The distances to the two end spheres, to the lateral surface (`inf` where its
         minimiser is off the segment) and the minimiser's position `t` along the axis."""
-        r0, r1, s, co, length, proper = (x.take(i) for x in self.scalars)
-        c0, u, c1 = self.rows
-        d0 = p - np.take(c0, i, axis=0)  # (not `c0[i]`: see `in_blocks`)
-        dd = dot(d0, d0)
+        columns = gather_columns(self.columns, i)
+        c0, u, c1 = columns[0:3], columns[3:6], columns[6:9]
+        r0, r1, s, co, length, proper = columns[9:]
+        # By coordinates (`(3, M)`): the arithmetic of `dot` on `(M, 3)` rows, faster.
+        d0 = p.T - c0
+        dd = column_dot(d0, d0)
         end0 = np.sqrt(dd) - r0
         # (Not |d0|² − 2 (c1 − c0)·d0 + |c1 − c0|²: it cancels near c1.)
-        d1 = p - np.take(c1, i, axis=0)
-        end1 = np.sqrt(dot(d1, d1)) - r1
-        x = dot(d0, np.take(u, i, axis=0))
+        d1 = p.T - c1
+        end1 = np.sqrt(column_dot(d1, d1)) - r1
+        x = column_dot(d0, u)
         y = np.sqrt(np.maximum(dd - x * x, 0))
         t = x - y * s / co
         lateral = np.where((proper > 0) & (t >= 0) & (t <= length), x * s + y * co - r0,
@@ -110,9 +110,8 @@ class _Slabs:
         p2 = gi[:, 1:2] * self.e1 + gi[:, 2:] * self.e2
         test = np.concatenate([c0, self.m, p1, p2, np.stack(
             [dot(p1, self.a) / self.g, dot(p2, self.a) / self.g, self.ok], 1)], axis=1)
-        # Contiguous parts, gathered by `np.take` (see `_Cones`).
-        self.test = [np.ascontiguousarray(test[:, k:k + 3]) for k in (0, 3, 6, 9)]
-        self.test_scalars = np.ascontiguousarray(test[:, 12:].T)
+        # Gathered as contiguous columns (see `_Cones`).
+        self.test = np.ascontiguousarray(test.T)
 
     def distance(self, p, i):
         """Signed distances of `p` (M, 3) to the tangent-plane parts of slabs `i` (M,), `inf`
@@ -121,12 +120,13 @@ class _Slabs:
         The closed form only where a shorter form of the foot's coordinates puts it in the
         triangle or near (`FOOT`): most pairs are elsewhere (on spot at 200 spheres, 7k of
         the fit's 1.3M slab pairs are finite), and the form that decides is the same."""
-        c0, m, p1, p2 = (np.take(x, i, axis=0) for x in self.test)
-        k1, k2, ok = (x.take(i) for x in self.test_scalars)
-        d = p - c0
-        lift = np.abs(dot(d, m))
-        b1 = dot(d, p1) - lift * k1
-        b2 = dot(d, p2) - lift * k2
+        columns = gather_columns(self.test, i)
+        c0, m, p1, p2 = columns[0:3], columns[3:6], columns[6:9], columns[9:12]
+        k1, k2, ok = columns[12:]
+        d = p.T - c0
+        lift = np.abs(column_dot(d, m))
+        b1 = column_dot(d, p1) - lift * k1
+        b2 = column_dot(d, p2) - lift * k2
         near = np.flatnonzero((ok > 0) & (b1 >= -FOOT) & (b2 >= -FOOT)
                               & (b1 + b2 <= 1 + FOOT))
         value = np.full(len(p), np.inf)
