@@ -30,11 +30,12 @@ def gather_columns(table, i):
     Where `i` runs in long stretches of one value (the pairs of a search come sorted by
     primitive, thousands a cone on spot), each value is gathered once and repeated: 3× faster
     than `np.take`. The same values either way."""
-    start = np.flatnonzero(np.r_[True, i[1:] != i[:-1]])
+    # (`np.concatenate`, not `np.r_`: its parsing cost 45 µs a call, a third of the time.)
+    start = np.concatenate([[0], np.flatnonzero(i[1:] != i[:-1]) + 1])
     if 4 * len(start) > len(i):
         return np.take(table, i, axis=1)
-    return np.repeat(np.take(table, i.take(start), axis=1), np.diff(np.r_[start, len(i)]),
-                     axis=1)
+    return np.repeat(np.take(table, i.take(start), axis=1),
+                     np.diff(np.concatenate([start, [len(i)]])), axis=1)
 
 
 def cross(a, b):

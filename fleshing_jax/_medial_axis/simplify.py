@@ -99,11 +99,14 @@ def _edge_costs(spheres, A, b, c, edges, k, length_weight, scale, stable, hausdo
     eps = 1e-6 * np.trace(Ae, axis1=1, axis2=2) / 4 + 1e-300
     reg = Ae + eps[:, None, None] * np.eye(4)
     best = np.linalg.solve(reg, (eps[:, None] * mid - be)[..., None])[..., 0]
-    options = np.stack([best, si, sj, mid], 1)  # (e, 4 options, 4)
-    errors = np.stack([_error(Ae, be, ce, options[:, k]) for k in range(4)], 1)
-    errors = np.where(options[..., 3] >= 0, np.maximum(errors, 0), np.inf)
+    # The four options, each an (e, 4) array of its own: stacked into one (e, 4, 4) array,
+    # the copy and einsum's strided rows took a fifth of the time (the same values).
+    options = (best, si, sj, mid)
+    errors = np.stack([np.where(x[:, 3] >= 0, np.maximum(_error(Ae, be, ce, x), 0), np.inf)
+                       for x in options], 1)
     pick = np.argmin(errors, axis=1)
     rows = np.arange(len(edges))
+    chosen = np.select([(pick == k)[:, None] for k in range(3)], options[:3], options[3])
     length = np.linalg.norm(si[:, :3] - sj[:, :3], axis=1)
     dr = np.abs(si[:, 3] - sj[:, 3])
     stability = np.clip((length - dr) / np.where(length > 0, length, 1.0), 0, 1)
@@ -112,8 +115,8 @@ def _edge_costs(spheres, A, b, c, edges, k, length_weight, scale, stable, hausdo
     error = errors[rows, pick] / scale**2
     cost = error + k + length_weight * (length / scale) ** 2
     if uncovered is not None:  # see `simplify`'s `hausdorff`
-        cost = cost + hausdorff * (uncovered(edges, options[rows, pick]) / scale) ** 2
-    return cost * stability**2, options[rows, pick]
+        cost = cost + hausdorff * (uncovered(edges, chosen) / scale) ** 2
+    return cost * stability**2, chosen
 
 
 def _groups(labels, n):
