@@ -192,23 +192,44 @@ def slab_plane_distance(p, c0, r0, c1, r1, c2, r2):
     return _Slabs(c0, r0, c1, r1, c2, r2).distance(p, np.arange(len(p)))
 
 
+def _enclosing(c0, r0, c1, r1):
+    """The smallest spheres `(centre (M, 3), radius (M,))` holding two spheres each: radius
+    `(L + r0 + r1) / 2`, its centre on the axis, or the larger sphere where it holds the
+    other."""
+    length = np.linalg.norm(c1 - c0, axis=1)
+    radius = (length + r0 + r1) / 2
+    along = np.clip(radius - r0, 0, length) / np.where(length > 0, length, 1.0)
+    return c0 + along[:, None] * (c1 - c0), np.maximum(radius, np.maximum(r0, r1))
+
+
 def bounding_spheres(centers, radii, edges, faces):
     """Bounding spheres of the primitives that `union_distance` evaluates: the spheres not on
     any edge, every cone, every slab. Returns `(kind (P,), index (P,), centre (P, 3),
-    radius (P,))`, kind 0/1/2 for sphere/cone/slab."""
+    radius (P,))`, kind 0/1/2 for sphere/cone/slab.
+
+    A cone's is the smallest sphere holding its two spheres (`_enclosing`), a slab's the
+    smallest of those around its centroid and around each pair of its spheres that holds all
+    three: the tighter the spheres, the fewer (sample, primitive) pairs the fit's searches
+    measure (on spot at 200 spheres 2.4–2.6M a search, 1.06M of them in the band, against
+    3.1–3.2M with the midpoints' and centroids' spheres). Each a hair larger (the centre's
+    round-off, relative to its coordinates), so that round-off leaves no point out."""
     lone = np.setdiff1d(np.arange(len(centers)), edges.reshape(-1))
-    c0, c1 = centers[edges[:, 0]], centers[edges[:, 1]]
-    mid = (c0 + c1) / 2
-    cone_r = np.linalg.norm(c1 - c0, axis=1) / 2 + np.maximum(radii[edges[:, 0]],
-                                                              radii[edges[:, 1]])
-    tri = centers[faces]
-    cen = tri.mean(axis=1) if len(faces) else np.zeros((0, 3))
-    slab_r = (np.linalg.norm(tri - cen[:, None], axis=2) + radii[faces]).max(axis=1) \
-        if len(faces) else np.zeros(0)
+    mid, cone_r = _enclosing(centers[edges[:, 0]], radii[edges[:, 0]], centers[edges[:, 1]],
+                             radii[edges[:, 1]])
+    tri, rad = centers[faces], radii[faces]  # (f, 3, 3), (f, 3)
+    options = np.stack([tri.mean(axis=1)] + [
+        _enclosing(tri[:, i], rad[:, i], tri[:, j], rad[:, j])[0]
+        for i, j in ((0, 1), (1, 2), (0, 2))], 1)  # (f, 4 centres, 3)
+    reach = (np.linalg.norm(tri[:, None] - options[:, :, None], axis=3)
+             + rad[:, None]).max(axis=2)  # (f, 4): each centre's radius holding all three
+    best = np.argmin(reach, axis=1) if len(faces) else np.zeros(0, np.int64)
+    rows = np.arange(len(faces))
     kind = np.concatenate([np.zeros(len(lone)), np.ones(len(edges)), np.full(len(faces), 2)])
     index = np.concatenate([lone, np.arange(len(edges)), np.arange(len(faces))])
-    centre = np.concatenate([centers[lone], mid, cen])
-    radius = np.concatenate([radii[lone], cone_r, slab_r])
+    centre = np.concatenate([centers[lone], mid, options[rows, best]])
+    radius = np.concatenate([radii[lone], cone_r, reach[rows, best]])
+    radius[len(lone):] = radius[len(lone):] * (1 + 1e-12) + 1e-14 * np.abs(
+        centre[len(lone):]).max(axis=1, initial=0.0)
     return kind.astype(np.int8), index.astype(np.int64), centre, radius
 
 
