@@ -96,7 +96,8 @@ def float32_pad(p, c, radius, extra) -> float:
     a = np.sqrt(np.einsum("ij,ij->i", p, p).max())
     b = np.sqrt(np.einsum("ij,ij->i", c, c).max())
     r = float(np.abs(radius).max())
-    e = max(float(np.abs(extra).max()), r)
+    # (Over the finite margins: one NaN would take every pair out, not just its point's.)
+    e = max(float(np.abs(extra[np.isfinite(extra)]).max(initial=0.0)), r)
     return PAD * ((a + b) ** 2 + (r + e) ** 2)
 
 
