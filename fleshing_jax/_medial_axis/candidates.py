@@ -135,8 +135,8 @@ def search(points, union: UnionPrimitives, params, margin: float,
     best = np.full(len(points), np.inf)
     found_pts, found_prim, found_val = [], [], []
     floor, held = margin / 8, 0
-    for pts, prim in ball_blocks(points, union.centre, union.radius, upper + 2 * margin):
-        value = union.distance(points, pts, prim)
+    blocks = ball_blocks(points, union.centre, union.radius, upper + 2 * margin)
+    for pts, prim, value in _measured(blocks, points, union):
         np.minimum.at(best, pts, value)
         # Only the pairs within the band of the best so far (a superset of the final band):
         # on a sphere, all pairs at once took 1.5 GB.
@@ -158,6 +158,34 @@ def search(points, union: UnionPrimitives, params, margin: float,
         margin = _narrowed(gap[keep], margin, floor)
         keep = keep[gap[keep] <= 2 * margin]
     return Candidates(pts.take(keep), prim.take(keep), value.take(keep), params, margin)
+
+
+MEASURED = 1 << 18  # about the pairs whose distances `_measured` takes at once
+
+
+def _measured(blocks, points, union: UnionPrimitives):
+    """The blocks `(pts, prim)` of `ball_blocks`, each with its pairs' distances to the
+    `union` `(pts, prim, value)`: measured over several blocks at once (about `MEASURED`
+    pairs; the same values): one block's pairs fill its last `in_blocks` part only partly,
+    and measured block by block, spot's eight searches took 1.89 s instead of 1.51 s."""
+    batch, size = [], 0
+    for block in blocks:
+        batch.append(block)
+        size += len(block[0])
+        if size >= MEASURED:
+            yield from _split(batch, points, union)
+            batch, size = [], 0
+    yield from _split(batch, points, union)
+
+
+def _split(batch, points, union: UnionPrimitives):
+    """The blocks of `batch` with their distances, measured at once (see `_measured`)."""
+    if not batch:
+        return
+    value = union.distance(points, *(np.concatenate(x) for x in zip(*batch)))
+    cuts = np.cumsum([len(pts) for pts, _ in batch])[:-1]
+    for (pts, prim), part in zip(batch, np.split(value, cuts)):
+        yield pts, prim, part
 
 
 def upper_bound(points, union: UnionPrimitives, neighbours: int = 8):
