@@ -298,14 +298,19 @@ def test_candidate_search_and_pruning_keep_every_closest_pair(monkeypatch):
     lists = cKDTree(points).query_ball_point(union.centre, union.radius)
     assert sorted(zip(prim.tolist(), pts.tolist())) == sorted(
         (k, i) for k, found in enumerate(lists) for i in found)
-    # With a margin per point: every pair within it (more only where the sum is negative).
+    # With a margin per point: every pair within it (more only where the sum is negative, or
+    # within the float32 test's pad on the squares).
     extra = rng.uniform(-0.5, 0.5, len(points))
     pts, prim = candidates.ball_pairs(points, union.centre, union.radius, extra)
-    gap = np.linalg.norm(points[:, None] - union.centre, axis=2) - union.radius - extra[:, None]
-    got = np.zeros(gap.shape, bool)
+    distance = np.linalg.norm(points[:, None] - union.centre, axis=2)
+    reach = union.radius + extra[:, None]
+    got = np.zeros(distance.shape, bool)
     got[pts, prim] = True
-    assert (got[gap <= -1e-12]).all() and not got[(gap > 1e-12) & (union.radius + extra[:, None]
-                                                                   > 0)].any()
+    origin = points.mean(axis=0)
+    pad = candidates.float32_pad(points - origin, union.centre - origin, union.radius, extra)
+    assert 0 < pad < 1e-3
+    assert (got[distance - reach <= -1e-12]).all()
+    assert not got[(distance**2 - reach**2 > pad) & (reach > 0)].any()
     params = np.concatenate([centres, radii[:, None]], axis=1)
     found = candidates.search(points, union, params, margin=0.05)
     # Exactly the pairs within twice the margin of each point's best (over all primitives),

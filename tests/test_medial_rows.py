@@ -4,7 +4,14 @@ medial meshes depend on it: a different rounding breaks ties between primitives)
 import numpy as np
 import pytest
 
-from fleshing_jax._medial_axis.rows import cross, dot, row_keys, sorted_rows
+from fleshing_jax._medial_axis.rows import (
+    column_dot,
+    cross,
+    dot,
+    gather_columns,
+    row_keys,
+    sorted_rows,
+)
 
 
 @pytest.mark.parametrize("wider", [False, True])
@@ -15,6 +22,18 @@ def test_dot_and_cross_are_numpy_s_bit_for_bit(wider):
     a, b = (x[:, 2:5] if wider else np.ascontiguousarray(x[:, :3]) for x in (a, b))
     assert np.array_equal(dot(a, b), np.einsum("ij,ij->i", a, b))
     assert np.array_equal(cross(a, b), np.cross(a, b))
+    # By coordinates: the same sums.
+    assert np.array_equal(column_dot(np.ascontiguousarray(a.T), b.T), dot(a, b))
+
+
+@pytest.mark.parametrize("runs", [1, 3, 1000])
+def test_gather_columns_is_take(runs):
+    """Gathered by repeats (long runs of one index) or by `np.take`: the same columns."""
+    rng = np.random.default_rng(runs)
+    table = rng.normal(size=(5, 40))
+    i = np.repeat(rng.integers(0, 40, 3000 // runs), runs)
+    np.testing.assert_array_equal(gather_columns(table, i), table[:, i])
+    assert gather_columns(table, i[:0]).shape == (5, 0)
 
 
 @pytest.mark.parametrize("k", [2, 3, 4])

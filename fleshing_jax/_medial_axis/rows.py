@@ -13,7 +13,29 @@ def dot(a, b):
     `einsum("ij,ij->i")` does on rows of contiguous numbers, first and last terms first (the
     same values bit for bit, also for columns `x[:, j:j + 3]` of a wider array), at half its
     time. (On columns with a step, `x[:, ::2]`, einsum sums in another order.)"""
-    return (a[:, 0] * b[:, 0] + a[:, 2] * b[:, 2]) + a[:, 1] * b[:, 1]
+    return column_dot(a.T, b.T)
+
+
+def column_dot(a, b):
+    """`dot` of vectors given by their coordinates, `a (3, M)` and `b (3, M)` (`a[k]`:
+    coordinate `k` of every vector): the same sums. Contiguous coordinates make its
+    arithmetic about twice as fast as on the strided columns of `(M, 3)` arrays."""
+    return (a[0] * b[0] + a[2] * b[2]) + a[1] * b[1]
+
+
+def gather_columns(table, i):
+    """`table[:, i]` `(k, M)` for `table (k, P)` and indices `i (M,)`: each column's values
+    gathered into contiguous rows (for `column_dot` and the like).
+
+    Where `i` runs in long stretches of one value (the pairs of a search come sorted by
+    primitive, thousands a cone on spot), each value is gathered once and repeated: 3× faster
+    than `np.take`. The same values either way."""
+    # (`np.concatenate`, not `np.r_`: its parsing cost 45 µs a call, a third of the time.)
+    start = np.concatenate([[0], np.flatnonzero(i[1:] != i[:-1]) + 1])
+    if 4 * len(start) > len(i):
+        return np.take(table, i, axis=1)
+    return np.repeat(np.take(table, i.take(start), axis=1),
+                     np.diff(np.concatenate([start, [len(i)]])), axis=1)
 
 
 def cross(a, b):
