@@ -189,6 +189,10 @@ def test_gradients_of_the_angles(skeleton, registration, posed_child):
 def test_bad_poses(tube, skeleton, registration):
     with pytest.raises(ValueError, match="not a limb index"):
         fj.pose_skeleton(registration, skeleton, {7: fj.LimbPose(10)})
+    with pytest.raises(ValueError, match="not a limb index"):
+        fj.pose_stretch(registration, skeleton, {7: fj.LimbPose(10)})
+    with pytest.raises(ValueError, match="`method`"):
+        fj.pose_stretch(registration, skeleton, {0: fj.LimbPose(10)}, method="bent")
     with pytest.raises(TypeError, match="`poses`"):
         fj.pose_skeleton(registration, skeleton, [fj.LimbPose(10)])
     with pytest.raises(TypeError, match=r"`poses\[0\]`"):
