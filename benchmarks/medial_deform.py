@@ -239,7 +239,8 @@ if __name__ == "__main__":
     parser.add_argument("--figures", type=Path, metavar="DIR", help="save spot's pictures")
     args = parser.parse_args()
     jax.config.update("jax_enable_x64", True)  # float64 for the volumes; the frame is float32
-    fj.use_compilation_cache()
+    for name, value in fj.compilation_cache_settings().items():  # compiled programs on disk
+        jax.config.update(name, value)
     if not args.speed:
         volumes(args.quick, args.figures)
     if not args.quick:

@@ -215,7 +215,8 @@ def main():
     parser.add_argument("--only-volumes", action="store_true", help="the volume table only")
     args = parser.parse_args()
     jax.config.update("jax_enable_x64", True)  # float64 for the volumes; the pose is float32
-    fj.use_compilation_cache()
+    for name, value in fj.compilation_cache_settings().items():  # compiled programs on disk
+        jax.config.update(name, value)
     spot = fj.data.spot()
     if args.skip_skeleton:  # the skeleton the notebooks load (the same build, saved)
         skeleton = fj.load_skeleton(SAVED_SKELETON)

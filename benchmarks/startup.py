@@ -5,7 +5,7 @@ call). Issues 19 (command line) and 31 (library).
     python benchmarks/startup.py [--repeats 3] [--skip-demo] [--library-only]
 
 The library's first calls run in a fresh Python process that asks for the cache with
-`fj.use_compilation_cache()` (as the notebooks do) and times the call itself (not the
+`fj.compilation_cache_settings()` (as the notebooks do) and times the call itself (not the
 imports): the first `flesh` of a point cloud on a B-spline (line → B-spline), the first
 `fit_spine` of a free B-spline to a shape bent onto an arc (issue 31's case), and the first
 `deform_medial` of spot (its head turned; the medial mesh read from a `.ma` file written
@@ -58,7 +58,8 @@ import jax
 jax.config.update("jax_enable_x64", True)
 import numpy as np
 import fleshing_jax as fj
-fj.use_compilation_cache()
+for name, value in fj.compilation_cache_settings().items():
+    jax.config.update(name, value)
 rng = np.random.default_rng(0)
 points = np.c_[rng.uniform(0, 4, 256), rng.normal(0, 0.2, (256, 2))]
 straight = np.c_[np.linspace(0, 4, 6), np.zeros(6), np.zeros(6)]

@@ -3,7 +3,7 @@
 # use (so that `import fleshing_jax` and the command line's `--help` do not import JAX).
 
 from . import data as data
-from ._cache import use_compilation_cache as use_compilation_cache
+from ._cache import compilation_cache_settings as compilation_cache_settings
 from ._fit.chamfer import fit_spine_to_points as fit_spine_to_points
 from ._fit.correspondences import fit_spine as fit_spine
 from ._fit.problem import FitResult as FitResult

@@ -4,8 +4,8 @@ Compiling the batched paths takes seconds; the work on a typical mesh takes mill
 command line therefore keeps XLA's compiled programs in the user's cache folder, so that every
 call after the first starts from them. The library never changes JAX's configuration on its
 own: `fleshing-jax` commands call `enable_compilation_cache`, which sets JAX's environment
-variables for the command's own process before JAX is imported, and a script or notebook asks
-for the same cache explicitly with `fleshing_jax.use_compilation_cache()`.
+variables for the command's own process before JAX is imported, and a script or notebook
+applies the options `fleshing_jax.compilation_cache_settings()` returns for the same cache.
 
 `FLESHING_JAX_CACHE` moves the cache (a folder) or turns it off (`0`, `off`, `false`, `none` or
 empty).
@@ -65,35 +65,36 @@ def enable_compilation_cache() -> Path | None:
     return folder
 
 
-def use_compilation_cache(
+def compilation_cache_settings(
     path: str | PathLike | None = None, *, min_compile_seconds: float = 0.0
-) -> Path | None:
-    """Keeps JAX's compiled programs on disk, so that a new Python process or notebook kernel
-    loads them instead of compiling again (seconds to minutes for a B-spline fit or a medial
-    pose, see `benchmarks/README.md`).
+) -> dict[str, object]:
+    """JAX's options for keeping compiled programs on disk, so that a new Python process or
+    notebook kernel loads them instead of compiling again (seconds to minutes for a B-spline
+    fit or a medial pose, see `benchmarks/README.md`).
 
-    An explicit request: importing `fleshing_jax` never changes JAX's configuration, this
-    function does (for the whole process, as `jax.config.update` would). Call it once, first
-    thing (notebooks call it in their first cell); it also takes effect when called after
-    some programs were compiled, for the programs compiled from then on.
+    The library never changes JAX's configuration: this returns the options, and the caller
+    applies them, first thing (notebooks do so in their first cell):
+
+        for name, value in fj.compilation_cache_settings().items():
+            jax.config.update(name, value)
 
     **Arguments:**
 
-    - `path`: the cache folder (created if needed). `None` (default): a folder already
-      configured for JAX (`JAX_COMPILATION_CACHE_DIR`, or `jax.config`) is kept as it is, with
-      its settings; otherwise the folder `FLESHING_JAX_CACHE` names, or the command line's
-      default (`~/.cache/fleshing-jax/jax-compilation-cache` on Linux) — the command line and
-      the library then share their programs. `FLESHING_JAX_CACHE=off` leaves the cache off.
+    - `path`: the cache folder (created if needed). `None` (default): the folder
+      `FLESHING_JAX_CACHE` names, or the command line's default
+      (`~/.cache/fleshing-jax/jax-compilation-cache` on Linux): the command line and the
+      library then share their programs. If JAX already has a cache folder
+      (`JAX_COMPILATION_CACHE_DIR`, or `jax.config`), `None` asks for nothing: it is kept.
     - `min_compile_seconds`: programs that compiled faster than this are not stored (JAX's own
       default is 1 s; 0 stores every program: a notebook's many small programs add up).
 
-    **Returns:**
-
-    The folder in use, or `None` when the cache stays off.
+    **Returns:** a dict of `jax.config` option names and values (the folder, and which
+    programs to store); empty when there is nothing to change (a cache already configured) or
+    the cache stays off (`FLESHING_JAX_CACHE=off`).
 
     The library's largest programs (the medial pose: `arap_medial`, `MedialRig.pose`) also
-    keep their traced programs there (`jax.export`, a `fleshing-jax-exported` subfolder), so
-    that a new process's first call neither traces nor compiles them.
+    keep their traced programs in that folder (`jax.export`, a `fleshing-jax-exported`
+    subfolder), so that a new process's first call neither traces nor compiles them.
 
     The cache is trusted code: never point it at a folder that others can write to.
     """
@@ -103,19 +104,15 @@ def use_compilation_cache(
     if not seconds >= 0:  # also refuses NaN
         raise ValueError(f"min_compile_seconds must be ≥ 0, got {min_compile_seconds!r}")
     import jax
-    from jax.experimental.compilation_cache import compilation_cache
 
-    configured = jax.config.jax_compilation_cache_dir
-    if path is None and configured:
-        return Path(configured)
+    if path is None and jax.config.jax_compilation_cache_dir:
+        return {}
     folder = cache_folder() if path is None else Path(path).expanduser()
     if folder is None:
-        return None
+        return {}
     folder.mkdir(parents=True, exist_ok=True)
-    jax.config.update("jax_compilation_cache_dir", str(folder))
-    jax.config.update("jax_persistent_cache_min_compile_time_secs", seconds)
-    jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
-    # JAX opens its cache once, at the first compilation: reset, it opens this folder at the
-    # next one (a call after some programs were compiled still takes effect).
-    compilation_cache.reset_cache()
-    return folder
+    return {
+        "jax_compilation_cache_dir": str(folder),
+        "jax_persistent_cache_min_compile_time_secs": seconds,
+        "jax_persistent_cache_min_entry_size_bytes": 0,
+    }

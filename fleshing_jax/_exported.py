@@ -1,7 +1,7 @@
 """Traced programs kept on disk next to the compiled ones (`jax.export`), so that a first call
 in a new process neither traces nor lowers them.
 
-JAX's persistent compilation cache (`use_compilation_cache`) keys a compiled program on its
+JAX's persistent compilation cache (`compilation_cache_settings`) keys a compiled program on its
 lowered module, so every new process still traces and lowers a program before it can find it:
 most of a warm first `deform_medial` (`benchmarks/README.md`). `persistent` compiles like
 `eqx.filter_jit` and, when JAX's cache is on and the arguments are concrete, also keeps the
