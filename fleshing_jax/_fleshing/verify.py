@@ -86,7 +86,6 @@ def _measured(measure, fleshing, points):
     return jax.vmap(one)(points)
 
 
-
 @eqx.filter_jit
 def registered_stretch(source: AbstractSpine, registration: Registration,
                        poser: Poser) -> Float[Array, " N"]:

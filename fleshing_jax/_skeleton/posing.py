@@ -35,7 +35,7 @@ from .._batching.buckets import bucket, pad_batch, unpad_batch
 from .._checks import as_margin
 from .._fleshing.ends import EndFrames, aligned_twist, target_ends
 from .._fleshing.methods import check_method
-from .._fleshing.pipeline import pose_prepared, prepare_target, register
+from .._fleshing.pipeline import Poser, pose_prepared, prepare_target, register
 from .._fleshing.projection import Registration, invalid_past
 from .._mesh.deform import longest_edge, polygon_mesh
 from .._numerics import cast_floats
@@ -278,8 +278,8 @@ def posed(registration: SkeletonRegistration, skeleton: Skeleton, poses: dict,
         n = ids.shape[0]
         images, ok, motion = reg.vertices[ids], jnp.ones(n, bool), None
         if pose is not None:
-            images, ok, motion = _pose_limb(reg.registrations[k], reg.rests[k], pose,
-                                            reg.joints[k], reg.stops[k], method, check)
+            images, ok, motion = _pose_limb(reg.registrations[k], limb_target(reg, k, pose),
+                                            method, check)
             images, ok = images[:n], ok[:n]
         if carry is not None:
             images = carry(images)
@@ -289,18 +289,32 @@ def posed(registration: SkeletonRegistration, skeleton: Skeleton, poses: dict,
     return PosedSkeleton(vertices, valid)
 
 
-def _pose_limb(registration, rest, pose, joint, stop, method, check=True):
-    """One limb's region posed: `(images, valid, end motion)`. Called eagerly, the fleshing
-    runs in two phases (its sampled fallback compiled only if needed: `_fleshing.eager`)
-    with programs shared by every limb of a bucket; traced, in one program."""
-    dtype = registration.points.dtype
-    target = pose if isinstance(pose, AbstractSpine) else pose.spine(rest, joint, stop)
-    target = cast_floats(target, dtype)
-    # The margin keeps edges whole on the rest side (the registration's); the images are
-    # checked to project back onto the bent spine (margin 0): with the margin there too, the
-    # region's bounds on a bend's changing curvature flagged most of a thin leg bent 60°.
-    poser = prepare_target(target, dtype, method=method, check_projection=check, margin=0.0,
-                           start=registration.ends, beyond="rigid")
+def limb_target(registration: SkeletonRegistration, k: int, pose) -> AbstractSpine:
+    """Limb `k`'s target: `pose` itself if it is a spine, else the limb's rest spine bent by
+    the `LimbPose` from its joint to its stop."""
+    if isinstance(pose, AbstractSpine):
+        return pose
+    return pose.spine(registration.rests[k], registration.joints[k], registration.stops[k])
+
+
+def limb_poser(registration: Registration, target: AbstractSpine, method: str,
+               check: bool = True) -> Poser:
+    """`target` prepared for posing a limb's region (`registration`): the points past the end
+    move rigidly, and the images are checked to project back onto it with no margin (the
+    margin keeps edges whole on the rest side, the registration's: with the margin on the
+    bent spine too, the region's bounds on a bend's changing curvature flagged most of a thin
+    leg bent 60°)."""
+    return prepare_target(target, registration.points.dtype, method=method,
+                          check_projection=check, margin=0.0, start=registration.ends,
+                          beyond="rigid")
+
+
+def _pose_limb(registration, target, method, check=True):
+    """One limb's region posed onto `target`: `(images, valid, end motion)`. Called eagerly,
+    the fleshing runs in two phases (its sampled fallback compiled only if needed:
+    `_fleshing.eager`) with programs shared by every limb of a bucket; traced, in one
+    program."""
+    poser = limb_poser(registration, target, method, check)
     images, ok = pose_prepared(registration, poser)
     # The children move as the region's points past the end do (`beyond="rigid"`): with the
     # target's end frame the preparation made, not a second preparation of the target.
@@ -323,8 +337,7 @@ def limb_causes(registration: SkeletonRegistration, skeleton: Skeleton, poses: d
     for k, pose in poses.items():
         reg = registration
         n = reg.indices[k].shape[0]
-        target = pose if isinstance(pose, AbstractSpine) else pose.spine(
-            reg.rests[k], reg.joints[k], reg.stops[k])
+        target = limb_target(reg, k, pose)
         causes[k] = diagnose(unpad_batch(reg.registrations[k], n), target,
                              method=check_method(method), beyond="rigid")
     return causes

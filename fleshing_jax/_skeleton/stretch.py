@@ -13,10 +13,8 @@ import jax.numpy as jnp
 from jaxtyping import Array, Float
 
 from .._fleshing.methods import check_method
-from .._fleshing.pipeline import prepare_target
 from .._fleshing.verify import registered_stretch
-from .._spines.spine import AbstractSpine
-from .posing import as_registration, check_poses, posed
+from .posing import as_registration, check_poses, limb_poser, limb_target, posed
 from .skeleton import Skeleton
 
 
@@ -40,14 +38,10 @@ def pose_stretch(mesh_or_registration, skeleton: Skeleton, poses: dict, *,
     valid = posed(registration, skeleton, poses, method).valid
     stretch = jnp.ones(valid.shape, registration.vertices.dtype)
     for k, pose in poses.items():
-        rest = registration.rests[k]
-        target = pose if isinstance(pose, AbstractSpine) else pose.spine(
-            rest, registration.joints[k], registration.stops[k])
         # The same map as `pose_skeleton`'s, at the registered vertices (their validity is
         # taken from there: it includes the images' projection check).
         ids, limb = registration.indices[k], registration.registrations[k]
-        poser = prepare_target(target, limb.points.dtype, method=method, start=limb.ends,
-                               beyond="rigid")
-        limb = registered_stretch(rest, limb, poser)
+        poser = limb_poser(limb, limb_target(registration, k, pose), method)
+        limb = registered_stretch(registration.rests[k], limb, poser)
         stretch = stretch.at[ids].set(limb[: ids.shape[0]])
     return jnp.where(valid, stretch, jnp.nan)
