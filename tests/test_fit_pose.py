@@ -3,10 +3,11 @@
 On the posing tests' tube (`_posing_shapes`), float64: every fit chooses the same number of
 vertices and fits all three limbs, so that the tests share one compiled solve.
 
-The fits are `slow`: the solve's one XLA program (Levenberg–Marquardt through three limbs'
-fleshing and its forward derivatives) compiles in about 4 minutes on the shared 2-core machine
-(it did not finish in 10 minutes before the bent spine's evaluations were shared), beyond the
-suite's budget. Bad input runs by default.
+The solve's one XLA program (Levenberg–Marquardt through three limbs' fleshing and its forward
+derivatives) took about 4 minutes to compile on the shared 2-core machine, and every fit was
+`slow`; with the limbs posed as one batch and the Jacobian materialised (`_fit.jacobian`) it
+takes about 20 s. The first two fits share it and run by default; the two that compile other
+programs (fewer steps, other limbs) are `slow`.
 """
 
 import numpy as np
@@ -34,7 +35,6 @@ def _angles(pose):
     return np.array([float(pose.bend), float(pose.direction), float(pose.twist)])
 
 
-@pytest.mark.slow
 def test_fit_recovers_the_angles_from_the_rest_pose(skeleton, registration, ids):
     targets = _targets(registration, skeleton, ids, TRUTH)
     fit = fj.fit_skeleton_pose(registration, skeleton, ids, targets)
@@ -49,7 +49,6 @@ def test_fit_recovers_the_angles_from_the_rest_pose(skeleton, registration, ids)
     np.testing.assert_array_equal(np.asarray(fit.posed.vertices), vertices)
 
 
-@pytest.mark.slow
 def test_unreachable_targets_are_not_reported_as_a_fit(skeleton, registration, ids):
     # Limb 2 folded back on itself (the posing tests' invalid bend): its vertices inside the
     # fold (0.8 < x < 1.2, flagged there) are sent where the map would tear them to, which no
@@ -87,6 +86,20 @@ def test_default_limbs_and_held_poses(skeleton, registration, ids):
     assert sorted(fit.poses) == [0, 1, 2]
     np.testing.assert_array_equal(_angles(fit.poses[2]), _angles(TRUTH[2]))
     assert float(fit.rms) < 1e-9
+
+
+def test_limbs_posed_as_one_batch_are_posed_as_one_by_one(skeleton, registration):
+    # The fit's objective poses its limbs as one batch (`stacked`): the same vertices.
+    from fleshing_jax._skeleton.posing import posed
+
+    one_by_one = posed(registration, skeleton, TRUTH, "radial", check=False)
+    batched = posed(registration, skeleton, TRUTH, "radial", check=False, stacked=True)
+    np.testing.assert_allclose(np.asarray(batched.vertices), np.asarray(one_by_one.vertices),
+                               rtol=0, atol=1e-13)
+    np.testing.assert_array_equal(np.asarray(batched.valid), np.asarray(one_by_one.valid))
+    moved = np.any(np.asarray(one_by_one.vertices) != np.asarray(registration.vertices), axis=1)
+    region = np.asarray(skeleton.region)
+    assert all(moved[region == k].any() for k in TRUTH) and not moved[region == -1].any()
 
 
 def test_bad_input(tube, skeleton, registration, ids):

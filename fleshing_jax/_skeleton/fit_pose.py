@@ -27,6 +27,7 @@ import optimistix as optx
 from jaxtyping import Array, ArrayLike, Bool, Float
 
 from .._batching.buckets import bucket
+from .._fit.jacobian import materialised
 from .._fit.problem import (
     AbstractFitOutcome,
     check_cloud,
@@ -144,7 +145,8 @@ class PoseProblem(eqx.Module):
         # Without the global projection check (as `fit_spine`'s default): the local map is
         # smooth; the result's validity is checked on the whole mesh afterwards.
         poses = self.poses(y)
-        vertices = posed(self.registration, self.skeleton, poses, self.method, False).vertices
+        vertices = posed(self.registration, self.skeleton, poses, self.method, False,
+                          stacked=True).vertices
         diff = vertices[self.rows] - self.targets
         return diff.reshape(-1) / jnp.sqrt(jnp.asarray(self.rows.shape[0], diff.dtype))
 
@@ -178,8 +180,11 @@ def restricted(registration: SkeletonRegistration, ids: np.ndarray):
 @eqx.filter_jit
 def _solve(problem: PoseProblem, solver, y0: Array, max_steps: int, throw: bool):
     """`optimistix.least_squares` on `problem`: `(y, trust radius, result, stats)`. The losses
-    are read from eager poses outside, which share their programs with `pose_skeleton`."""
-    solution = optx.least_squares(problem, solver, y0, max_steps=max_steps, throw=throw)
+    are read from eager poses outside, which share their programs with `pose_skeleton`. The
+    residuals' Jacobian is materialised at each step (`_fit.jacobian`: the solve compiles in
+    half the time)."""
+    solution = optx.least_squares(materialised(problem), solver, y0, max_steps=max_steps,
+                                  throw=throw)
     radius = trust_radius(solver, solution, y0.dtype)
     return solution.value, radius, solution.result, solution.stats
 

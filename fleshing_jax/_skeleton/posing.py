@@ -27,6 +27,7 @@ from __future__ import annotations
 from typing import NamedTuple
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float
@@ -261,13 +262,15 @@ def motion_between(rest: EndFrames, posed: EndFrames) -> Rigid:
 
 
 def posed(registration: SkeletonRegistration, skeleton: Skeleton, poses: dict,
-          method: str, check: bool = True) -> PosedSkeleton:
+          method: str, check: bool = True, stacked: bool = False) -> PosedSkeleton:
     """`pose_skeleton` on a registration (traceable: `poses` are its only free values).
     `check=False` skips the global projection check of traced poses (a fit's objective:
-    smooth, and a much smaller program; `valid` then flags only the local tests)."""
+    smooth, and a much smaller program; `valid` then flags only the local tests).
+    `stacked=True` poses the limbs as one batch (`posed_limbs`), for traced poses."""
     reg = registration
     vertices = reg.vertices
     valid = jnp.ones(vertices.shape[0], bool)
+    moved = posed_limbs(reg, poses, method, check, stacked)
     carried: dict[int, Rigid | None] = {}  # what moves each touched limb's children
     for k, limb in enumerate(skeleton.limbs):
         carry = carried.get(limb.parent)
@@ -278,8 +281,7 @@ def posed(registration: SkeletonRegistration, skeleton: Skeleton, poses: dict,
         n = ids.shape[0]
         images, ok, motion = reg.vertices[ids], jnp.ones(n, bool), None
         if pose is not None:
-            images, ok, motion = _pose_limb(reg.registrations[k], limb_target(reg, k, pose),
-                                            method, check)
+            images, ok, motion = moved[k]
             images, ok = images[:n], ok[:n]
         if carry is not None:
             images = carry(images)
@@ -287,6 +289,29 @@ def posed(registration: SkeletonRegistration, skeleton: Skeleton, poses: dict,
         vertices = vertices.at[ids].set(images)
         valid = valid.at[ids].set(ok)
     return PosedSkeleton(vertices, valid)
+
+
+def posed_limbs(registration: SkeletonRegistration, poses: dict, method: str, check: bool,
+                stacked: bool) -> dict:
+    """Each posed limb's region posed on its own (`_pose_limb`): dict limb index → `(images,
+    valid, end motion)`. `stacked`: the limbs whose registrations and targets have one
+    structure (every `LimbPose`: the limbs' registrations share a bucket size and their rest
+    spines a padded shape) posed as one batch by `vmap`, so that a traced program holds one
+    limb's code, not one per limb (a fit's objective, compiled with its derivatives)."""
+    targets = {k: limb_target(registration, k, pose) for k, pose in poses.items()}
+    pairs = {k: (registration.registrations[k], target) for k, target in targets.items()}
+    if not stacked or len(pairs) < 2:
+        return {k: _pose_limb(*pair, method, check) for k, pair in pairs.items()}
+    groups: dict = {}  # limbs by the structure and shapes of their (registration, target)
+    for k, pair in pairs.items():
+        leaves, structure = jax.tree.flatten(pair)
+        groups.setdefault((structure, tuple(jnp.shape(x) for x in leaves)), []).append(k)
+    moved = {}
+    for ks in groups.values():
+        batch = jax.tree.map(lambda *x: jnp.stack(x), *(pairs[k] for k in ks))
+        out = jax.vmap(lambda pair: _pose_limb(*pair, method, check))(batch)
+        moved.update({k: jax.tree.map(lambda x, i=i: x[i], out) for i, k in enumerate(ks)})
+    return moved
 
 
 def limb_target(registration: SkeletonRegistration, k: int, pose) -> AbstractSpine:

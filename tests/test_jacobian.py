@@ -1,0 +1,44 @@
+"""`_fit.jacobian.materialised`: residuals whose derivative is their materialised Jacobian."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optimistix as optx
+
+from fleshing_jax._fit.jacobian import materialised
+
+
+def _residuals(y):  # (2, 3) -> (4,), nonlinear in every parameter
+    return jnp.stack([jnp.sin(y[0, 0]) * y[1, 2], jnp.exp(y[0, 1] - y[1, 0]),
+                      y[0, 2] ** 3 + y[1, 1], jnp.cos(jnp.sum(y))])
+
+
+Y = jnp.asarray([[0.3, -0.2, 0.7], [1.1, 0.4, -0.5]])
+
+
+def test_value_and_derivatives_are_the_function_s():
+    function = materialised(_residuals)
+    np.testing.assert_array_equal(function(Y), _residuals(Y))
+    np.testing.assert_allclose(jax.jacfwd(function)(Y), jax.jacfwd(_residuals)(Y), rtol=1e-14)
+    # Reverse mode (a minimiser's gradient) transposes the matrix product.
+    def loss(f):
+        return lambda y: jnp.sum(f(y) ** 2)
+    np.testing.assert_allclose(jax.grad(loss(function))(Y), jax.grad(loss(_residuals))(Y),
+                               rtol=1e-14)
+    value, linear = jax.linearize(function, Y)
+    direction = jnp.arange(6.0).reshape(2, 3)
+    np.testing.assert_allclose(linear(direction), jax.jvp(_residuals, (Y,), (direction,))[1],
+                               rtol=1e-14)
+
+
+def test_levenberg_marquardt_solves_through_it():
+    target = _residuals(Y)
+
+    def residuals(y):
+        return _residuals(y) - target
+
+    start = Y + 0.05
+    solution = optx.least_squares(materialised(residuals), optx.LevenbergMarquardt(1e-12, 1e-12),
+                                  start, throw=False)
+    assert solution.result == optx.RESULTS.successful
+    np.testing.assert_allclose(residuals(solution.value), 0, atol=1e-10)
