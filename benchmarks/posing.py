@@ -4,6 +4,7 @@
     python benchmarks/posing.py --skip-skeleton   # spot's saved skeleton, not built again
     python benchmarks/posing.py --only-frames     # the per-frame table only (2 below)
     python benchmarks/posing.py --skip-skeleton --only-volumes  # the volume table only (3)
+    python benchmarks/posing.py --skip-skeleton --only-fit      # the fit table only (4)
 
 Prints Markdown tables:
 
@@ -18,6 +19,9 @@ Prints Markdown tables:
    those of the limbs below it by its end motion, the others held), max
    |det J − 1| in the posed regions, the largest stretch of an edge crossing a region border,
    whether the body is bit for bit still. `--figure PATH` writes the before/after picture.
+4. `fj.fit_skeleton_pose` on spot: the leg, then the leg and the head, brought back to their
+   valid poses of 2 from every 40th vertex of their regions, starting at rest, in float64 and
+   float32: the first call (its compilation included, none cached) and the second, wall time.
 """
 
 from __future__ import annotations
@@ -91,6 +95,29 @@ def pose_speed(spot, skeleton, frames=50):
         first = time.perf_counter() - start
         rows.append((name, first, _median_ms(frame, poses, frames)))
     return len(big.vertices), registered, rows
+
+
+def fit_time(spot, skeleton):
+    """Rows `(limbs, dtype, vertices, first call (s), second call (s), rms, steps)`."""
+    rows = []
+    for dtype in (np.float64, np.float32):
+        registration = fj.register_skeleton(spot, skeleton, dtype=dtype)
+        region = np.asarray(skeleton.region)
+        for limbs in ((LEG,), (LEG, HEAD)):
+            poses = {k: fj.LimbPose(*POSES[k]) for k in limbs}
+            ids = np.concatenate([np.flatnonzero(region == k)[::40] for k in limbs])
+            targets = np.asarray(fj.pose_skeleton(registration, skeleton, poses).vertices)[ids]
+            seconds = []
+            for _ in range(2):
+                start = time.perf_counter()
+                fit = fj.fit_skeleton_pose(registration, skeleton, ids, targets)
+                fit.rms.block_until_ready()
+                seconds.append(time.perf_counter() - start)
+            assert fit.converged, fit.message
+            names = " + ".join("leg" if k == LEG else "head" for k in limbs)
+            rows.append((names, np.dtype(dtype).name, len(ids), *seconds, float(fit.rms),
+                         int(fit.num_steps)))
+    return rows
 
 
 def _sphere_regions(medial, vertices, region):
@@ -213,6 +240,7 @@ def main():
     parser.add_argument("--frames", type=int, default=50)
     parser.add_argument("--only-frames", action="store_true", help="the per-frame table only")
     parser.add_argument("--only-volumes", action="store_true", help="the volume table only")
+    parser.add_argument("--only-fit", action="store_true", help="the fit table only")
     args = parser.parse_args()
     jax.config.update("jax_enable_x64", True)  # float64 for the volumes; the pose is float32
     for name, value in fj.compilation_cache_settings().items():  # compiled programs on disk
@@ -226,6 +254,12 @@ def main():
             f"| mesh | vertices | limbs | skeleton incl. medial mesh (s) |\n|---|---:|---:|---:|\n"
             f"| spot | {len(spot.vertices)} | {len(skeleton.limbs)} | {seconds:.1f} |\n"
         )
+    if args.only_fit:
+        print("| fitted | dtype | vertices | first call (s) | second (s) | rms | steps |\n"
+              "|---|---|---:|---:|---:|---:|---:|")
+        for names, dtype, k, first, second, rms, steps in fit_time(spot, skeleton):
+            print(f"| {names} | {dtype} | {k} | {first:.1f} | {second:.2f} | {rms:.1e} | {steps} |")
+        return
     if not args.only_volumes:
         n, registered, rows = pose_speed(spot, skeleton, args.frames)
         print(f"{n} vertices, float32, registered once in {registered:.1f} s\n")
