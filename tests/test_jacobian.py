@@ -42,3 +42,18 @@ def test_levenberg_marquardt_solves_through_it():
                                   start, throw=False)
     assert solution.result == optx.RESULTS.successful
     np.testing.assert_allclose(residuals(solution.value), 0, atol=1e-10)
+
+
+def test_pytrees_of_parameters_and_residuals():
+    # As `fit_spine`'s: `y = (free values, twist or None)`, residuals a tuple of arrays.
+    def residuals(y):
+        (a, b), twist = y
+        return (jnp.sin(a) * b[0], jnp.stack([jnp.exp(b[1]) * a[1], jnp.sum(a**2)]))
+
+    y = ((jnp.asarray([0.4, -1.2]), jnp.asarray([0.3, 0.8])), None)
+    function = materialised(residuals)
+    direction = ((jnp.asarray([1.0, -2.0]), jnp.asarray([0.5, 3.0])), None)
+    value, tangent = jax.jvp(function, (y,), (direction,))
+    expected_value, expected = jax.jvp(residuals, (y,), (direction,))
+    for got, want in zip(value + tangent, expected_value + expected):
+        np.testing.assert_allclose(got, want, rtol=1e-14)

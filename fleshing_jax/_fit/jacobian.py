@@ -2,12 +2,11 @@
 
 optimistix's Gauss–Newton solvers linearise the residuals at each step (`jax.linearize`) and
 keep the linear function for the step's descent and trust-region tests. Traced through a
-large residual (`fit_skeleton_pose`: the fleshing of every chosen vertex), that linear function
-and the intermediates it needs are carried in the solver's loop and its code inlined at each
-use: the solve's one program took several times the residual's own compile. With the Jacobian
-computed up front by forward mode (one `vmap` of `jvp` over the parameters' basis: the primal
-computed once beside it) the linear function is a matrix product, and the loop carries the
-(m, p) matrix.
+large residual (a fit's fleshing of every point), that linear function and the intermediates
+it needs are carried in the solver's loop and its code inlined at each use: the solve's one
+program took several times the residual's own compile. With the Jacobian computed up front by
+forward mode (one `vmap` of `jvp` over the parameters' basis: the primal computed once beside
+it) the linear function is a matrix product, and the loop carries the matrix.
 """
 
 from __future__ import annotations
@@ -16,13 +15,16 @@ from collections.abc import Callable
 
 import jax
 import jax.numpy as jnp
-from jaxtyping import Array
+from jax.flatten_util import ravel_pytree
+from jaxtyping import PyTree
 
 
-def materialised(residuals: Callable[[Array], Array]) -> Callable:
-    """`residuals` (`y` (p…) → (m,)) as an optimistix function `(y, args) -> (m,)`, whose
-    `jvp` is `J ẏ` with `J` (m, p) computed by forward mode with the value. First order only
-    (what least squares needs); the value is `residuals(y)` exactly."""
+def materialised(residuals: Callable[[PyTree], PyTree]) -> Callable:
+    """`residuals` (`y` → a pytree of arrays, `y` a pytree of floating arrays) as an optimistix
+    function `(y, args) -> residuals(y)` whose `jvp` is `J ẏ`, each leaf's Jacobian (…, p)
+    computed by forward mode with the value (`p` the parameters' count). First order only
+    (what least squares needs; its transpose serves reverse mode); the value is exactly
+    `residuals(y)`."""
 
     @jax.custom_jvp
     def function(y, args=None):
@@ -32,9 +34,14 @@ def materialised(residuals: Callable[[Array], Array]) -> Callable:
     def _jvp(primals, tangents):
         y, _ = primals
         dy, _ = tangents
-        basis = jnp.eye(y.size, dtype=y.dtype).reshape(-1, *y.shape)
-        value, columns = jax.vmap(lambda d: jax.jvp(residuals, (y,), (d,)), out_axes=(None, -1))(
-            basis)
-        return value, columns @ dy.reshape(-1)
+        flat, unravel = ravel_pytree(y)
+
+        def pushed(direction):
+            return jax.jvp(residuals, (y,), (unravel(direction),))
+
+        basis = jnp.eye(flat.size, dtype=flat.dtype)
+        value, columns = jax.vmap(pushed, out_axes=(None, -1))(basis)
+        step = ravel_pytree(dy)[0]
+        return value, jax.tree.map(lambda column: column @ step, columns)
 
     return function
