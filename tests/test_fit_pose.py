@@ -6,8 +6,9 @@ vertices and fits all three limbs, so that the tests share one compiled solve.
 The solve's one XLA program (Levenberg–Marquardt through three limbs' fleshing and its forward
 derivatives) took about 4 minutes to compile on the shared 2-core machine, and every fit was
 `slow`; with the limbs posed as one batch and the Jacobian materialised (`_fit.jacobian`) it
-takes about 20 s, and the fits run by default (those with fewer steps or other limbs compile
-programs of their own: about 10 s each).
+takes about 20 s. The first two fits share it and run by default; the two that compile
+programs of their own (fewer steps, other limbs: 15–20 s each) are `slow`, for the suite's
+time.
 """
 
 import numpy as np
@@ -67,6 +68,7 @@ def test_unreachable_targets_are_not_reported_as_a_fit(skeleton, registration, i
     assert float(fit.rms) > 1e-3
 
 
+@pytest.mark.slow
 def test_a_solve_cut_short_is_not_converged(skeleton, registration, ids):
     targets = _targets(registration, skeleton, ids, TRUTH)
     fit = fj.fit_skeleton_pose(registration, skeleton, ids, targets, max_steps=2)
@@ -74,6 +76,7 @@ def test_a_solve_cut_short_is_not_converged(skeleton, registration, ids):
     assert "steps" in fit.message
 
 
+@pytest.mark.slow
 def test_default_limbs_and_held_poses(skeleton, registration, ids):
     region = np.asarray(skeleton.region)
     child = ids[region[ids] == 1]
