@@ -178,7 +178,14 @@ def test_gradients_of_the_angles(skeleton, registration, posed_child):
         return fj.pose_skeleton(registration, skeleton, poses).vertices[tip, 2]
 
     angles = np.array([40.0, 90.0, 10.0, 20.0][: 4 if posed_child else 3])
-    gradient = jax.grad(tip_height)(jnp.asarray(angles))
+    value, gradient = jax.value_and_grad(tip_height)(jnp.asarray(angles))
+    # Traced, each limb is posed at its own bucket size (limb 0's 192 of the 384 its
+    # registration is padded to for the eager calls): the eager pose's value.
+    from fleshing_jax._skeleton.posing import _limb_registration
+
+    own = _limb_registration(registration, 0, True).points.shape[0]
+    assert own < registration.registrations[0].points.shape[0]
+    assert float(value) == pytest.approx(float(tip_height(angles)), rel=0, abs=1e-12)
     eps = 1e-3
     for i, step in enumerate(eps * np.eye(len(angles))):  # central differences, eager path
         difference = (tip_height(angles + step) - tip_height(angles - step)) / (2 * eps)

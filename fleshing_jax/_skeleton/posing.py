@@ -33,7 +33,7 @@ import numpy as np
 from jaxtyping import Array, Bool, Float
 
 from .._batching.buckets import bucket, pad_batch, unpad_batch
-from .._checks import as_margin
+from .._checks import as_margin, is_concrete
 from .._fleshing.ends import EndFrames, aligned_twist, target_ends
 from .._fleshing.methods import check_method
 from .._fleshing.pipeline import Poser, pose_prepared, prepare_target, register
@@ -299,7 +299,12 @@ def posed_limbs(registration: SkeletonRegistration, poses: dict, method: str, ch
     spines a padded shape) posed as one batch by `vmap`, so that a traced program holds one
     limb's code, not one per limb (a fit's objective, compiled with its derivatives)."""
     targets = {k: limb_target(registration, k, pose) for k, pose in poses.items()}
-    pairs = {k: (registration.registrations[k], target) for k, target in targets.items()}
+    # Traced poses (a jitted frame, a gradient) pose each limb at its own bucket size, not the
+    # largest limb's it is padded to for the eager calls' shared programs: on spot's 100k
+    # vertices a leg's 4.9k vertices were posed as 24.6k.
+    own = not (stacked or is_concrete(poses))
+    pairs = {k: (_limb_registration(registration, k, own), target)
+             for k, target in targets.items()}
     if not stacked or len(pairs) < 2:
         return {k: _pose_limb(*pair, method, check) for k, pair in pairs.items()}
     groups: dict = {}  # limbs by the structure and shapes of their (registration, target)
@@ -312,6 +317,12 @@ def posed_limbs(registration: SkeletonRegistration, poses: dict, method: str, ch
         out = jax.vmap(lambda pair: _pose_limb(*pair, method, check))(batch)
         moved.update({k: jax.tree.map(lambda x, i=i: x[i], out) for i, k in enumerate(ks)})
     return moved
+
+
+def _limb_registration(registration: SkeletonRegistration, k: int, own: bool) -> Registration:
+    """Limb `k`'s `Registration`, at its own bucket size if `own` (else as registered)."""
+    reg = registration.registrations[k]
+    return unpad_batch(reg, bucket(registration.indices[k].shape[0])) if own else reg
 
 
 def limb_target(registration: SkeletonRegistration, k: int, pose) -> AbstractSpine:
