@@ -34,13 +34,12 @@ from jaxtyping import Array, ArrayLike
 
 from .._checks import as_float_array, is_concrete
 from .._numerics import dot
-from .looked_up import LookedUpSpine
+from .looked_up import GAUSS_POINTS, GAUSS_WEIGHTS, LookedUpSpine
 from .spine import AbstractSpine, AbstractTabulatedSpine, torsion_of
-from .table import PiecewiseCubic, SpineTable
+from .table import SpineTable
 
-GAUSS = 4  # Gauss–Legendre points an interval (exact for degree 7: the intervals are short)
 INTERVALS = 64  # uniform intervals on [0, length], besides the base's own breaks
-_NODES, _WEIGHTS = np.polynomial.legendre.leggauss(GAUSS)
+_NODES, _WEIGHTS = GAUSS_POINTS, GAUSS_WEIGHTS  # (`looked_up`: 4 points an interval)
 
 
 EDGE = 0.25  # the fraction of the ramp over which its slope rises (and then falls)
@@ -257,25 +256,21 @@ class PreparedBent(AbstractSpine):
         the joint). A few rotations a node, where evaluating the bent spine there would
         integrate its position from the nearest break and continue it past its ends."""
         base = self.base
-        if not (isinstance(base, LookedUpSpine) and isinstance(base.table.cubics, PiecewiseCubic)):
+        if not (isinstance(base, LookedUpSpine) and base.samples is not None):
             return None
-        table = base.table
-        nodes = table.cubics.nodes()
+        table, at = base.table, base.samples  # the base's values there, read once
+        nodes = at.arc_length
         flat = nodes.reshape(-1)
-        (c0, t0, k0), (i0, j0) = jax.vmap(table.jet_and_normals)(flat)
+        (c0, t0, k0), (i0, j0) = at.jet, at.normals
         r, slope = jax.vmap(self._angles)(flat)
         turn = jax.vmap(self._turn)
         k = turn(r, k0) + jax.vmap(self._turn_slope)(r, slope, t0)
-        starts = jnp.concatenate([table.lo[None], flat[:-1]])
-        half = (flat - starts) / 2
-        points = (starts + half)[:, None] + half[:, None] * jnp.asarray(_NODES, flat.dtype)
 
-        def moved(s):  # (Q − 1) T₀ at s
-            tangent = table.jet(s)[1]
+        def moved(s, tangent):  # (Q − 1) T₀ at s
             return self._turn(self._angles(s)[0], tangent) - tangent
 
-        steps = half[:, None] * jnp.einsum("g,ngc->nc", jnp.asarray(_WEIGHTS, flat.dtype),
-                                           jax.vmap(jax.vmap(moved))(points))
+        steps = at.half[:, None] * jnp.einsum("g,ngc->nc", jnp.asarray(_WEIGHTS, flat.dtype),
+                                              jax.vmap(jax.vmap(moved))(at.points, at.tangents))
         c = c0 + jnp.cumsum(steps, axis=0)
 
         def shaped(v):

@@ -13,25 +13,66 @@ is used (`fleshing_jax._skeleton.posing`: double precision keeps the exact spine
 
 from __future__ import annotations
 
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array
 
 from .spine import AbstractSpine, torsion_of
-from .table import SpineTable
+from .table import PiecewiseCubic, SpineTable
+
+# The Gauss–Legendre rule a bent spine integrates its position with (`bent`: exact for degree
+# 7 on its short intervals), kept here with the values a bent table reads at its points.
+GAUSS = 4
+GAUSS_POINTS, GAUSS_WEIGHTS = np.polynomial.legendre.leggauss(GAUSS)
+
+
+class NodeSamples(eqx.Module):
+    """A `SpineTable`'s values where a spine bent from it reads them every frame
+    (`BentSpine._table`), computed once: at the table's nodes, and its tangent at the
+    quadrature points between consecutive nodes (from the search range's start).
+
+    **Fields:** `arc_length` (P, 4): the nodes; `jet` `(C, T, k)` and `normals` `(I, J)`, each
+    (P·4, 3), there; `half` (P·4,): half of each interval; `points` (P·4, GAUSS) and
+    `tangents` (P·4, GAUSS, 3): the quadrature points and `T` there.
+    """
+
+    arc_length: Array
+    jet: tuple[Array, Array, Array]
+    normals: tuple[Array, Array]
+    half: Array
+    points: Array
+    tangents: Array
+
+    def __init__(self, table: SpineTable):
+        self.arc_length = table.cubics.nodes()
+        flat = self.arc_length.reshape(-1)
+        self.jet, self.normals = jax.vmap(table.jet_and_normals)(flat)
+        starts = jnp.concatenate([table.lo[None], flat[:-1]])
+        self.half = (flat - starts) / 2
+        x = jnp.asarray(GAUSS_POINTS, flat.dtype)
+        self.points = (starts + self.half)[:, None] + self.half[:, None] * x
+        self.tangents = jax.vmap(jax.vmap(lambda s: table.jet(s)[1]))(self.points)
 
 
 class LookedUpSpine(AbstractSpine):
     """`spine` (prepared) evaluated on `[0, length]` through its `SpineTable`.
 
-    **Arguments:** `spine`: any smooth `AbstractSpine`. **Fields:** `table`: its `SpineTable`.
+    **Arguments:** `spine`: any smooth `AbstractSpine`. **Fields:** `table`: its `SpineTable`;
+    `samples`: its `NodeSamples` (`None` on an arc's exact table).
 
     The same spine to the table's error; as every spine, continued past its ends along its
     osculating circles there (computed from the table's end values).
     """
 
     table: SpineTable
+    samples: NodeSamples | None  # for the spines bent from it (on a piecewise-cubic table)
 
     def __init__(self, spine: AbstractSpine):
         self.table = SpineTable(spine._prepare())
+        cubic = isinstance(self.table.cubics, PiecewiseCubic)
+        self.samples = NodeSamples(self.table) if cubic else None
 
     @property
     def length(self) -> Array:
