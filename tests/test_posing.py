@@ -155,6 +155,16 @@ def test_float32_posing_reads_its_rest_spines_from_tables(tube, skeleton, regist
     for a, b in zip(jax.tree.leaves(looked_up), jax.tree.leaves(reference)):
         assert a.dtype == jnp.float32
         np.testing.assert_allclose(a, b, atol=2e-5)
+    # Its values where a bent spine's table reads them each frame, kept from registration: the
+    # table's at its nodes, and its tangents at the quadrature points that tile its range.
+    table, at = single.rests[0].table, single.rests[0].samples
+    flat = at.arc_length.reshape(-1)
+    kept = jax.tree.leaves((at.jet, at.normals, at.tangents))
+    read = jax.jit(lambda: (jax.vmap(table.jet_and_normals)(flat),
+                            jax.vmap(jax.vmap(lambda s: table.jet(s)[1]))(at.points)))()
+    for a, b in zip(kept, jax.tree.leaves(read)):
+        np.testing.assert_allclose(a, b, rtol=1e-6, atol=1e-6)  # (float32: a few ulps)
+    assert float(table.lo) + 2 * float(jnp.sum(at.half)) == pytest.approx(float(flat[-1]))
     posed = fj.pose_skeleton(single, skeleton, poses)
     assert posed.vertices.dtype == jnp.float32
     exact, valid = _pose(registration, skeleton, poses)
