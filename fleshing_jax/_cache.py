@@ -73,10 +73,8 @@ def compilation_cache_settings(
     fit or a medial pose, see `benchmarks/README.md`).
 
     The library never changes JAX's configuration: this returns the options, and the caller
-    applies them, first thing (notebooks do so in their first cell):
-
-        for name, value in fj.compilation_cache_settings().items():
-            jax.config.update(name, value)
+    applies each `(name, value)` with JAX's own configuration call, first thing (notebooks do
+    so in their first cell; the README shows the two lines).
 
     **Arguments:**
 

@@ -5,7 +5,7 @@ import jax.numpy as jnp
 import numpy as np
 import optimistix as optx
 
-from fleshing_jax._fit.jacobian import materialised
+from fleshing_jax._fit.jacobian import for_solver, materialised
 
 
 def _residuals(y):  # (2, 3) -> (4,), nonlinear in every parameter
@@ -57,3 +57,11 @@ def test_pytrees_of_parameters_and_residuals():
     expected_value, expected = jax.jvp(residuals, (y,), (direction,))
     for got, want in zip(value + tangent, expected_value + expected):
         np.testing.assert_allclose(got, want, rtol=1e-14)
+
+
+def test_a_minimiser_keeps_the_residuals_as_they_are():
+    # Its gradient is one reverse pass; a least-squares solver gets the materialised Jacobian.
+    assert for_solver(_residuals, optx.BFGS(1e-8, 1e-8)) is _residuals
+    function = for_solver(_residuals, optx.LevenbergMarquardt(1e-8, 1e-8))
+    assert function is not _residuals
+    np.testing.assert_array_equal(function(Y), _residuals(Y))

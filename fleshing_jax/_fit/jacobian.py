@@ -6,7 +6,9 @@ large residual (a fit's fleshing of every point), that linear function and the i
 it needs are carried in the solver's loop and its code inlined at each use: the solve's one
 program took several times the residual's own compile. With the Jacobian computed up front by
 forward mode (one `vmap` of `jvp` over the parameters' basis: the primal computed once beside
-it) the linear function is a matrix product, and the loop carries the matrix.
+it) the linear function is a matrix product, and the loop carries the matrix. A minimiser
+(BFGS: the fits without correspondences) needs only the gradient, one reverse pass, and keeps
+the residuals as they are (`for_solver`).
 """
 
 from __future__ import annotations
@@ -15,6 +17,7 @@ from collections.abc import Callable
 
 import jax
 import jax.numpy as jnp
+import optimistix as optx
 from jax.flatten_util import ravel_pytree
 from jaxtyping import PyTree
 
@@ -45,3 +48,11 @@ def materialised(residuals: Callable[[PyTree], PyTree]) -> Callable:
         return value, jax.tree.map(lambda column: column @ step, columns)
 
     return function
+
+
+def for_solver(residuals: Callable[[PyTree], PyTree], solver) -> Callable:
+    """What a fit passes to `optimistix.least_squares` with `solver`: `materialised(residuals)`
+    for a least-squares solver, `residuals` itself for a minimiser."""
+    if isinstance(solver, optx.AbstractLeastSquaresSolver):
+        return materialised(residuals)
+    return residuals

@@ -29,7 +29,7 @@ from .._numerics import cast_floats
 from .._spines.analytic import Arc, Helix, Line
 from .._spines.bspline import BSpline
 from .._spines.spine import AbstractSpine
-from .jacobian import materialised
+from .jacobian import for_solver
 
 INVALID_MODES = ("penalize", "exclude")
 SMOOTHNESS_SAMPLES = 16  # midpoint samples of the bending energy ∫|k|² ds
@@ -429,11 +429,9 @@ def solve(problem: AbstractPoseProblem, solver, y0, max_steps: int, throw: bool)
     trust-region solver (else 1). The final validity check runs outside, through the public
     (jitted) `pose`, whose compilation is shared with ordinary fleshing of the same spine type.
     """
-    # A least-squares solver's Jacobian materialised at each step (`jacobian`: a B-spline fit's
-    # solve compiles in about half the time); a minimiser's gradient stays one reverse pass.
-    least_squares = isinstance(solver, optx.AbstractLeastSquaresSolver)
-    function = materialised(problem) if least_squares else problem
-    solution = optx.least_squares(function, solver, y0, max_steps=max_steps, throw=throw)
+    # (A least-squares solver's Jacobian materialised at each step: `jacobian`.)
+    solution = optx.least_squares(for_solver(problem, solver), solver, y0, max_steps=max_steps,
+                                  throw=throw)
     y = solution.value
 
     def loss(y):

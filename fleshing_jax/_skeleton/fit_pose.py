@@ -27,7 +27,7 @@ import optimistix as optx
 from jaxtyping import Array, ArrayLike, Bool, Float
 
 from .._batching.buckets import bucket
-from .._fit.jacobian import materialised
+from .._fit.jacobian import for_solver
 from .._fit.problem import (
     AbstractFitOutcome,
     check_cloud,
@@ -181,9 +181,9 @@ def restricted(registration: SkeletonRegistration, ids: np.ndarray):
 def _solve(problem: PoseProblem, solver, y0: Array, max_steps: int, throw: bool):
     """`optimistix.least_squares` on `problem`: `(y, trust radius, result, stats)`. The losses
     are read from eager poses outside, which share their programs with `pose_skeleton`. The
-    residuals' Jacobian is materialised at each step (`_fit.jacobian`: the solve compiles in
-    half the time)."""
-    solution = optx.least_squares(materialised(problem), solver, y0, max_steps=max_steps,
+    residuals' Jacobian is materialised at each step for a least-squares solver
+    (`_fit.jacobian`: the solve compiles in half the time)."""
+    solution = optx.least_squares(for_solver(problem, solver), solver, y0, max_steps=max_steps,
                                   throw=throw)
     radius = trust_radius(solver, solution, y0.dtype)
     return solution.value, radius, solution.result, solution.stats

@@ -51,9 +51,11 @@ class SkeletonRegistration(eqx.Module):
     """What posing a mesh on a skeleton needs, computed once (`register_skeleton`).
 
     **Fields** (per limb, in the skeleton's order): `registrations`: the limb's region
-    registered on its rest spine (a `Registration`, padded to a bucket size so that limbs share
-    compiled programs, `_batching.buckets`); `rests`: the rest spines, in the vertices' dtype
-    and padded alike (in float32 read from a table: `LookedUpSpine`); `indices` (n_k,) int32:
+    registered on its rest spine (a `Registration`, padded to the largest limb's bucket size
+    so that eager poses of any limb share compiled programs, `_batching.buckets`; a traced pose
+    takes each limb's first rows, to its own bucket size: `posed_limbs`); `rests`: the rest
+    spines, in the vertices' dtype and padded alike (in float32 read from a table, with its
+    values where bent spines read them: `LookedUpSpine`); `indices` (n_k,) int32:
     the region's vertices; `joints`, `stops`: scalars, where each limb's bend starts and is
     complete (see the module's docstring); `vertices` (n, 3): the rest vertices; `margin`:
     scalar.
