@@ -10,6 +10,7 @@ from scipy.sparse import csgraph
 from scipy.spatial import cKDTree
 
 import fleshing_jax as fj
+from fleshing_jax._medial_axis.animal import quadruped
 from fleshing_jax._medial_axis.table import table
 from fleshing_jax._skeleton.regions import mesh_adjacency, spine_samples
 
@@ -39,7 +40,14 @@ def capsule_case():
     return mesh, medial, fj.skeleton(mesh, medial=medial)
 
 
-CASES = ["spot", "table_case", "capsule_case"]
+@pytest.fixture(scope="module")
+def quadruped_case():
+    mesh = quadruped(32)  # 4,256 vertices; its legs of a pair 0.06 apart, two grid cells
+    medial = fj.medial_mesh(mesh, 60, samples=5000, **FEW)
+    return mesh, medial, fj.skeleton(mesh, medial=medial)
+
+
+CASES = ["spot", "table_case", "capsule_case", "quadruped_case"]
 
 
 def _tips(skeleton):
@@ -84,6 +92,43 @@ def test_table_has_four_legs(table_case):
     vertices, region = np.asarray(mesh.vertices), np.asarray(skeleton.region)
     assert np.all(region[vertices[:, 2] < 0.5] >= 0)  # the legs below the top
     assert np.all(region[vertices[:, 2] > 0.8] == -1)  # the top is the body
+
+
+def test_quadruped_has_four_legs_a_tail_and_horns_and_poses_one_leg(quadruped_case):
+    """A four-legged animal with thin legs side by side (`quadruped`): each leg a limb whose
+    region holds its own foot and no other's, the tail and each horn a limb; one leg lifted
+    leaves the three others, the tail, the horns and the body bit for bit still, with no
+    torn edge at its border and the volume kept."""
+    mesh, _, skeleton = quadruped_case
+    tips = _tips(skeleton)
+    vertices, region = np.asarray(mesh.vertices), np.asarray(skeleton.region)
+    body = [i for i, limb in enumerate(skeleton.limbs) if limb.parent == -1]
+    legs = [i for i in body if tips[i, 2] < 0]  # z up: feet at the bottom
+    assert {(bool(tips[i, 0] > 0.5), bool(tips[i, 1] > 0)) for i in legs} == {
+        (a, b) for a in (False, True) for b in (False, True)
+    } and len(legs) == 4  # fmt: skip
+    for i in legs:  # the foot's vertices are its own, the other feet's are not
+        foot = (vertices[:, 2] < -0.05) & (np.linalg.norm(vertices[:, :2] - tips[i, :2],
+                                                          axis=1) < 0.06)  # fmt: skip
+        assert foot.any() and np.all(region[foot] == i)
+    assert sum(tips[i, 0] < 0 for i in body) == 1  # the tail
+    assert np.all(region[vertices[:, 0] < -0.08] >= 0)  # its tip moves with it
+    horns = (vertices[:, 2] > 0.8) & (np.abs(vertices[:, 1]) > 0.06)
+    assert np.all(region[horns] >= 0) and len({int(r) for r in region[horns]}) >= 2
+    # One leg lifted 30° towards the front.
+    leg = next(i for i in legs if tips[i, 0] > 0.5 and tips[i, 1] > 0)
+    posed = fj.pose_skeleton(mesh, skeleton, {leg: fj.LimbPose(bend=30.0)})
+    moved = np.asarray(posed.vertices)
+    assert np.asarray(posed.valid).all()
+    assert np.array_equal(moved[region != leg], vertices[region != leg])
+    assert np.linalg.norm(moved[region == leg] - vertices[region == leg], axis=1).max() > 0.05
+    edges = np.asarray(mesh.edges_unique)
+    crossing = edges[(region[edges[:, 0]] == leg) != (region[edges[:, 1]] == leg)]
+    stretch = np.linalg.norm(moved[crossing[:, 0]] - moved[crossing[:, 1]], axis=1) / (
+        np.linalg.norm(vertices[crossing[:, 0]] - vertices[crossing[:, 1]], axis=1))
+    assert stretch.max() < 1.5 and stretch.min() > 1 / 1.5
+    change = float(fj.volume(moved, mesh.faces) / fj.volume(vertices, mesh.faces)) - 1
+    assert abs(change) < 1e-3
 
 
 def test_capsule_is_a_body_at_one_end_and_one_limb(capsule_case):
