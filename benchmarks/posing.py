@@ -5,6 +5,7 @@
     python benchmarks/posing.py --only-frames     # the per-frame table only (2 below)
     python benchmarks/posing.py --skip-skeleton --only-volumes  # the volume table only (3)
     python benchmarks/posing.py --skip-skeleton --only-fit      # the fit table only (4)
+    python benchmarks/posing.py --quadruped --figure F.png     # the quadruped's table (5)
 
 Prints Markdown tables:
 
@@ -22,6 +23,10 @@ Prints Markdown tables:
 4. `fj.fit_skeleton_pose` on spot: the leg, then the leg and the head, brought back to their
    valid poses of 2 from every 40th vertex of their regions, starting at rest, in float64 and
    float32: the first call (its compilation included, none cached) and the second, wall time.
+5. With `--quadruped`: a four-legged animal with separate thin legs (`quadruped(32)`, 4,256
+   vertices) posed on its own skeleton in float64: a front leg lifted 60°, then with a hind
+   leg and the tail: volume change, invalid vertices, max |det J − 1| in the posed regions,
+   the largest stretch of an edge crossing a region border, the rest bit for bit still.
 """
 
 from __future__ import annotations
@@ -136,21 +141,19 @@ def _descendants(skeleton, k):
     return sorted(below - {k})
 
 
-def volume_table(spot, skeleton, medial, figure=None, turn=0.0):
-    """The volume table for `POSES`, each bend's direction turned by `turn` degrees."""
-    import jax.numpy as jnp
-
-    registration = fj.register_skeleton(spot, skeleton)
-    poses = {k: fj.LimbPose(bend, direction + turn) for k, (bend, direction) in POSES.items()}
+def posed_measures(mesh, skeleton, poses):
+    """`mesh` posed by `poses` (float64): `(vertices, valid, ΔV/V, max |det J − 1| in the posed
+    regions, the largest stretch of an edge crossing a region border, whether the vertices
+    of the regions neither posed nor below a posed limb are bit for bit still, {limb: (rest
+    spine, bent spine)})`."""
+    registration = fj.register_skeleton(mesh, skeleton)
     out = fj.pose_skeleton(registration, skeleton, poses)
     vertices, valid = np.asarray(out.vertices), np.asarray(out.valid)
-    rest = np.asarray(spot.vertices)
+    rest = np.asarray(mesh.vertices)
     region = np.asarray(skeleton.region)
-    v0 = fj.volume(rest, spot.faces)
-    ours = fj.volume(vertices, spot.faces) / v0 - 1
-    det = []
-    bents = {}
-    for k in POSES:
+    change = float(fj.volume(vertices, mesh.faces) / fj.volume(rest, mesh.faces)) - 1
+    det, bents = [], {}
+    for k in poses:
         spine = registration.rests[k]
         bent = poses[k].spine(spine, registration.joints[k], registration.stops[k])
         bents[k] = (spine, bent)
@@ -158,12 +161,58 @@ def volume_table(spot, skeleton, medial, figure=None, turn=0.0):
         d = np.asarray(fj.jacobian_determinant(
             fj.Fleshing(spine, bent, beyond="rigid"), rest[ids]))  # fmt: skip
         det.append(np.nanmax(np.abs(d - 1)))
-    edges = spot.edges_unique
+    edges = mesh.edges_unique
     crossing = region[edges[:, 0]] != region[edges[:, 1]]
     length = lambda v: np.linalg.norm(v[edges[:, 0]] - v[edges[:, 1]], axis=1)  # noqa: E731
     stretch = float(np.max(length(vertices)[crossing] / length(rest)[crossing]))
-    body = region < 0
-    still = bool(np.array_equal(vertices[body], rest[body]))
+    moving = np.isin(region, [*poses, *(d for k in poses for d in _descendants(skeleton, k))])
+    still = bool(np.array_equal(vertices[~moving], rest[~moving]))
+    return vertices, valid, change, max(det), stretch, still, bents
+
+
+QUADRUPED_POSES = (  # (name, {leg or tail: (bend, direction)}) on `quadruped`'s skeleton
+    ("front leg 60°", {"front": (60.0, 0.0)}),
+    ("front leg 60°, hind leg 45°, tail 40°",
+     {"front": (60.0, 0.0), "hind": (45.0, 180.0), "tail": (40.0, 90.0)}),
+)
+
+
+def quadruped_table(figure=None):
+    """Rows `(pose, vertices, ΔV/V, invalid, max |det J − 1|, border stretch, still)` of
+    `quadruped(32)` (`fleshing_jax._medial_axis.animal`: four separate thin legs, a tail,
+    horns) posed on its skeleton (200 spheres): a front leg, then a hind leg and the tail."""
+    from fleshing_jax._medial_axis.animal import quadruped
+
+    mesh = quadruped(32)
+    skeleton = fj.skeleton(mesh)
+    tips = np.array([np.asarray(limb.spine(limb.spine.length)) for limb in skeleton.limbs])
+    top = [k for k, limb in enumerate(skeleton.limbs) if limb.parent == -1]
+    limbs = {  # z up, the head towards +x
+        "front": next(k for k in top if tips[k, 2] < 0 and tips[k, 0] > 0.5 and tips[k, 1] > 0),
+        "hind": next(k for k in top if tips[k, 2] < 0 and tips[k, 0] < 0.5 and tips[k, 1] < 0),
+        "tail": next(k for k in top if tips[k, 0] < 0),
+    }
+    rows = []
+    for name, wanted in QUADRUPED_POSES:
+        poses = {limbs[part]: fj.LimbPose(*angles) for part, angles in wanted.items()}
+        vertices, valid, change, det, stretch, still, _ = posed_measures(mesh, skeleton, poses)
+        rows.append((name, len(vertices), change, int((~valid).sum()), det, stretch, still))
+    if figure is not None:
+        region = np.asarray(skeleton.region)
+        _picture(figure, mesh, np.asarray(mesh.vertices), vertices, None, region,
+                 (f"quadruped, {len(vertices):,} vertices", rows[-1][0]), view=(12, -60))
+    return rows
+
+
+def volume_table(spot, skeleton, medial, figure=None, turn=0.0):
+    """The volume table for `POSES`, each bend's direction turned by `turn` degrees."""
+    import jax.numpy as jnp
+
+    poses = {k: fj.LimbPose(bend, direction + turn) for k, (bend, direction) in POSES.items()}
+    vertices, valid, ours, det, stretch, still, bents = posed_measures(spot, skeleton, poses)
+    rest = np.asarray(spot.vertices)
+    region = np.asarray(skeleton.region)
+    v0 = fj.volume(rest, spot.faces)
     # The same intent for the medial mesh, every sphere a handle: a posed limb's spheres
     # carried by our map, those of the limbs below it (the head's ears and horns) by its end
     # motion, the others (the body, the legs not posed) held where they are.
@@ -194,8 +243,9 @@ def volume_table(spot, skeleton, medial, figure=None, turn=0.0):
     return rows, max(det), stretch, still
 
 
-def _picture(path, spot, rest, ours, medial, region):
-    """Rest, ours and medial deformation, rendered as shaded triangles (side view)."""
+def _picture(path, spot, rest, ours, medial, region, titles=None, view=(10, -70)):
+    """Rest, ours and medial deformation (when given), rendered as shaded triangles (side
+    view; spot's y up, a mesh with z up when `titles`, its titles, are given)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -204,26 +254,27 @@ def _picture(path, spot, rest, ours, medial, region):
 
     colours = plt.get_cmap("tab10")(np.arange(10))
     face_region = region[spot.faces].max(axis=1)
-    fig = plt.figure(figsize=(13, 4.6))
-    for i, (title, v) in enumerate(
-        (
-            ("rest", rest),
-            ("Fleshing: leg 30°, head 10°", ours),
-            ("medial deformation, same intent", medial),
-        )
-    ):
-        ax = fig.add_subplot(1, 3, i + 1, projection="3d")
-        triangles = v[spot.faces][:, :, [2, 0, 1]]  # z across, x deep, y up
+    shown = [("rest", rest), ("Fleshing: leg 30°, head 10°", ours)]
+    if titles is not None:
+        shown = [(titles[0] + ", rest", rest), (titles[1], ours)]
+    if medial is not None:
+        shown.append(("medial deformation, same intent", medial))
+    fig = plt.figure(figsize=(13 * len(shown) / 3, 4.6))
+    for i, (title, v) in enumerate(shown):
+        ax = fig.add_subplot(1, len(shown), i + 1, projection="3d")
+        axes = [2, 0, 1] if titles is None else [0, 1, 2]  # spot: z across, x deep, y up
+        triangles = v[spot.faces][:, :, axes]
         normal = np.cross(triangles[:, 1] - triangles[:, 0], triangles[:, 2] - triangles[:, 0])
         normal /= np.linalg.norm(normal, axis=1, keepdims=True) + 1e-12
         shade = 0.45 + 0.55 * np.clip(normal @ np.array([0.3, -0.5, 0.8]), 0, 1)
         base = np.where(face_region[:, None] < 0, 0.8, colours[face_region % 10, :3])
         ax.add_collection3d(Poly3DCollection(triangles, facecolors=base * shade[:, None],
                                              edgecolor="none"))  # fmt: skip
-        ax.set_xlim(-0.9, 1.1)
-        ax.set_ylim(-1, 1)
-        ax.set_zlim(-0.9, 1.1)
-        ax.view_init(elev=10, azim=-70)
+        low, high = rest[:, axes].min(axis=0), rest[:, axes].max(axis=0)
+        half = 0.55 * float(np.max(high - low))
+        for centre, limits in zip((low + high) / 2, (ax.set_xlim, ax.set_ylim, ax.set_zlim)):
+            limits(centre - half, centre + half)
+        ax.view_init(*view)
         ax.set_axis_off()
         ax.set_title(title)
     fig.tight_layout()
@@ -241,10 +292,18 @@ def main():
     parser.add_argument("--only-frames", action="store_true", help="the per-frame table only")
     parser.add_argument("--only-volumes", action="store_true", help="the volume table only")
     parser.add_argument("--only-fit", action="store_true", help="the fit table only")
+    parser.add_argument("--quadruped", action="store_true", help="the quadruped's table only")
     args = parser.parse_args()
     jax.config.update("jax_enable_x64", True)  # float64 for the volumes; the pose is float32
     for name, value in fj.compilation_cache_settings().items():  # compiled programs on disk
         jax.config.update(name, value)
+    if args.quadruped:
+        print("| pose | vertices | ΔV/V | invalid | max abs(det J − 1) | border stretch | "
+              "the rest still |\n|---|---:|---:|---:|---:|---:|---|")
+        for name, n, change, invalid, det, stretch, still in quadruped_table(args.figure):
+            print(f"| {name} | {n} | {100 * change:+.4f} % | {invalid} | {det:.2e} | "
+                  f"{stretch:.3f} | {still} |")
+        return
     spot = fj.data.spot()
     if args.skip_skeleton:  # the skeleton the notebooks load (the same build, saved)
         skeleton = fj.load_skeleton(SAVED_SKELETON)

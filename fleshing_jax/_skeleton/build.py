@@ -17,6 +17,9 @@ from .skeleton import Limb, Skeleton
 # span), so that one compiled program serves all (here and when posing them).
 LIMB_CONTROL_POINTS = 8
 LIMB_SUBDIVISIONS = 32
+# A child's region meets its parent's at least this many spine samples beyond where the
+# parent's region meets the rest (`_room_to_bend`; `register_skeleton` projects exactly).
+ROOM = 2
 REFITS = 3  # straighter fits, at most, until the region lies within the spine's reach
 # A medial mesh belongs to a mesh when its centres lie in the mesh's bounding box (up to this
 # fraction of its diagonal), its spheres reach no farther than twice the nearest vertex, and
@@ -93,11 +96,61 @@ def skeleton(mesh, *, medial: MedialMesh | None = None, spheres: int = 200,
         index[number] = len(limbs)
         region[part.vertices] = len(limbs)
         limbs.append(Limb(spine, part.joint, parent))
+    limbs, region = _room_to_bend(limbs, region, vertices, adjacency)
     given = np.asarray(mesh.vertices if given is not None else mesh[0], np.float64)
     if len(given) != len(vertices) or not np.array_equal(given, vertices):
         # Welded or with unused vertices dropped: each given vertex takes its copy's region.
         region = region[cKDTree(vertices).query(given)[1]]
     return Skeleton(tuple(limbs), region.astype(np.int32), given)
+
+
+def _room_to_bend(limbs: list[Limb], region: np.ndarray, vertices, adjacency):
+    """`(limbs, region)` where every limb's children leave it beyond where it leaves the
+    rest: a child limb (with its own children) whose region meets its parent's at arc
+    lengths (on the parent's spine) within `ROOM` of spine samples of where the parent's
+    region meets anything else joins its parent's region, and the limbs are renumbered.
+    `register_skeleton` bends a limb between those arc lengths and refused a skeleton with
+    no room (a horn split into a base and a tip on a small head: the tip's region began
+    before the base's joint)."""
+    while True:
+        below = _below(limbs)
+        merged = None
+        for k, limb in enumerate(limbs):
+            ids = np.flatnonzero(region == k)
+            if not below[k] or not len(ids):
+                continue
+            s, points, _ = map(np.asarray, spine_samples(limb.spine))
+            arc = s[cKDTree(points).query(vertices[ids])[1]]
+            others = ~np.isin(region, [k, *below[k]])
+            leaves = ids[adjacency[ids] @ others.astype(float) > 0]
+            joint = max(float(limb.joint), float(arc[np.isin(ids, leaves)].max(initial=0.0)))
+            room = ROOM * float(s[1] - s[0])
+            for child in (c for c, other in enumerate(limbs) if other.parent == k):
+                meets = adjacency[ids] @ np.isin(region, [child, *below[child]]).astype(float)
+                if arc[meets > 0].min(initial=np.inf) <= joint + room:
+                    merged = (k, [child, *below[child]])
+                    break
+            if merged:
+                break
+        if merged is None:
+            return limbs, region
+        k, gone = merged
+        region[np.isin(region, gone)] = k
+        keep = [i for i in range(len(limbs)) if i not in gone]
+        renumber = np.full(len(limbs) + 1, -1)  # old index + 1 → new index (−1: the body)
+        renumber[np.array(keep) + 1] = np.arange(len(keep))
+        region = renumber[region + 1]
+        limbs = [Limb(limbs[i].spine, limbs[i].joint, int(renumber[limbs[i].parent + 1]))
+                 for i in keep]
+
+
+def _below(limbs: list[Limb]) -> list[list[int]]:
+    """Each limb's descendants (children, their children, …)."""
+    below = [[] for _ in limbs]
+    for k in reversed(range(len(limbs))):
+        if limbs[k].parent >= 0:
+            below[limbs[k].parent] += [k, *below[k]]
+    return below
 
 
 def _fit_limb(found: LimbPath, centers, radii, vertices, adjacency, allowed, margin):
