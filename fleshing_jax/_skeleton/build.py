@@ -48,6 +48,10 @@ def skeleton(mesh, *, medial: MedialMesh | None = None, spheres: int = 200,
     bends it from its joint as Fleshing bends a tube from its base; one limb and no body would
     leave nothing still to pose against.
 
+    A child limb whose region would begin before its parent's joint (a horn split into a
+    base and a tip on a small head) joins its parent's region: every skeleton returned
+    registers (`fj.register_skeleton`) and leaves each limb room to bend.
+
     On spot (`fj.data.spot()`): the head and neck (its ears and horns as child limbs) and
     four legs. Its tail is a tuft on the rump: the medial mesh ends it with one small sphere,
     which leaves less than its radius to bend beyond the rump, so it stays in the body.
