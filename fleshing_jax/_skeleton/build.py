@@ -11,7 +11,7 @@ from .._mesh.deform import longest_edge
 from .fit import extend_beyond, fit_bspline
 from .limbs import LimbPath, find_limbs
 from .regions import limb_region, mesh_adjacency, spine_samples
-from .skeleton import Limb, Skeleton
+from .skeleton import Limb, Skeleton, descendants
 
 # Every limb's spine has one static structure (count of control points, subdivisions per
 # span), so that one compiled program serves all (here and when posing them).
@@ -117,7 +117,7 @@ def _room_to_bend(limbs: list[Limb], region: np.ndarray, vertices, adjacency):
     no room (a horn split into a base and a tip on a small head: the tip's region began
     before the base's joint)."""
     while True:
-        below = _below(limbs)
+        below = descendants(limbs)
         merged = None
         for k, limb in enumerate(limbs):
             ids = np.flatnonzero(region == k)
@@ -146,15 +146,6 @@ def _room_to_bend(limbs: list[Limb], region: np.ndarray, vertices, adjacency):
         region = renumber[region + 1]
         limbs = [Limb(limbs[i].spine, limbs[i].joint, int(renumber[limbs[i].parent + 1]))
                  for i in keep]
-
-
-def _below(limbs: list[Limb]) -> list[list[int]]:
-    """Each limb's descendants (children, their children, …)."""
-    below = [[] for _ in limbs]
-    for k in reversed(range(len(limbs))):
-        if limbs[k].parent >= 0:
-            below[limbs[k].parent] += [k, *below[k]]
-    return below
 
 
 def _fit_limb(found: LimbPath, centers, radii, vertices, adjacency, allowed, margin):

@@ -44,7 +44,7 @@ from .._spines.looked_up import LookedUpSpine
 from .._spines.spine import AbstractSpine
 from .._spines.table import tabulates
 from .limb_pose import LimbPose
-from .skeleton import Skeleton
+from .skeleton import Skeleton, descendants
 
 
 class SkeletonRegistration(eqx.Module):
@@ -107,7 +107,7 @@ def register_skeleton(mesh, skeleton: Skeleton, *, margin: float | None = None,
         margin = 0.5 * longest_edge(vertices, faces)
     margin = as_margin(margin, points.dtype)
     region = np.asarray(skeleton.region)
-    lineage = _lineage(skeleton)
+    lineage = descendants(skeleton.limbs)
     edges = _edges(faces)
     registrations, rests, indices, joints, stops = [], [], [], [], []
     # Every limb's region padded to the largest's bucket: one compiled program for all.
@@ -138,16 +138,6 @@ def register_skeleton(mesh, skeleton: Skeleton, *, margin: float | None = None,
         stops.append(jnp.asarray(stop, points.dtype))
     return SkeletonRegistration(tuple(registrations), tuple(rests), tuple(indices), tuple(joints),
                                 tuple(stops), points, margin)
-
-
-def _lineage(skeleton: Skeleton) -> list[list[int]]:
-    """Each limb's descendants (children, their children, …)."""
-    below = [[] for _ in skeleton.limbs]
-    for k in reversed(range(len(skeleton.limbs))):
-        parent = skeleton.limbs[k].parent
-        if parent >= 0:
-            below[parent] += [k, *below[k]]
-    return below
 
 
 def _edges(faces: np.ndarray) -> np.ndarray:

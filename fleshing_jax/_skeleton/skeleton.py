@@ -59,6 +59,16 @@ class Limb(eqx.Module):
                 )
 
 
+def descendants(limbs) -> list[list[int]]:
+    """Each limb's descendants (children, their children, …) among `limbs` (a sequence of
+    `Limb`s in topological order)."""
+    below = [[] for _ in limbs]
+    for k in reversed(range(len(limbs))):
+        if limbs[k].parent >= 0:
+            below[limbs[k].parent] += [k, *below[k]]
+    return below
+
+
 class Skeleton(eqx.Module):
     """A shape as a body and a tree of limbs (built by `fj.skeleton`).
 
