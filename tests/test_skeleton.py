@@ -343,42 +343,48 @@ def test_unwelded_mesh_copies_share_their_region(spot):
     assert np.array_equal(np.asarray(skeleton.region), np.asarray(welded.region)[copy_of])
 
 
-def test_a_child_with_no_room_before_it_joins_its_parent():
-    """`fj.skeleton` never returns a skeleton that `register_skeleton` refuses: a child limb
-    whose region begins where its parent's leaves the body (a horn split into a base and a
-    tip on the quadruped's small head, at 200 spheres) joins its parent's region, and the
-    limbs are renumbered; a child with room stays a limb."""
+def test_a_child_with_no_room_before_it_joins_its_parent_or_takes_its_place():
+    """`fj.skeleton` never returns a skeleton that `register_skeleton` refuses. Where a
+    child limb's region begins where its parent's leaves the body, the shorter gives way: a
+    short child (a horn's tip split from its base, the quadruped at 200 spheres) joins its
+    parent's region; a short parent (the bunny's head, before its long ears) leaves its
+    region to the body and its child to it. A child with room stays a limb."""
     from _posing_shapes import tube_mesh
 
     from fleshing_jax._skeleton.build import _room_to_bend
 
     mesh = tube_mesh()
-    x = np.asarray(mesh.vertices)[:, 0]
+    vertices = np.asarray(mesh.vertices)
+    x = vertices[:, 0]
+    adjacency = mesh_adjacency(vertices, np.asarray(mesh.faces))
 
     def straight(start, end):
-        return fj.BSpline(np.linspace(start, end, 8), subdivisions=32)
+        return fj.BSpline(np.linspace([start, 0, 0], [end, 0, 0], 8), subdivisions=32)
 
-    def case(child_from):
+    def case(parent_end, child_start, child_from):
         region = np.full(len(x), -1)
         region[x < 2.0 - 1e-9] = 0  # a limb with no child, listed first
         region[x > 4.0 + 1e-9] = 1
         region[x > child_from + 1e-9] = 2
-        limbs = [fj.Limb(straight([2.5, 0, 0], [0, 0, 0]), 0.2, -1),
-                 fj.Limb(straight([3.5, 0, 0], [6, 0, 0]), 0.5, -1),
-                 fj.Limb(straight([child_from - 0.4, 0, 0], [6, 0, 0]), 0.3, 1)]
+        limbs = [fj.Limb(straight(2.5, 0), 0.2, -1), fj.Limb(straight(3.5, parent_end), 0.5, -1),
+                 fj.Limb(straight(child_start, 6), 0.3, 1)]
         return limbs, region
 
-    adjacency = mesh_adjacency(np.asarray(mesh.vertices), np.asarray(mesh.faces))
-    limbs, region = case(4.1)  # the child's region begins one ring past the parent's
-    with pytest.raises(ValueError, match="no room to bend"):
+    def registers(limbs, region):
         fj.register_skeleton(mesh, fj.Skeleton(limbs, region, mesh.vertices), margin=0.06)
-    joined, joined_region = _room_to_bend(limbs, region.copy(), np.asarray(mesh.vertices),
-                                          adjacency)
-    assert [limb.parent for limb in joined] == [-1, -1]
-    assert np.array_equal(joined_region, np.where(region == 2, 1, region))
-    skeleton = fj.Skeleton(joined, joined_region, mesh.vertices)
-    fj.register_skeleton(mesh, skeleton, margin=0.06)  # accepted
-    limbs, region = case(5.2)  # room: kept
-    kept, kept_region = _room_to_bend(limbs, region.copy(), np.asarray(mesh.vertices), adjacency)
+
+    for parent_end, child_start, parents, renumbered in (
+        (6.0, 5.0, [-1, -1], {-1: -1, 0: 0, 1: 1, 2: 1}),  # the child (1 long) joins
+        (4.6, 3.7, [-1, -1], {-1: -1, 0: 0, 1: -1, 2: 1}),  # the parent (1.1 long) gives way
+    ):
+        limbs, region = case(parent_end, child_start, 4.1)  # one ring past the parent's
+        with pytest.raises(ValueError, match="no room to bend"):
+            registers(limbs, region)
+        fixed, fixed_region = _room_to_bend(limbs, region.copy(), vertices, adjacency)
+        assert [limb.parent for limb in fixed] == parents
+        assert np.array_equal(fixed_region, np.vectorize(renumbered.get)(region))
+        registers(fixed, fixed_region)  # accepted
+    limbs, region = case(6.0, 4.8, 5.2)  # room: kept
+    kept, kept_region = _room_to_bend(limbs, region.copy(), vertices, adjacency)
     assert [limb.parent for limb in kept] == [-1, -1, 1]
     assert np.array_equal(kept_region, region)

@@ -48,9 +48,12 @@ def skeleton(mesh, *, medial: MedialMesh | None = None, spheres: int = 200,
     bends it from its joint as Fleshing bends a tube from its base; one limb and no body would
     leave nothing still to pose against.
 
-    A child limb whose region would begin before its parent's joint (a horn split into a
-    base and a tip on a small head) joins its parent's region: every skeleton returned
-    registers (`fj.register_skeleton`) and leaves each limb room to bend.
+    Where a child limb's region would begin before its parent's joint, the shorter of the
+    two gives way: a child shorter than its parent's bendable part (a horn split into a
+    base and a tip on a small head) joins its parent's region; a parent shorter than its
+    child (a head too short before its ears) leaves its region to its own parent and its
+    children to it. Every skeleton returned registers (`fj.register_skeleton`) and leaves
+    each limb room to bend.
 
     On spot (`fj.data.spot()`): the head and neck (its ears and horns as child limbs) and
     four legs. Its tail is a tuft on the rump: the medial mesh ends it with one small sphere,
@@ -110,15 +113,17 @@ def skeleton(mesh, *, medial: MedialMesh | None = None, spheres: int = 200,
 
 def _room_to_bend(limbs: list[Limb], region: np.ndarray, vertices, adjacency):
     """`(limbs, region)` where every limb's children leave it beyond where it leaves the
-    rest: a child limb (with its own children) whose region meets its parent's at arc
-    lengths (on the parent's spine) within `ROOM` of spine samples of where the parent's
-    region meets anything else joins its parent's region, and the limbs are renumbered.
-    `register_skeleton` bends a limb between those arc lengths and refused a skeleton with
-    no room (a horn split into a base and a tip on a small head: the tip's region began
-    before the base's joint)."""
+    rest. `register_skeleton` bends a limb between those arc lengths and refused a skeleton
+    with no room. Where a child's region meets its parent's at arc lengths (on the parent's
+    spine) within `ROOM` spine samples of where the parent's region meets anything else,
+    the shorter of the two gives way: a child shorter than its parent's length past the
+    joint (a horn split into a base and a tip on a small head) joins its parent's region; a
+    parent shorter than the child (the bunny's head, 0.035 long, before ears 0.065–0.08
+    long) leaves its region to its own parent and its children to it. The limbs are then
+    renumbered."""
     while True:
         below = descendants(limbs)
-        merged = None
+        conflict = None
         for k, limb in enumerate(limbs):
             ids = np.flatnonzero(region == k)
             if not below[k] or not len(ids):
@@ -132,14 +137,22 @@ def _room_to_bend(limbs: list[Limb], region: np.ndarray, vertices, adjacency):
             for child in (c for c, other in enumerate(limbs) if other.parent == k):
                 meets = adjacency[ids] @ np.isin(region, [child, *below[child]]).astype(float)
                 if arc[meets > 0].min(initial=np.inf) <= joint + room:
-                    merged = (k, [child, *below[child]])
+                    conflict = (k, child, float(s[-1]) - joint)
                     break
-            if merged:
+            if conflict:
                 break
-        if merged is None:
+        if conflict is None:
             return limbs, region
-        k, gone = merged
-        region[np.isin(region, gone)] = k
+        k, child, beyond = conflict
+        grand = limbs[k].parent
+        if float(limbs[child].spine.length) - float(limbs[child].joint) <= beyond:
+            gone = [child, *below[child]]  # the child joins its parent
+            region[np.isin(region, gone)] = k
+        else:
+            gone = [k]  # the parent gives its region and its children to its own parent
+            region[region == k] = grand
+            limbs = [Limb(limb.spine, limb.joint, grand) if limb.parent == k else limb
+                     for limb in limbs]
         keep = [i for i in range(len(limbs)) if i not in gone]
         renumber = np.full(len(limbs) + 1, -1)  # old index + 1 → new index (−1: the body)
         renumber[np.array(keep) + 1] = np.arange(len(keep))
