@@ -388,3 +388,14 @@ def test_a_child_with_no_room_before_it_joins_its_parent_or_takes_its_place():
     kept, kept_region = _room_to_bend(limbs, region.copy(), vertices, adjacency)
     assert [limb.parent for limb in kept] == [-1, -1, 1]
     assert np.array_equal(kept_region, region)
+
+
+def test_a_skeleton_built_on_its_own_medial_mesh_is_never_refused():
+    """An unfitted medial mesh (`fj.skeleton`'s own) may hold a merged sphere that stands
+    out of the surface: the check that a medial mesh belongs to the mesh refused spot's at
+    seed 1 (a sphere 2.4 times as large as its distance to the nearest vertex). It still
+    refuses one of another shape (`test_bad_input`)."""
+    mesh = fj.data.spot()
+    skeleton = fj.skeleton(mesh, seed=1)
+    assert len(skeleton.limbs) >= 4
+    fj.register_skeleton(mesh, skeleton)
