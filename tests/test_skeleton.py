@@ -394,8 +394,17 @@ def test_a_skeleton_built_on_its_own_medial_mesh_is_never_refused():
     """An unfitted medial mesh (`fj.skeleton`'s own) may hold a merged sphere that stands
     out of the surface: the check that a medial mesh belongs to the mesh refused spot's at
     seed 1 (a sphere 2.4 times as large as its distance to the nearest vertex). It still
-    refuses one of another shape (`test_bad_input`)."""
+    refuses one of another shape (`test_bad_input`). At that seed the head's straighter
+    refit (for its ears, beyond the first spine's reach) left it a knob, and the head, its
+    ears and horns stayed in the body: a gentler straightening keeps it, every vertex valid
+    at rest."""
     mesh = fj.data.spot()
     skeleton = fj.skeleton(mesh, seed=1)
-    assert len(skeleton.limbs) >= 4
-    fj.register_skeleton(mesh, skeleton)
+    registration = fj.register_skeleton(mesh, skeleton)
+    snout = int(np.argmin(np.asarray(mesh.vertices)[:, 2]))
+    head = int(skeleton.region[snout])
+    assert head >= 0 and len(skeleton.children(head)) >= 2
+    assert len(skeleton.limbs) >= 6
+    for k in range(len(skeleton.limbs)):
+        n = registration.indices[k].shape[0]
+        assert np.asarray(registration.registrations[k].valid)[:n].all(), f"limb {k}"

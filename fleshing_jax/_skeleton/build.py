@@ -21,6 +21,11 @@ LIMB_SUBDIVISIONS = 32
 # parent's region meets the rest (`_room_to_bend`; `register_skeleton` projects exactly).
 ROOM = 2
 REFITS = 3  # straighter fits, at most, until the region lies within the spine's reach
+# A straighter fit bounds the curvature by the region's distances to the spine (`far`), or by
+# these shares of them when the full bound leaves no region (a knob): on spot at seed 1 the
+# head's spine, made straight for its ears at 0.6, let its region end 0.13 from its tip, and
+# the head with its ears and horns stayed in the body; at 0.75 of it every vertex is valid.
+STRAIGHTER = (1.0, 0.75, 0.5)
 # A medial mesh belongs to a mesh when its centres lie in the mesh's bounding box (up to this
 # fraction of its diagonal), no sphere's radius exceeds `REACHES` times the distance from its
 # centre to the nearest vertex, and every vertex lies within this fraction of the diagonal
@@ -177,8 +182,12 @@ def _fit_limb(found: LimbPath, centers, radii, vertices, adjacency, allowed, mar
         far = _reach_needed(spine, part, vertices, arc, margin) if part is not None else None
         if far is None:
             break
-        spine, cut, tip, arc, local = _limb_spine(found, centers, radii, vertices, margin, far)
-        part = limb_region(spine, cut, tip, arc, local, vertices, adjacency, allowed)
+        for share in STRAIGHTER:
+            spine, cut, tip, arc, local = _limb_spine(found, centers, radii, vertices, margin,
+                                                      share * far)
+            part = limb_region(spine, cut, tip, arc, local, vertices, adjacency, allowed)
+            if part is not None:
+                break
     return spine, part
 
 
