@@ -69,5 +69,6 @@ def animal(resolution: int = 48, **thickness) -> trimesh.Trimesh:
 
 def quadruped(resolution: int = 48, **thickness) -> trimesh.Trimesh:
     """The closed, manifold surface of `quadruped_medial(**thickness)` at `resolution`
-    (about 3,400 vertices at 28, 9,700 at 48): four legs that a skeleton can tell apart."""
+    (3,080 vertices at 28, its horn tips loose; 4,256 at 32; 9,654 at 48): four legs
+    that a skeleton can tell apart."""
     return quadruped_medial(**thickness).envelope(resolution)

@@ -190,7 +190,9 @@ def refine_spheres(points, targets, centers, radii, edges, faces, *, scale: floa
       (see the module's notes; 0: none).
 
     **Returns:** `(centers (n, 3), radii (n,))`, radii `>= 0`; every accepted step lowers
-    the weighted sum of squares of that step's weights.
+    the weighted sum of squares of that step's weights. With `surface`, the last pass
+    (`_kept_inside`) puts every centre inside and clamps each sphere's overhang to the
+    farthest surface sample outside the union.
     """
     points = np.asarray(points, dtype=np.float64)
     targets = np.asarray(targets, dtype=np.float64)

@@ -39,7 +39,6 @@ from .spine import AbstractSpine, AbstractTabulatedSpine, torsion_of
 from .table import SpineTable
 
 INTERVALS = 64  # uniform intervals on [0, length], besides the base's own breaks
-_NODES, _WEIGHTS = GAUSS_POINTS, GAUSS_WEIGHTS  # (`looked_up`: 4 points an interval)
 
 
 EDGE = 0.25  # the fraction of the ramp over which its slope rises (and then falls)
@@ -209,9 +208,9 @@ class PreparedBent(AbstractSpine):
                      self.breaks.shape[0] - 2)
         start = self.breaks[m]
         half = (inside - start) / 2
-        points = start + half * (1 + jnp.asarray(_NODES, s.dtype))
+        points = start + half * (1 + jnp.asarray(GAUSS_POINTS, s.dtype))
         values = jax.vmap(self._tangent)(points)
-        integral = self.positions[m] + half * jnp.asarray(_WEIGHTS, s.dtype) @ values
+        integral = self.positions[m] + half * jnp.asarray(GAUSS_WEIGHTS, s.dtype) @ values
         return jnp.where(s <= self.joint, c0, jnp.where(s >= self.stop, rigid, integral))
 
     def _turned(self, s: Array, base, integrate: bool = True):
@@ -269,7 +268,7 @@ class PreparedBent(AbstractSpine):
         def moved(s, tangent):  # (Q − 1) T₀ at s
             return self._turn(self._angles(s)[0], tangent) - tangent
 
-        steps = at.half[:, None] * jnp.einsum("g,ngc->nc", jnp.asarray(_WEIGHTS, flat.dtype),
+        steps = at.half[:, None] * jnp.einsum("g,ngc->nc", jnp.asarray(GAUSS_WEIGHTS, flat.dtype),
                                               jax.vmap(jax.vmap(moved))(at.points, at.tangents))
         c = c0 + jnp.cumsum(steps, axis=0)
 
@@ -303,9 +302,9 @@ def _prepared(spine: BentSpine) -> PreparedBent:
                            breaks, jnp.zeros((breaks.shape[0], 3), c.dtype), c)
     # Each interval's integral of T₁ (Gauss–Legendre), summed from C₀(joint).
     half = (breaks[1:] - breaks[:-1]) / 2
-    points = (breaks[:-1] + half)[:, None] + half[:, None] * jnp.asarray(_NODES, c.dtype)
+    points = (breaks[:-1] + half)[:, None] + half[:, None] * jnp.asarray(GAUSS_POINTS, c.dtype)
     values = jax.vmap(jax.vmap(partial._tangent))(points)  # (M − 1, GAUSS, 3)
-    steps = half[:, None] * jnp.einsum("g,mgc->mc", jnp.asarray(_WEIGHTS, c.dtype), values)
+    steps = half[:, None] * jnp.einsum("g,mgc->mc", jnp.asarray(GAUSS_WEIGHTS, c.dtype), values)
     positions = c + jnp.concatenate([jnp.zeros((1, 3), c.dtype), jnp.cumsum(steps, axis=0)])
     rest_stop = base._jet(spine.stop)[0]
     return PreparedBent(base, spine.joint, spine.stop, spine.bend, spine.twist, axis, t, breaks,
