@@ -41,6 +41,7 @@ import trimesh
 
 import fleshing_jax as fj
 from fleshing_jax._skeleton.posing import end_motion  # a posed limb's motion of its children
+from fleshing_jax._skeleton.skeleton import descendants
 
 SAVED_SKELETON = Path(__file__).resolve().parents[1] / "notebooks" / "data" / "spot-skeleton.json"
 HEAD, LEG = 0, 8  # spot's head/neck and a hind leg (every limb is valid at rest)
@@ -132,15 +133,6 @@ def _sphere_regions(medial, vertices, region):
     return region[cKDTree(vertices).query(np.asarray(medial.centers))[1]]
 
 
-def _descendants(skeleton, k):
-    """The limbs below limb `k` (its children, theirs, …)."""
-    below, grew = {k}, True
-    while grew:
-        more = {i for i, limb in enumerate(skeleton.limbs) if limb.parent in below} - below
-        below, grew = below | more, bool(more)
-    return sorted(below - {k})
-
-
 def posed_measures(mesh, skeleton, poses):
     """`mesh` posed by `poses` (float64): `(vertices, valid, ΔV/V, max |det J − 1| in the posed
     regions, the largest stretch of an edge crossing a region border, whether the vertices
@@ -165,7 +157,8 @@ def posed_measures(mesh, skeleton, poses):
     crossing = region[edges[:, 0]] != region[edges[:, 1]]
     length = lambda v: np.linalg.norm(v[edges[:, 0]] - v[edges[:, 1]], axis=1)  # noqa: E731
     stretch = float(np.max(length(vertices)[crossing] / length(rest)[crossing]))
-    moving = np.isin(region, [*poses, *(d for k in poses for d in _descendants(skeleton, k))])
+    below = descendants(skeleton.limbs)
+    moving = np.isin(region, [*poses, *(d for k in poses for d in below[k])])
     still = bool(np.array_equal(vertices[~moving], rest[~moving]))
     return vertices, valid, change, max(det), stretch, still, bents
 
@@ -223,7 +216,7 @@ def volume_table(spot, skeleton, medial, figure=None, turn=0.0):
         moved = owner == k
         targets[moved] = np.asarray(fj.flesh(jnp.asarray(centers[moved]), *bents[k],
                                              beyond="rigid")[0])
-        below = np.isin(owner, _descendants(skeleton, k))
+        below = np.isin(owner, descendants(skeleton.limbs)[k])
         targets[below] = np.asarray(end_motion(*bents[k])(jnp.asarray(centers[below])))
     handles = np.arange(len(centers))
     rows = [("Fleshing (ours)", ours, int((~valid).sum()))]
@@ -240,7 +233,7 @@ def volume_table(spot, skeleton, medial, figure=None, turn=0.0):
         )
     if figure is not None:
         _picture(figure, spot, rest, vertices, deformed["medial"], region)
-    return rows, max(det), stretch, still
+    return rows, det, stretch, still
 
 
 def _picture(path, spot, rest, ours, medial, region, titles=None, view=(10, -70)):
@@ -339,7 +332,8 @@ def main():
     for t, (_, det, stretch, still) in zip(turns, tables):
         print(
             f"turned {t:.0f}°: max |det J − 1| in the posed regions {det:.2e}; largest stretch "
-            f"of an edge crossing a region border {stretch:.3f}; body bit-for-bit still: {still}"
+            f"of an edge crossing a region border {stretch:.3f}; the rest (neither posed nor "
+            f"below a posed limb) bit for bit still: {still}"
         )
 
 
