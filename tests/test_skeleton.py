@@ -81,67 +81,93 @@ def test_spot_has_a_head_with_ears_and_horns_and_four_legs(spot):
     assert np.isin(region[low], legs).all()
 
 
+def _chain_ends(skeleton):
+    """Each of the body's limbs → the deepest limb below it (its chain's last, the tip's)."""
+    ends = {}
+    for k in range(len(skeleton.limbs)):
+        chain = skeleton.chain(k)
+        if chain[0] not in ends or len(chain) > len(skeleton.chain(ends[chain[0]])):
+            ends[chain[0]] = k
+    return ends
+
+
 def test_table_has_four_legs(table_case):
+    """Each leg a chain from the top (long and thin: split in its middle, where a knee would
+    be), its last limb's tip on the floor."""
     mesh, _, skeleton = table_case
     tips = _tips(skeleton)
-    assert [limb.parent for limb in skeleton.limbs] == [-1] * 4
-    assert sorted(map(tuple, np.sign(tips[:, :2]).astype(int).tolist())) == [
+    ends = _chain_ends(skeleton)
+    assert len(ends) == 4 and all(skeleton.limbs[top].parent == -1 for top in ends)
+    feet = tips[list(ends.values())]
+    assert sorted(map(tuple, np.sign(feet[:, :2]).astype(int).tolist())) == [
         (-1, -1), (-1, 1), (1, -1), (1, 1)
     ]  # fmt: skip
-    assert np.all(tips[:, 2] < 0.05)  # down to the floor
+    assert np.all(feet[:, 2] < 0.05)  # down to the floor
     vertices, region = np.asarray(mesh.vertices), np.asarray(skeleton.region)
     assert np.all(region[vertices[:, 2] < 0.5] >= 0)  # the legs below the top
     assert np.all(region[vertices[:, 2] > 0.8] == -1)  # the top is the body
 
 
 def test_quadruped_has_four_legs_a_tail_and_horns_and_poses_one_leg(quadruped_case):
-    """A four-legged animal with thin legs side by side (`quadruped`): each leg a limb whose
-    region holds its own foot and no other's, the tail and each horn a limb; one leg lifted
-    leaves the three others, the tail, the horns and the body bit for bit still, with no
-    torn edge at its border and the volume kept."""
+    """A four-legged animal with thin legs side by side (`quadruped`): each leg a chain of
+    at least two limbs (hip, then a knee: 10 radii long) whose regions hold its own foot and
+    no other's, the tail and each horn a limb; one leg lifted at its hip carries its lower
+    leg and leaves the three others, the tail, the horns and the body bit for bit still,
+    with no torn edge at its border and the volume kept."""
     mesh, _, skeleton = quadruped_case
     tips = _tips(skeleton)
     vertices, region = np.asarray(mesh.vertices), np.asarray(skeleton.region)
-    body = [i for i, limb in enumerate(skeleton.limbs) if limb.parent == -1]
-    legs = [i for i in body if tips[i, 2] < 0]  # z up: feet at the bottom
-    assert {(bool(tips[i, 0] > 0.5), bool(tips[i, 1] > 0)) for i in legs} == {
+    ends = _chain_ends(skeleton)
+    legs = {top: end for top, end in ends.items() if tips[end, 2] < 0}  # z up: feet below
+    assert {(bool(tips[e, 0] > 0.5), bool(tips[e, 1] > 0)) for e in legs.values()} == {
         (a, b) for a in (False, True) for b in (False, True)
     } and len(legs) == 4  # fmt: skip
-    for i in legs:  # the foot's vertices are its own, the other feet's are not
-        foot = (vertices[:, 2] < -0.05) & (np.linalg.norm(vertices[:, :2] - tips[i, :2],
+    for top, end in legs.items():  # the foot's vertices are its own, the other feet's are not
+        chain = skeleton.chain(end)
+        assert len(chain) >= 2 and chain[0] == top
+        foot = (vertices[:, 2] < -0.05) & (np.linalg.norm(vertices[:, :2] - tips[end, :2],
                                                           axis=1) < 0.06)  # fmt: skip
-        assert foot.any() and np.all(region[foot] == i)
-    assert sum(tips[i, 0] < 0 for i in body) == 1  # the tail
+        assert foot.any() and np.all(region[foot] == end)
+        assert np.all(region[(vertices[:, 2] < 0.05) & np.isin(region, chain)] != top)
+    assert sum(tips[e, 0] < 0 for e in ends.values()) == 1  # the tail
     assert np.all(region[vertices[:, 0] < -0.08] >= 0)  # its tip moves with it
     horns = (vertices[:, 2] > 0.8) & (np.abs(vertices[:, 1]) > 0.06)
-    assert np.all(region[horns] >= 0) and len({int(r) for r in region[horns]}) >= 2
-    # One leg lifted 30° towards the front.
-    leg = next(i for i in legs if tips[i, 0] > 0.5 and tips[i, 1] > 0)
+    assert np.all(region[horns] >= 0) and len({skeleton.chain(r)[0] for r in region[horns]}) >= 2
+    # One leg lifted 30° towards the front, at its hip: its whole chain moves.
+    leg = next(top for top, end in legs.items() if tips[end, 0] > 0.5 and tips[end, 1] > 0)
+    chain = np.isin(region, [leg, *(k for k in range(len(skeleton.limbs))
+                                    if leg in skeleton.chain(k))])  # fmt: skip
     posed = fj.pose_skeleton(mesh, skeleton, {leg: fj.LimbPose(bend=30.0)})
     moved = np.asarray(posed.vertices)
     assert np.asarray(posed.valid).all()
-    assert np.array_equal(moved[region != leg], vertices[region != leg])
-    assert np.linalg.norm(moved[region == leg] - vertices[region == leg], axis=1).max() > 0.05
+    assert np.array_equal(moved[~chain], vertices[~chain])
+    diagonal = np.linalg.norm(np.ptp(vertices, axis=0))
+    foot = (region == legs[leg]) & (vertices[:, 2] < -0.05)
+    assert np.linalg.norm(moved[foot] - vertices[foot], axis=1).min() > 0.04 * diagonal
     edges = np.asarray(mesh.edges_unique)
-    crossing = edges[(region[edges[:, 0]] == leg) != (region[edges[:, 1]] == leg)]
-    stretch = np.linalg.norm(moved[crossing[:, 0]] - moved[crossing[:, 1]], axis=1) / (
-        np.linalg.norm(vertices[crossing[:, 0]] - vertices[crossing[:, 1]], axis=1))
+    stretch = np.linalg.norm(moved[edges[:, 0]] - moved[edges[:, 1]], axis=1) / (
+        np.linalg.norm(vertices[edges[:, 0]] - vertices[edges[:, 1]], axis=1))
     assert stretch.max() < 1.5 and stretch.min() > 1 / 1.5
     change = float(fj.volume(moved, mesh.faces) / fj.volume(vertices, mesh.faces)) - 1
     assert abs(change) < 1e-3
 
 
-def test_capsule_is_a_body_at_one_end_and_one_limb(capsule_case):
+def test_capsule_is_a_body_at_one_end_and_one_chain(capsule_case):
+    """A tube 8 radii long: a body at one end and one limb, jointed in its middle."""
     mesh, _, skeleton = capsule_case
-    assert len(skeleton.limbs) == 1 and skeleton.limbs[0].parent == -1
+    assert [limb.parent for limb in skeleton.limbs] == [-1, 0]
     z = np.asarray(mesh.vertices)[:, 2]
     body = np.asarray(skeleton.region) == -1
     # The body is a cap at one end (its sphere: a radius 0.5 beyond the hemisphere at most).
     end = np.sign(np.mean(z[body]))
     assert body.any() and np.all(end * z[body] > 2.5 - 1.6)
-    points = np.asarray(spine_samples(skeleton.limbs[0].spine)[1])
-    assert np.abs(points[:, :2]).max() < 0.05  # along the axis
-    assert abs(points[-1, 2] + end * 2.5) < 0.05  # to the far end's surface
+    for limb in skeleton.limbs:
+        points = np.asarray(spine_samples(limb.spine)[1])
+        assert np.abs(points[:, :2]).max() < 0.05  # along the axis
+        assert abs(points[-1, 2] + end * 2.5) < 0.05  # to the far end's surface
+    # The joint near the middle: the second limb's region is the far half.
+    far = np.asarray(skeleton.region) == 1
+    assert np.all(-end * z[far] > -0.6) and np.all(-end * z[~far] < 0.6)
 
 
 @pytest.mark.parametrize("case", CASES)

@@ -20,8 +20,10 @@ def test_skeleton_command_prints_the_limbs_and_writes_the_file(table_file, tmp_p
     assert main(["skeleton", str(table_file), str(out), "--spheres", "30", "--seed", "1"]) == 0
     printed = capsys.readouterr().out
     skeleton = fj.load_skeleton(out)
-    assert len(skeleton.limbs) == 4
-    rows = [line.split() for line in printed.splitlines()[1:5]]
+    assert len(skeleton.children(-1)) == 4  # the legs (each a chain from the top)
+    count = len(skeleton.limbs)
+    rows = [line.split() for line in printed.splitlines()[1 : 1 + count]]
+    assert len(rows) == count
     region = np.asarray(skeleton.region)
     for i, row in enumerate(rows):
         limb = skeleton.limbs[i]

@@ -8,24 +8,15 @@ from scipy.spatial import cKDTree
 from .._checks import check_number
 from .._medial_axis.medial_mesh import MedialMesh
 from .._mesh.deform import longest_edge
-from .fit import extend_beyond, fit_bspline
-from .limbs import LimbPath, find_limbs
-from .regions import limb_region, mesh_adjacency, spine_samples
+from .chains import split_chains
+from .limb_fit import fit_limb
+from .limbs import find_limbs
+from .regions import mesh_adjacency, spine_samples
 from .skeleton import Limb, Skeleton, descendants
 
-# Every limb's spine has one static structure (count of control points, subdivisions per
-# span), so that one compiled program serves all (here and when posing them).
-LIMB_CONTROL_POINTS = 8
-LIMB_SUBDIVISIONS = 32
 # A child's region meets its parent's at least this many spine samples beyond where the
 # parent's region meets the rest (`_room_to_bend`; `register_skeleton` projects exactly).
 ROOM = 2
-REFITS = 3  # straighter fits, at most, until the region lies within the spine's reach
-# A straighter fit bounds the curvature by the region's distances to the spine (`far`), or by
-# these shares of them when the full bound leaves no region (a knob): on spot at seed 1 the
-# head's spine, made straight for its ears at 0.6, let its region end 0.13 from its tip, and
-# the head with its ears and horns stayed in the body; at 0.75 of it every vertex is valid.
-STRAIGHTER = (1.0, 0.75, 0.5)
 # A medial mesh belongs to a mesh when its centres lie in the mesh's bounding box (up to this
 # fraction of its diagonal), no sphere's radius exceeds `REACHES` times the distance from its
 # centre to the nearest vertex, and every vertex lies within this fraction of the diagonal
@@ -102,17 +93,21 @@ def skeleton(mesh, *, medial: MedialMesh | None = None, spheres: int = 200,
     margin = 0.5 * longest_edge(vertices, faces)  # `register_skeleton`'s default
     region = np.full(len(vertices), -1)
     limbs, index = [], {}  # index: a found limb's number → its index in `limbs` (kept ones)
+    founds = []  # the kept limbs' paths
     for number, found in enumerate(find_limbs(centers, radii, edges)):
         parent = index.get(found.parent, -1) if found.parent >= 0 else -1
         if found.parent >= 0 and found.parent not in index:
             continue  # its parent had no region: neither has it
-        spine, part = _fit_limb(found, centers, radii, vertices, adjacency, region == parent,
+        spine, part = fit_limb(found, centers, radii, vertices, adjacency, region == parent,
                                 margin)
         if part is None:
             continue
         index[number] = len(limbs)
         region[part.vertices] = len(limbs)
         limbs.append(Limb(spine, part.joint, parent))
+        founds.append(found)
+    limbs, region = split_chains(limbs, founds, region, centers, radii, vertices, adjacency,
+                                 margin)
     limbs, region = _room_to_bend(limbs, region, vertices, adjacency)
     given = np.asarray(mesh.vertices if given is not None else mesh[0], np.float64)
     if len(given) != len(vertices) or not np.array_equal(given, vertices):
@@ -169,86 +164,6 @@ def _room_to_bend(limbs: list[Limb], region: np.ndarray, vertices, adjacency):
         region = renumber[region + 1]
         limbs = [Limb(limbs[i].spine, limbs[i].joint, int(renumber[limbs[i].parent + 1]))
                  for i in keep]
-
-
-def _fit_limb(found: LimbPath, centers, radii, vertices, adjacency, allowed, margin):
-    """The limb's rest spine and its region among the `allowed` vertices (`None` if none);
-    `margin`: the valid region's that posing will use."""
-    spine, cut, tip, arc, local = _limb_spine(found, centers, radii, vertices, margin)
-    part = limb_region(spine, cut, tip, arc, local, vertices, adjacency, allowed)
-    for _ in range(REFITS):
-        # The region's far vertices (the back of a head beyond its medial spheres, a haunch
-        # beside a leg's start) may lie beyond the spine's reach: a straighter fit there.
-        far = _reach_needed(spine, part, vertices, arc, margin) if part is not None else None
-        if far is None:
-            break
-        for share in STRAIGHTER:
-            spine, cut, tip, arc, local = _limb_spine(found, centers, radii, vertices, margin,
-                                                      share * far)
-            part = limb_region(spine, cut, tip, arc, local, vertices, adjacency, allowed)
-            if part is not None:
-                break
-    return spine, part
-
-
-def _reach_needed(spine, part, vertices, arc, margin, chunk=2048):
-    """`None` when every vertex `X` of the region `part` lies within the reach of `spine`
-    with the `margin` `δ` around it: `κ(t) (|X − C(t)| + δ) < 1` at every spine point `C(t)`
-    nearer than its foot's distance plus `2δ` (the points the valid region's test reads
-    around the foot). Else (k,) the largest distance of the region's vertices to the spine
-    points near them, around the arc lengths `arc` (for a straighter fit)."""
-    s, points, curvature = map(np.asarray, spine_samples(spine))
-    far, short = np.zeros(len(s)), False
-    for start in range(0, len(part.vertices), chunk):
-        x = vertices[part.vertices[start : start + chunk]]
-        distance = np.linalg.norm(x[:, None] - points[None], axis=-1)  # (m, samples)
-        near = distance < distance.min(axis=1, keepdims=True) + 2 * margin
-        short |= bool(np.any(near & (curvature * (distance + margin) >= 1.0)))
-        far = np.maximum(far, np.max(np.where(near, distance, 0.0), axis=0))
-    if not short:
-        return None
-    # Over a window of arc lengths: the refitted spine's feet move a little.
-    window = len(s) // 16
-    padded = np.pad(far, window, mode="edge")
-    far = np.max(np.lib.stride_tricks.sliding_window_view(padded, 2 * window + 1), axis=1)
-    return np.interp(arc, s, far)
-
-
-def _limb_spine(found: LimbPath, centers, radii, vertices, margin, far=None):
-    """The limb's rest spine, the arc length where it leaves its parent, the point at its
-    tip, and the medial radius at arc lengths along it (at least `far` at each path point, when
-    given: the curvature bound then keeps those distances within reach)."""
-    path = centers[found.path]
-    inside = centers[found.inside]
-    # s = 0 a little inside the parent: towards the last sphere inside it, at most two
-    # radii (a thick limb's first sphere, a head's, may lie far beyond its parent's surface).
-    back = inside - path[0]
-    gap = np.linalg.norm(back)
-    start = path[0] + back * (min(gap, 2 * radii[found.path[0]]) / gap)
-    tip = extend_beyond(np.concatenate([path[::-1], inside[None]]), radii[found.path[-1]],
-                        vertices)  # fmt: skip
-    points = np.concatenate([start[None], path, tip[None]])
-    # At the start, the parent's radius: the spine may not turn there tighter than the
-    # parent is thick (an ear's spine, from inside the head).
-    local = radii[np.r_[found.inside, found.path, found.path[-1]]]
-    bound = local if far is None else np.maximum(local, far)
-    # Straight at both ends: the spine's continuations past its ends (osculating circles,
-    # the closest-point search's range) are then its tangent lines, as the rigid motion of
-    # the points beyond them is; a circle curving back towards the region (a haunch behind
-    # a leg's start) put a cut locus among its vertices, which no pose could then move.
-    # The curvature bound holds a margin beyond the radius (or beyond the distance of the
-    # vertices that needed a straighter fit): the surface around the spine must stay clear
-    # of its focal set by the valid region's margin.
-    spine = fit_bspline(points, bound + margin, LIMB_CONTROL_POINTS, bounded=True,
-                        subdivisions=LIMB_SUBDIVISIONS, straight_ends=True)
-    s, samples, _ = map(np.asarray, spine_samples(spine))
-    chord = np.r_[0, np.cumsum(np.linalg.norm(np.diff(points, axis=0), axis=1))]
-    arc = chord * (s[-1] / chord[-1])
-    # Where the spine leaves the parent's spheres that held the limb's last inner one.
-    gaps = np.linalg.norm(samples[:, None] - centers[found.core], axis=-1)
-    held = np.flatnonzero(np.any(gaps < radii[found.core], axis=1))
-    cut = float(s[held[-1]]) if len(held) else 0.0
-    return spine, cut, tip, arc, local
 
 
 def _check_belongs(centers, radii, vertices):

@@ -132,6 +132,15 @@ class Skeleton(eqx.Module):
             raise ValueError(f"`index` must be in [-1, {len(self.limbs)}), got {index}.")
         return tuple(i for i, limb in enumerate(self.limbs) if limb.parent == index)
 
+    def chain(self, index: int) -> tuple[int, ...]:
+        """The limbs from the body down to limb `index` (a jointed chain: hip → knee → ankle),
+        `index` last: the limbs whose poses move limb `index`'s region."""
+        self.children(index)  # checks `index`
+        chain = [int(index)] if index >= 0 else []
+        while chain and self.limbs[chain[0]].parent >= 0:
+            chain.insert(0, self.limbs[chain[0]].parent)
+        return tuple(chain)
+
     def __repr__(self):
         parents = [limb.parent for limb in self.limbs]
         return f"Skeleton(limbs={len(self.limbs)}, parents={parents}, vertices={len(self.region)})"

@@ -1,0 +1,109 @@
+"""One limb's rest spine and region: the spine fitted through its path of spheres, the
+region cut where it leaves its parent, and straighter fits until the region lies within the
+spine's reach. Shared by `skeleton` (a limb found on the medial graph) and its jointed chains
+(`chains`: the pieces of a limb past each joint)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .fit import extend_beyond, fit_bspline
+from .limbs import LimbPath
+from .regions import limb_region, spine_samples
+
+# Every limb's spine has one static structure (count of control points, subdivisions per
+# span), so that one compiled program serves all (here and when posing them).
+LIMB_CONTROL_POINTS = 8
+LIMB_SUBDIVISIONS = 32
+REFITS = 3  # straighter fits, at most, until the region lies within the spine's reach
+# A straighter fit bounds the curvature by the region's distances to the spine (`far`), or by
+# these shares of them when the full bound leaves no region (a knob): on spot at seed 1 the
+# head's spine, made straight for its ears at 0.6, let its region end 0.13 from its tip, and
+# the head with its ears and horns stayed in the body; at 0.75 of it every vertex is valid.
+STRAIGHTER = (1.0, 0.75, 0.5)
+
+
+def fit_limb(found: LimbPath, centers, radii, vertices, adjacency, allowed, margin,
+             cut_at=None):
+    """The limb's rest spine and its region among the `allowed` vertices (`None` if none);
+    `margin`: the valid region's that posing will use; `cut_at`: (3,) the point where the
+    limb leaves its parent (a chain's joint), default where its spine leaves the parent's
+    core spheres."""
+    spine, cut, tip, arc, local = limb_spine(found, centers, radii, vertices, margin,
+                                             cut_at=cut_at)
+    part = limb_region(spine, cut, tip, arc, local, vertices, adjacency, allowed)
+    for _ in range(REFITS):
+        # The region's far vertices (the back of a head beyond its medial spheres, a haunch
+        # beside a leg's start) may lie beyond the spine's reach: a straighter fit there.
+        far = reach_needed(spine, part, vertices, arc, margin) if part is not None else None
+        if far is None:
+            break
+        for share in STRAIGHTER:
+            spine, cut, tip, arc, local = limb_spine(found, centers, radii, vertices, margin,
+                                                     share * far, cut_at)
+            part = limb_region(spine, cut, tip, arc, local, vertices, adjacency, allowed)
+            if part is not None:
+                break
+    return spine, part
+
+
+def reach_needed(spine, part, vertices, arc, margin, chunk=2048):
+    """`None` when every vertex `X` of the region `part` lies within the reach of `spine`
+    with the `margin` `δ` around it: `κ(t) (|X − C(t)| + δ) < 1` at every spine point `C(t)`
+    nearer than its foot's distance plus `2δ` (the points the valid region's test reads
+    around the foot). Else (k,) the largest distance of the region's vertices to the spine
+    points near them, around the arc lengths `arc` (for a straighter fit)."""
+    s, points, curvature = map(np.asarray, spine_samples(spine))
+    far, short = np.zeros(len(s)), False
+    for start in range(0, len(part.vertices), chunk):
+        x = vertices[part.vertices[start : start + chunk]]
+        distance = np.linalg.norm(x[:, None] - points[None], axis=-1)  # (m, samples)
+        near = distance < distance.min(axis=1, keepdims=True) + 2 * margin
+        short |= bool(np.any(near & (curvature * (distance + margin) >= 1.0)))
+        far = np.maximum(far, np.max(np.where(near, distance, 0.0), axis=0))
+    if not short:
+        return None
+    # Over a window of arc lengths: the refitted spine's feet move a little.
+    window = len(s) // 16
+    padded = np.pad(far, window, mode="edge")
+    far = np.max(np.lib.stride_tricks.sliding_window_view(padded, 2 * window + 1), axis=1)
+    return np.interp(arc, s, far)
+
+
+def limb_spine(found: LimbPath, centers, radii, vertices, margin, far=None, cut_at=None):
+    """The limb's rest spine, the arc length where it leaves its parent, the point at its
+    tip, and the medial radius at arc lengths along it (at least `far` at each path point, when
+    given: the curvature bound then keeps those distances within reach)."""
+    path = centers[found.path]
+    inside = centers[found.inside]
+    # s = 0 a little inside the parent: towards the last sphere inside it, at most two
+    # radii (a thick limb's first sphere, a head's, may lie far beyond its parent's surface).
+    back = inside - path[0]
+    gap = np.linalg.norm(back)
+    start = path[0] + back * (min(gap, 2 * radii[found.path[0]]) / gap)
+    tip = extend_beyond(np.concatenate([path[::-1], inside[None]]), radii[found.path[-1]],
+                        vertices)  # fmt: skip
+    points = np.concatenate([start[None], path, tip[None]])
+    # At the start, the parent's radius: the spine may not turn there tighter than the
+    # parent is thick (an ear's spine, from inside the head).
+    local = radii[np.r_[found.inside, found.path, found.path[-1]]]
+    bound = local if far is None else np.maximum(local, far)
+    # Straight at both ends: the spine's continuations past its ends (osculating circles,
+    # the closest-point search's range) are then its tangent lines, as the rigid motion of
+    # the points beyond them is; a circle curving back towards the region (a haunch behind
+    # a leg's start) put a cut locus among its vertices, which no pose could then move.
+    # The curvature bound holds a margin beyond the radius (or beyond the distance of the
+    # vertices that needed a straighter fit): the surface around the spine must stay clear
+    # of its focal set by the valid region's margin.
+    spine = fit_bspline(points, bound + margin, LIMB_CONTROL_POINTS, bounded=True,
+                        subdivisions=LIMB_SUBDIVISIONS, straight_ends=True)
+    s, samples, _ = map(np.asarray, spine_samples(spine))
+    chord = np.r_[0, np.cumsum(np.linalg.norm(np.diff(points, axis=0), axis=1))]
+    arc = chord * (s[-1] / chord[-1])
+    if cut_at is not None:  # the spine's point nearest to it
+        return spine, float(s[np.argmin(np.linalg.norm(samples - cut_at, axis=1))]), tip, arc, local
+    # Where the spine leaves the parent's spheres that held the limb's last inner one.
+    gaps = np.linalg.norm(samples[:, None] - centers[found.core], axis=-1)
+    held = np.flatnonzero(np.any(gaps < radii[found.core], axis=1))
+    cut = float(s[held[-1]]) if len(held) else 0.0
+    return spine, cut, tip, arc, local
