@@ -7,7 +7,7 @@
     fleshing-jax medial IN OUT.ma [--spheres N] [--envelope ENV.obj] [--list]
     fleshing-jax medial-deform IN OUT --medial IN.ma --handles H.json [--method M]
                                       [--no-implicit]
-    fleshing-jax skeleton IN OUT.json [--spheres N] [--seed S]
+    fleshing-jax skeleton IN OUT.json [--spheres N] [--seed S] [--png FILE]
     fleshing-jax pose IN OUT [--skeleton S.json] ((--limb K | --at X,Y,Z) --bend DEG
                              [--direction DEG] [--twist DEG])... | --poses P.json)
                              [--method M] [--max-stretch X] [--allow-invalid] [--spheres N]
@@ -232,6 +232,8 @@ def _parser() -> argparse.ArgumentParser:
         "--spheres", type=int, default=200, metavar="N", help="spheres of the medial mesh (200)"
     )
     skeleton.add_argument("--seed", type=int, default=0, help="seed of the surface samples")
+    skeleton.add_argument("--png", metavar="FILE", help="also draw the skeleton on IN to this "
+                          "PNG file: limb regions coloured, spines, joints, limb numbers")
     pose = _command(
         commands, "pose",
         "pose a closed mesh limb by limb on its skeleton (each limb bent, the rest still)",
@@ -557,6 +559,10 @@ def _skeleton(args) -> int:
     from ._skeleton.regions import spine_samples
 
     check_output_path(args.output, extensions=("json",))
+    if args.png is not None:
+        if not args.png.lower().endswith(".png"):
+            raise ValueError(f"--png {args.png}: the picture is written as PNG (FILE.png)")
+        check_output_path(args.png, extensions=("png",))
     if args.spheres < 2:
         raise ValueError(f"--spheres must be an integer >= 2, got {args.spheres}")
     if args.seed < 0:
@@ -578,6 +584,11 @@ def _skeleton(args) -> int:
     print(f"body: {int(np.sum(region == -1))} vertices")
     save_skeleton(found, args.output)
     print(f"wrote {args.output} ({len(found.limbs)} limbs, {elapsed:.1f} s)")
+    if args.png is not None:
+        from ._skeleton.plot import save_png
+
+        save_png(mesh, found, args.png)  # Agg, atomically
+        print(f"wrote {args.png}")
     return 0
 
 
