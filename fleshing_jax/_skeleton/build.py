@@ -9,6 +9,7 @@ from .._checks import check_number
 from .._medial_axis.medial_mesh import MedialMesh
 from .._mesh.deform import longest_edge
 from .chains import split_chains
+from .given import given_limbs
 from .limb_fit import fit_limb
 from .limbs import find_limbs
 from .regions import mesh_adjacency, spine_samples
@@ -29,7 +30,7 @@ REACHES = 4
 
 
 def skeleton(mesh, *, medial: MedialMesh | None = None, spheres: int = 200,
-             seed: int = 0) -> Skeleton:  # fmt: skip
+             seed: int = 0, chains=None) -> Skeleton:  # fmt: skip
     """The limbs of a closed mesh, found on its medial mesh, and the part of the surface each
     one moves.
 
@@ -69,28 +70,60 @@ def skeleton(mesh, *, medial: MedialMesh | None = None, spheres: int = 200,
       refine=0)`, computed: the spines are fitted to the spheres anyway).
     - `spheres`: integer ≥ 2, the medial mesh's sphere count when it is computed.
     - `seed`: integer, the seed of its surface samples.
+    - `chains`: the limbs a user places instead (no medial mesh is computed): a list of
+      chains, each a list of points inside the shape `[p0, p1, …, pn]` from the body
+      outwards (where the limb leaves its parent, its joints, its tip), as bones are placed
+      in Blender; a chain is `n` limbs, each the parent of the next, cut at its points
+      (`_skeleton.given`). A chain whose `p0` lies in an earlier chain's region (an ear on a
+      head) hangs from that limb.
 
     **Returns:** an `fj.Skeleton` whose `vertices` are the mesh's (n, 3), in its order.
 
     **Raises:** `TypeError`/`ValueError` naming the argument: a `mesh` that is not a closed
     triangle mesh (see `fj.medial_mesh`), `spheres` < 2, a `medial` that is not a
-    `MedialMesh` or does not belong to `mesh`.
+    `MedialMesh` or does not belong to `mesh`; `chains` with a point outside the mesh, a
+    limb that gets no surface, or a child cut before its parent leaves room to bend.
     """
-    from .._medial_axis.construct import medial_mesh
     from .._medial_axis.surface import closed_mesh_arrays
 
     spheres = check_number(spheres, "spheres", 2, 1e6, integer=True)
     seed = check_number(seed, "seed", 0, 2**63 - 1, integer=True)
     given = mesh.vertices if hasattr(mesh, "vertices") else None
     vertices, faces = closed_mesh_arrays(mesh)
+    adjacency = mesh_adjacency(vertices, faces)
+    margin = 0.5 * longest_edge(vertices, faces)  # `register_skeleton`'s default
+    if chains is not None:
+        if medial is not None:
+            raise ValueError("`medial` and `chains` exclude each other: chains are the limbs.")
+        limbs, region = given_limbs(chains, vertices, faces, adjacency, margin)
+        conflict = _conflict(limbs, region, vertices, adjacency)
+        if conflict is not None:
+            raise ValueError(
+                f"`chains`: limb {conflict[1]}'s region begins before its parent limb "
+                f"{conflict[0]} leaves its own parent: no room to bend limb {conflict[0]}; "
+                "move their points apart."
+            )
+    else:
+        limbs, region = _found_limbs(vertices, faces, medial, spheres, seed, adjacency,
+                                     margin)
+    given = np.asarray(mesh.vertices if given is not None else mesh[0], np.float64)
+    if len(given) != len(vertices) or not np.array_equal(given, vertices):
+        # Welded or with unused vertices dropped: each given vertex takes its copy's region.
+        region = region[cKDTree(vertices).query(given)[1]]
+    return Skeleton(tuple(limbs), region.astype(np.int32), given)
+
+
+def _found_limbs(vertices, faces, medial, spheres, seed, adjacency, margin):
+    """`(limbs, region)` found on the medial mesh (`medial`, computed when None), each limb
+    split into its jointed chain, every limb left room to bend."""
+    from .._medial_axis.construct import medial_mesh
+
     if medial is None:
         medial = medial_mesh((vertices, faces), spheres, seed=seed, refine=0, progress=False)
     elif not isinstance(medial, MedialMesh):
         raise TypeError(f"`medial` must be a MedialMesh or None, got {type(medial).__name__}.")
     centers, radii, edges, _ = medial.numpy()
     _check_belongs(centers, radii, vertices)
-    adjacency = mesh_adjacency(vertices, faces)
-    margin = 0.5 * longest_edge(vertices, faces)  # `register_skeleton`'s default
     region = np.full(len(vertices), -1)
     limbs, index = [], {}  # index: a found limb's number → its index in `limbs` (kept ones)
     founds = []  # the kept limbs' paths
@@ -99,7 +132,7 @@ def skeleton(mesh, *, medial: MedialMesh | None = None, spheres: int = 200,
         if found.parent >= 0 and found.parent not in index:
             continue  # its parent had no region: neither has it
         spine, part = fit_limb(found, centers, radii, vertices, adjacency, region == parent,
-                                margin)
+                               margin)
         if part is None:
             continue
         index[number] = len(limbs)
@@ -108,46 +141,20 @@ def skeleton(mesh, *, medial: MedialMesh | None = None, spheres: int = 200,
         founds.append(found)
     limbs, region = split_chains(limbs, founds, region, centers, radii, vertices, adjacency,
                                  margin)
-    limbs, region = _room_to_bend(limbs, region, vertices, adjacency)
-    given = np.asarray(mesh.vertices if given is not None else mesh[0], np.float64)
-    if len(given) != len(vertices) or not np.array_equal(given, vertices):
-        # Welded or with unused vertices dropped: each given vertex takes its copy's region.
-        region = region[cKDTree(vertices).query(given)[1]]
-    return Skeleton(tuple(limbs), region.astype(np.int32), given)
+    return _room_to_bend(limbs, region, vertices, adjacency)
 
 
 def _room_to_bend(limbs: list[Limb], region: np.ndarray, vertices, adjacency):
     """`(limbs, region)` where every limb's children leave it beyond where it leaves the
     rest. `register_skeleton` bends a limb between those arc lengths and refused a skeleton
-    with no room. Where a child's region meets its parent's at arc lengths (on the parent's
-    spine) within `ROOM` spine samples of where the parent's region meets anything else,
-    the shorter of the two gives way: a child shorter than its parent's length past the
+    with no room. Where a child's region meets its parent's too early (`_conflict`), the
+    shorter of the two gives way: a child shorter than its parent's length past the
     joint (a horn split into a base and a tip on a small head) joins its parent's region; a
     parent shorter than the child (the bunny's head, 0.035 long, before ears 0.065–0.08
     long) leaves its region to its own parent and its children to it. The limbs are then
     renumbered."""
-    while True:
+    while (conflict := _conflict(limbs, region, vertices, adjacency)) is not None:
         below = descendants(limbs)
-        conflict = None
-        for k, limb in enumerate(limbs):
-            ids = np.flatnonzero(region == k)
-            if not below[k] or not len(ids):
-                continue
-            s, points, _ = map(np.asarray, spine_samples(limb.spine))
-            arc = s[cKDTree(points).query(vertices[ids])[1]]
-            others = ~np.isin(region, [k, *below[k]])
-            leaves = ids[adjacency[ids] @ others.astype(float) > 0]
-            joint = max(float(limb.joint), float(arc[np.isin(ids, leaves)].max(initial=0.0)))
-            room = ROOM * float(s[1] - s[0])
-            for child in (c for c, other in enumerate(limbs) if other.parent == k):
-                meets = adjacency[ids] @ np.isin(region, [child, *below[child]]).astype(float)
-                if arc[meets > 0].min(initial=np.inf) <= joint + room:
-                    conflict = (k, child, float(s[-1]) - joint)
-                    break
-            if conflict:
-                break
-        if conflict is None:
-            return limbs, region
         k, child, beyond = conflict
         grand = limbs[k].parent
         if float(limbs[child].spine.length) - float(limbs[child].joint) <= beyond:
@@ -164,6 +171,30 @@ def _room_to_bend(limbs: list[Limb], region: np.ndarray, vertices, adjacency):
         region = renumber[region + 1]
         limbs = [Limb(limbs[i].spine, limbs[i].joint, int(renumber[limbs[i].parent + 1]))
                  for i in keep]
+    return limbs, region
+
+
+def _conflict(limbs, region, vertices, adjacency):
+    """The first `(limb, child, length past the limb's joint)` where the child's region meets
+    the limb's at arc lengths (on the limb's spine) within `ROOM` spine samples of where the
+    limb's region meets anything else (`register_skeleton` would find no room to bend the
+    limb), or `None`."""
+    below = descendants(limbs)
+    for k, limb in enumerate(limbs):
+        ids = np.flatnonzero(region == k)
+        if not below[k] or not len(ids):
+            continue
+        s, points, _ = map(np.asarray, spine_samples(limb.spine))
+        arc = s[cKDTree(points).query(vertices[ids])[1]]
+        others = ~np.isin(region, [k, *below[k]])
+        leaves = ids[adjacency[ids] @ others.astype(float) > 0]
+        joint = max(float(limb.joint), float(arc[np.isin(ids, leaves)].max(initial=0.0)))
+        room = ROOM * float(s[1] - s[0])
+        for child in (c for c, other in enumerate(limbs) if other.parent == k):
+            meets = adjacency[ids] @ np.isin(region, [child, *below[child]]).astype(float)
+            if arc[meets > 0].min(initial=np.inf) <= joint + room:
+                return k, child, float(s[-1]) - joint
+    return None
 
 
 def _check_belongs(centers, radii, vertices):

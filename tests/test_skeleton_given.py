@@ -1,0 +1,78 @@
+"""A skeleton from chains of joints a user places (`fj.skeleton(mesh, chains=…)`)."""
+
+import numpy as np
+import pytest
+
+import fleshing_jax as fj
+from fleshing_jax._medial_axis.animal import quadruped
+
+# On `quadruped(32)` (z up): a front leg hip → knee → foot, a hind leg likewise, the tail,
+# and the head from the base of its neck.
+CHAINS = [
+    [(0.75, 0.08, 0.40), (0.75, 0.08, 0.17), (0.75, 0.08, -0.06)],
+    [(0.25, -0.08, 0.40), (0.25, -0.08, 0.17), (0.25, -0.08, -0.06)],
+    [(0.10, 0.0, 0.52), (-0.08, 0.0, 0.50)],
+    [(0.86, 0.0, 0.50), (0.95, 0.0, 0.60)],
+]
+
+
+@pytest.fixture(scope="module")
+def given():
+    mesh = quadruped(32)
+    return mesh, fj.skeleton(mesh, chains=CHAINS)
+
+
+def test_each_chain_is_its_limbs_cut_at_its_points(given):
+    mesh, skeleton = given
+    assert [limb.parent for limb in skeleton.limbs] == [-1, 0, -1, 2, -1, -1]
+    vertices, region = np.asarray(mesh.vertices), np.asarray(skeleton.region)
+    for top, foot_at in ((0, CHAINS[0][-1]), (2, CHAINS[1][-1])):
+        # The foot in the chain's last limb, the thigh above the knee in its first.
+        foot = np.linalg.norm(vertices - foot_at, axis=1) < 0.06
+        assert foot.any() and np.all(region[foot] == top + 1)
+        knee = np.asarray(CHAINS[top // 2][1])
+        leg = np.linalg.norm(vertices[:, :2] - knee[:2], axis=1) < 0.06
+        assert np.all(region[leg & (vertices[:, 2] > knee[2] + 0.06) & (vertices[:, 2] < 0.3)]
+                      == top)  # fmt: skip
+        assert np.all(region[leg & (vertices[:, 2] < knee[2] - 0.06)] == top + 1)
+    assert np.all(region[vertices[:, 0] < -0.05] == 4)  # the tail's end
+    assert np.all(region[vertices[:, 2] > 0.75] == 5)  # the head's top, horns and all
+    # Each spine runs from inside its parent through its points to the surface.
+    for limb in skeleton.limbs:
+        assert 0 < float(limb.joint) < float(limb.spine.length)
+
+
+def test_a_chain_posed_at_its_hip_and_knee_keeps_the_rest_still(given):
+    mesh, skeleton = given
+    vertices, region = np.asarray(mesh.vertices), np.asarray(skeleton.region)
+    posed = fj.pose_skeleton(mesh, skeleton, {0: fj.LimbPose(30.0), 1: fj.LimbPose(45.0)})
+    moved = np.asarray(posed.vertices)
+    assert np.asarray(posed.valid).all()
+    leg = np.isin(region, [0, 1])
+    assert np.array_equal(moved[~leg], vertices[~leg])
+    diagonal = np.linalg.norm(np.ptp(vertices, axis=0))
+    foot = np.linalg.norm(vertices - CHAINS[0][-1], axis=1) < 0.05
+    assert np.linalg.norm(moved[foot] - vertices[foot], axis=1).min() > 0.04 * diagonal
+    change = float(fj.volume(moved, mesh.faces) / fj.volume(vertices, mesh.faces)) - 1
+    assert abs(change) < 1e-3
+
+
+def test_bad_chains_are_refused_by_name(given):
+    mesh, _ = given
+    leg = CHAINS[0]
+    cases = [
+        ([], TypeError, "`chains`"),
+        ("leg", TypeError, "`chains`"),
+        ([[leg[0]]], ValueError, r"`chains\[0\]` must hold at least 2 points"),
+        ([[leg[0], leg[0], leg[2]]], ValueError, r"points 0 and 1 are the same"),
+        ([leg, [leg[0], (0.75, 0.08, -0.5)]], ValueError, r"`chains\[1\]\[1\]`.*outside"),
+        ([[leg[0], (np.nan, 0, 0)]], ValueError, r"`chains\[0\]` must be finite"),
+        # From the middle of the body towards its flank: less than a radius to bend.
+        ([[(0.5, 0.0, 0.47), (0.5, 0.02, 0.47)]], ValueError, r"`chains\[0\]`.*no part"),
+    ]
+    for chains, error, message in cases:
+        with pytest.raises(error, match=message):
+            fj.skeleton(mesh, chains=chains)
+    medial = fj.MedialMesh(np.zeros((2, 3)), np.ones(2), np.array([[0, 1]]))
+    with pytest.raises(ValueError, match="`medial` and `chains`"):
+        fj.skeleton(mesh, chains=CHAINS, medial=medial)
