@@ -76,3 +76,33 @@ def test_bad_chains_are_refused_by_name(given):
     medial = fj.MedialMesh(np.zeros((2, 3)), np.ones(2), np.array([[0, 1]]))
     with pytest.raises(ValueError, match="`medial` and `chains`"):
         fj.skeleton(mesh, chains=CHAINS, medial=medial)
+
+
+def test_merge_gives_a_limb_s_region_and_children_to_its_parent(given):
+    mesh, skeleton = given
+    region = np.asarray(skeleton.region)
+    merged = skeleton.merge(0)  # the front leg's hip: the knee's limb hangs from the body
+    assert [limb.parent for limb in merged.limbs] == [-1, -1, 1, -1, -1]
+    new = np.asarray(merged.region)
+    assert np.all(new[region == 0] == -1) and np.all(new[region == 1] == 0)
+    assert np.all(new[region >= 2] == region[region >= 2] - 1)
+    assert merged.limbs[0].spine is skeleton.limbs[1].spine
+    for bad in (-1, 6, 1.0, True):
+        with pytest.raises(ValueError, match="`index`"):
+            skeleton.merge(bad)
+
+
+def test_a_limb_a_bend_would_not_visibly_move_joins_its_parent(given):
+    """`fj.skeleton` never returns a limb of a few vertices (an insect's limbs of 3–33
+    vertices moved nothing a user sees) nor one whose vertices all lie near its joint."""
+    from fleshing_jax._skeleton.build import FEWEST, _visible
+
+    mesh, skeleton = given
+    vertices, region = np.asarray(mesh.vertices), np.asarray(skeleton.region).copy()
+    tail = np.flatnonzero(region == 4)
+    region[tail[FEWEST - 1 :]] = -1  # the tail keeps FEWEST − 1 vertices
+    limbs, kept = _visible(list(skeleton.limbs), region, vertices)
+    assert len(limbs) == 5 and np.all(kept[tail] == -1) and np.all(kept[region == 5] == 4)
+    # The legs, with their knees, are kept as they are.
+    limbs, kept = _visible(list(skeleton.limbs), np.asarray(skeleton.region), vertices)
+    assert len(limbs) == 6 and np.array_equal(kept, np.asarray(skeleton.region))

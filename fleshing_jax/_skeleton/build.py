@@ -13,11 +13,16 @@ from .given import given_limbs
 from .limb_fit import fit_limb
 from .limbs import find_limbs
 from .regions import mesh_adjacency, spine_samples
-from .skeleton import Limb, Skeleton, descendants
+from .skeleton import Limb, Skeleton, descendants, merge_limb
 
 # A child's region meets its parent's at least this many spine samples beyond where the
 # parent's region meets the rest (`_room_to_bend`; `register_skeleton` projects exactly).
 ROOM = 2
+# A limb moves at least this many vertices, and some of them (its own or its descendants')
+# at least this fraction of the mesh's diagonal from its joint: else a bend of it moves
+# nothing a user sees (an insect's limbs of 3–33 vertices), and it joins its parent.
+FEWEST = 12
+VISIBLE = 0.04
 # A medial mesh belongs to a mesh when its centres lie in the mesh's bounding box (up to this
 # fraction of its diagonal), no sphere's radius exceeds `REACHES` times the distance from its
 # centre to the nearest vertex, and every vertex lies within this fraction of the diagonal
@@ -141,6 +146,7 @@ def _found_limbs(vertices, faces, medial, spheres, seed, adjacency, margin):
         founds.append(found)
     limbs, region = split_chains(limbs, founds, region, centers, radii, vertices, adjacency,
                                  margin)
+    limbs, region = _visible(limbs, region, vertices)
     return _room_to_bend(limbs, region, vertices, adjacency)
 
 
@@ -154,23 +160,31 @@ def _room_to_bend(limbs: list[Limb], region: np.ndarray, vertices, adjacency):
     long) leaves its region to its own parent and its children to it. The limbs are then
     renumbered."""
     while (conflict := _conflict(limbs, region, vertices, adjacency)) is not None:
-        below = descendants(limbs)
         k, child, beyond = conflict
-        grand = limbs[k].parent
         if float(limbs[child].spine.length) - float(limbs[child].joint) <= beyond:
-            gone = [child, *below[child]]  # the child joins its parent
-            region[np.isin(region, gone)] = k
+            # The child joins its parent, with its descendants (the deepest first).
+            gone = [child, *descendants(limbs)[child]]
         else:
             gone = [k]  # the parent gives its region and its children to its own parent
-            region[region == k] = grand
-            limbs = [Limb(limb.spine, limb.joint, grand) if limb.parent == k else limb
-                     for limb in limbs]
-        keep = [i for i in range(len(limbs)) if i not in gone]
-        renumber = np.full(len(limbs) + 1, -1)  # old index + 1 → new index (−1: the body)
-        renumber[np.array(keep) + 1] = np.arange(len(keep))
-        region = renumber[region + 1]
-        limbs = [Limb(limbs[i].spine, limbs[i].joint, int(renumber[limbs[i].parent + 1]))
-                 for i in keep]
+        for i in sorted(gone, reverse=True):
+            limbs, region = merge_limb(limbs, region, i)
+    return limbs, region
+
+
+def _visible(limbs, region, vertices):
+    """`(limbs, region)` with every limb that a bend would not visibly move merged into its
+    parent: fewer than `FEWEST` vertices, or no vertex of its region or its descendants'
+    farther than `VISIBLE` times the mesh's diagonal from its joint (a 30° bend there moves
+    them by half that distance at most: a bump, a medial mesh's spike)."""
+    diagonal = float(np.linalg.norm(np.ptp(vertices, axis=0)))
+    k = len(limbs) - 1
+    while k >= 0:  # the deepest first: a limb's merged children count as its own
+        moved = np.isin(region, [k, *descendants(limbs)[k]])
+        joint = np.asarray(limbs[k].spine(limbs[k].joint))
+        far = float(np.max(np.linalg.norm(vertices[moved] - joint, axis=1), initial=0.0))
+        if np.sum(region == k) < FEWEST or far < VISIBLE * diagonal:
+            limbs, region = merge_limb(limbs, region, k)
+        k -= 1
     return limbs, region
 
 

@@ -69,6 +69,20 @@ def descendants(limbs) -> list[list[int]]:
     return below
 
 
+def merge_limb(limbs, region: np.ndarray, k: int):
+    """`(limbs, region)` with limb `k` merged into its parent: its region and its children
+    given to it, the later limbs renumbered. `limbs`: a sequence of `Limb`s in topological
+    order; `region`: (n,) int, their regions (−1: the body)."""
+    parent = limbs[k].parent
+    merged = []
+    for i, limb in enumerate(limbs):
+        if i != k:
+            up = parent if limb.parent == k else limb.parent
+            merged.append(Limb(limb.spine, limb.joint, up - 1 if up > k else up))
+    region = np.where(region == k, parent, region)
+    return merged, np.where(region > k, region - 1, region)
+
+
 class Skeleton(eqx.Module):
     """A shape as a body and a tree of limbs (built by `fj.skeleton`).
 
@@ -131,6 +145,18 @@ class Skeleton(eqx.Module):
         if not -1 <= index < len(self.limbs):
             raise ValueError(f"`index` must be in [-1, {len(self.limbs)}), got {index}.")
         return tuple(i for i, limb in enumerate(self.limbs) if limb.parent == index)
+
+    def merge(self, index: int) -> Skeleton:
+        """This skeleton with limb `index` merged into its parent (the body for a body's
+        limb): its region and its children go to the parent, the later limbs are renumbered
+        (a knee a user does not want: `skeleton.merge(knee)`)."""
+        count = len(self.limbs)
+        if isinstance(index, bool | np.bool_) or not isinstance(index, int | np.integer) or not (
+            0 <= index < count
+        ):
+            raise ValueError(f"`index` must be a limb index in [0, {count}), got {index!r}.")
+        limbs, region = merge_limb(self.limbs, np.asarray(self.region), int(index))
+        return Skeleton(limbs, region, self.vertices)
 
     def chain(self, index: int) -> tuple[int, ...]:
         """The limbs from the body down to limb `index` (a jointed chain: hip → knee → ankle),

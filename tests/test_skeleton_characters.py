@@ -1,0 +1,91 @@
+"""`fj.skeleton` on procedural characters: the rig an animator would make (issue 45).
+
+Each tip a user poses (feet, hands, head, tail) in a limb of its own, vertebrates' legs and
+arms chains of at least two limbs from the torso (the root), and a 30° bend at each chain's
+top moving its tip visibly with nothing flagged and the rest still.
+"""
+
+import numpy as np
+import pytest
+
+import fleshing_jax as fj
+from fleshing_jax._medial_axis.characters import (
+    BIPED_ARM,
+    BIPED_LEG,
+    QUADRUPED_FRONT_LEG,
+    QUADRUPED_HIND_LEG,
+    biped,
+    jointed_quadruped,
+)
+
+FEW = dict(samples=8000, refine=0, progress=False)
+
+
+def _mirrored(point):
+    x, y, z = point[:3]
+    return [(x, y, z), (x, -y, z)]
+
+
+def _rig(mesh, spheres):
+    skeleton = fj.skeleton(mesh, medial=fj.medial_mesh(mesh, spheres, **FEW))
+    vertices = np.asarray(mesh.vertices)
+    return skeleton, vertices
+
+
+def _check_tips(skeleton, tips, jointed):
+    """Each tip in a limb of its own chain; the `jointed` ones chains of ≥ 2 limbs."""
+    chains = [skeleton.chain(skeleton.limb_at(tip)) for tip in tips]
+    assert all(chain for chain in chains), "a tip in the body"
+    assert len({chain[0] for chain in chains}) == len(tips), "two tips share a chain"
+    assert all(len(chains[i]) >= 2 for i in jointed)
+    return chains
+
+
+@pytest.fixture(scope="module")
+def biped_rig():
+    mesh = biped()
+    return (mesh, *_rig(mesh, 120))
+
+
+def test_biped_has_jointed_arms_and_legs_and_a_head_on_its_torso(biped_rig):
+    mesh, skeleton, vertices = biped_rig
+    hands, feet = _mirrored(BIPED_ARM[-1]), _mirrored(BIPED_LEG[-1])
+    head = vertices[np.argmax(vertices[:, 2])]
+    chains = _check_tips(skeleton, [*hands, *feet, head], jointed=range(4))
+    assert skeleton.limb_at([0.0, 0.0, 0.62]) == -1  # the torso is the root
+    assert all(skeleton.limbs[c[0]].parent == -1 for c in chains)
+    # Each top limb posed 30°: every tip moves by ≥ 4 % of the diagonal, nothing flagged,
+    # nothing torn, the volume kept, the torso and every other part bit for bit still.
+    posed = fj.pose_skeleton(mesh, skeleton, {c[0]: fj.LimbPose(30.0) for c in chains})
+    moved = np.asarray(posed.vertices)
+    assert np.asarray(posed.valid).all()
+    region = np.asarray(skeleton.region)
+    limbs = np.arange(len(skeleton.limbs))
+    chained = np.isin(region, [k for k in limbs if skeleton.chain(k)[0] in {c[0] for c in chains}])
+    assert np.array_equal(moved[~chained], vertices[~chained])
+    diagonal = np.linalg.norm(np.ptp(vertices, axis=0))
+    # The head moves less: its limb (neck and head, 0.2 long) bends as one arc from the
+    # neck's base (a bend concentrated at the joint would move its top 0.08).
+    for tip, share in [*((t, 0.04) for t in [*hands, *feet]), (head, 0.025)]:
+        distance = np.linalg.norm(vertices - tip, axis=1)
+        near = distance < distance.min() + 0.01
+        assert np.linalg.norm(moved[near] - vertices[near], axis=1).min() > share * diagonal
+    edges = np.asarray(mesh.edges_unique)
+    stretch = np.linalg.norm(moved[edges[:, 0]] - moved[edges[:, 1]], axis=1) / (
+        np.linalg.norm(vertices[edges[:, 0]] - vertices[edges[:, 1]], axis=1))
+    assert stretch.max() < 2.0
+    change = float(fj.volume(moved, mesh.faces) / fj.volume(vertices, mesh.faces)) - 1
+    assert abs(change) < 1e-3
+
+
+def test_jointed_quadruped_has_jointed_legs_a_head_and_a_tail():
+    mesh = jointed_quadruped()
+    skeleton, vertices = _rig(mesh, 120)
+    hooves = [*_mirrored(QUADRUPED_HIND_LEG[-1]), *_mirrored(QUADRUPED_FRONT_LEG[-1])]
+    head, tail = (vertices[np.argmax(vertices[:, 0])], vertices[np.argmin(vertices[:, 0])])
+    chains = _check_tips(skeleton, [*hooves, head, tail], jointed=range(4))
+    assert all(skeleton.limbs[c[0]].parent == -1 for c in chains)
+    assert skeleton.limb_at([0.5, 0.0, 0.55]) == -1  # the torso is the root
+    # No limb too small to see move: every limb has vertices of its own.
+    region = np.asarray(skeleton.region)
+    assert all(np.sum(region == k) >= 12 for k in range(len(skeleton.limbs)))
