@@ -85,6 +85,16 @@ def pair(request):
 
 
 # The posing tests' tube, its hand-cut skeleton and their registration (`_posing_shapes`).
+@pytest.fixture(scope="session")
+def table_file(tmp_path_factory):
+    """The procedural table (four legs under a top) as an OBJ file, for the CLI's tests."""
+    from fleshing_jax._medial_axis.table import table
+
+    path = tmp_path_factory.mktemp("table") / "table.obj"
+    table().export(path)
+    return path
+
+
 @pytest.fixture(scope="module")
 def tube():
     return tube_mesh()

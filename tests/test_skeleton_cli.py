@@ -5,14 +5,6 @@ import pytest
 
 import fleshing_jax as fj
 from fleshing_jax._cli import main
-from fleshing_jax._medial_axis.table import table
-
-
-@pytest.fixture(scope="module")
-def table_file(tmp_path_factory):
-    path = tmp_path_factory.mktemp("skeleton") / "table.obj"
-    table().export(path)
-    return path
 
 
 def test_skeleton_command_prints_the_limbs_and_writes_the_file(table_file, tmp_path, capsys):

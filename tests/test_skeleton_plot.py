@@ -10,7 +10,6 @@ import pytest
 import fleshing_jax as fj
 from fleshing_jax._cli import main
 from fleshing_jax._medial_axis.animal import quadruped
-from fleshing_jax._medial_axis.table import table
 from fleshing_jax._skeleton import build
 from fleshing_jax._skeleton.plot import guess_up, up_rotation
 
@@ -150,13 +149,6 @@ def test_bad_arguments_are_named(spot, animal):
             fj.plot_skeleton(mesh, skeleton, alpha=alpha)
     with pytest.raises(ValueError, match="`azim`"):
         fj.plot_skeleton(mesh, skeleton, azim=float("inf"))
-
-
-@pytest.fixture(scope="module")
-def table_file(tmp_path_factory):
-    path = tmp_path_factory.mktemp("plot") / "table.obj"
-    table().export(path)
-    return path
 
 
 def test_skeleton_command_draws_the_png(table_file, tmp_path, capsys):

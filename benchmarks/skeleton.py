@@ -1,0 +1,109 @@
+"""The rig `fj.skeleton` finds on characters (issue 45): limbs, chains, times, pictures.
+
+    python benchmarks/skeleton.py [--figures benchmarks/figures]
+
+For each character (spot; the procedural quadruped, jointed quadruped, biped and insect):
+its vertices, the skeleton's limbs and how many of them are chains from the body (with their
+lengths), the time of `fj.skeleton` (its medial mesh at 200 spheres included) and of the
+first `register_skeleton` (float64, its compilation included), and a pose of every chain at
+each joint (the top 30°, each joint below 45°, float64): flagged vertices, volume change, the
+largest edge stretch, whether every vertex outside the chains stayed bit for bit. Prints one
+Markdown table; with `--figures`, writes `skeleton-NAME.png` (`fj.plot_skeleton`) and
+`skeleton-NAME-posed.png` (rest and posed side by side) into that folder.
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from pathlib import Path
+
+import jax
+import numpy as np
+
+jax.config.update("jax_enable_x64", True)
+
+import fleshing_jax as fj  # noqa: E402
+from fleshing_jax._medial_axis import characters  # noqa: E402
+from fleshing_jax._medial_axis.animal import quadruped  # noqa: E402
+
+CHARACTERS = {
+    "spot": fj.data.spot,
+    "quadruped": lambda: quadruped(32),
+    "jointed_quadruped": characters.jointed_quadruped,
+    "biped": characters.biped,
+    "insect": characters.insect,
+}
+
+
+def measure(name, figures):
+    mesh = CHARACTERS[name]()
+    vertices, faces = np.asarray(mesh.vertices), np.asarray(mesh.faces)
+    start = time.perf_counter()
+    skeleton = fj.skeleton(mesh)
+    found = time.perf_counter() - start
+    start = time.perf_counter()
+    registration = fj.register_skeleton(mesh, skeleton)
+    registered = time.perf_counter() - start
+    tops = skeleton.children(-1)
+    lengths = sorted((max(len(skeleton.chain(k)) for k in range(len(skeleton.limbs))
+                          if skeleton.chain(k)[0] == top) for top in tops), reverse=True)
+    poses = {k: fj.LimbPose(30.0 if skeleton.limbs[k].parent == -1 else 45.0)
+             for k in range(len(skeleton.limbs))}
+    posed = fj.pose_skeleton(registration, skeleton, poses)
+    moved = np.asarray(posed.vertices)
+    region = np.asarray(skeleton.region)
+    still = np.array_equal(moved[region == -1], vertices[region == -1])
+    edges = np.asarray(mesh.edges_unique)
+    stretch = np.linalg.norm(moved[edges[:, 0]] - moved[edges[:, 1]], axis=1) / np.linalg.norm(
+        vertices[edges[:, 0]] - vertices[edges[:, 1]], axis=1)
+    change = float(fj.volume(moved, faces) / fj.volume(vertices, faces)) - 1
+    if figures is not None:
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+
+        fj.plot_skeleton(mesh, skeleton).savefig(figures / f"skeleton-{name}.png", dpi=80)
+        plt.close("all")
+        figure = plt.figure(figsize=(10, 5))
+        for i, (points, title) in enumerate([(vertices, "rest"), (moved, "every joint bent")]):
+            ax = figure.add_subplot(1, 2, i + 1, projection="3d")
+            fj.plot_skeleton((points, faces), _moved(skeleton, points), ax=ax)
+            if i:  # the regions only: the spines drawn are the rest ones
+                from mpl_toolkits.mplot3d.art3d import Poly3DCollection
+
+                for artist in [*ax.lines, *ax.texts, *ax.collections]:
+                    if not isinstance(artist, Poly3DCollection):
+                        artist.remove()
+            ax.set_title(title)
+        figure.savefig(figures / f"skeleton-{name}-posed.png", dpi=80)
+        plt.close("all")
+    return (f"| {name} | {len(vertices):,} | {len(skeleton.limbs)} | {len(tops)} | "
+            f"{'/'.join(map(str, lengths))} | {found:.1f} | {registered:.1f} | "
+            f"{int(np.sum(~np.asarray(posed.valid)))} | {100 * change:+.4f} | "
+            f"{stretch.max():.2f} | {'yes' if still else 'no'} |")
+
+
+def _moved(skeleton, points):
+    """The skeleton on posed `points`: the regions as they are."""
+    return fj.Skeleton(skeleton.limbs, skeleton.region, points)
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--figures", type=Path, default=None)
+    parser.add_argument("--only", nargs="*", default=list(CHARACTERS))
+    args = parser.parse_args()
+    if args.figures is not None:
+        args.figures.mkdir(parents=True, exist_ok=True)
+    print("| character | vertices | limbs | chains from the body | limbs per chain | "
+          "skeleton (s) | first register (s) | flagged (all joints bent) | dV/V (%) | "
+          "edge stretch | body still |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|")
+    for name in args.only:
+        print(measure(name, args.figures), flush=True)
+
+
+if __name__ == "__main__":
+    main()
