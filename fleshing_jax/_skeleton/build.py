@@ -49,6 +49,12 @@ def skeleton(mesh, *, medial: MedialMesh | None = None, spheres: int = 200,
     `_skeleton.regions`) is contiguous on the surface, within the spine's reach, and its
     border vertices project on the spine at arc lengths ≤ `joint`.
 
+    A long limb is then split at its joints into a chain of limbs, each the parent of the
+    next (`_skeleton.chains`: where the medial radius narrows, else where the axis turns,
+    else in the middle of a limb 6 radii long), and a limb a 30° bend would not visibly
+    move (fewer than `FEWEST` vertices, none `VISIBLE` of the diagonal from its joint)
+    joins its parent.
+
     A shape with no thicker part for a branch to leave (a tube, a capsule) is a body and one
     limb: the body the end sphere of the medial axis's longest path (a cap one radius deep),
     the limb the rest, along that path. A limb needs a still part to leave, so that a pose
