@@ -58,9 +58,8 @@ def skeleton(mesh, *, medial: MedialMesh | None = None, spheres: int = 200,
     A shape with no thicker part for a branch to leave (a tube, a capsule) is a body and one
     limb: the body the end sphere of the medial axis's longest path (a cap one radius deep),
     the limb the rest, along that path (jointed like any other). A limb needs a still part
-    to leave, so that a pose
-    bends it from its joint as Fleshing bends a tube from its base; one limb and no body would
-    leave nothing still to pose against.
+    to leave, so that a pose bends it from its joint as Fleshing bends a tube from its base;
+    one limb and no body would leave nothing still to pose against.
 
     Where a child limb's region would begin before its parent's joint, the shorter of the
     two gives way: a child shorter than its parent's bendable part (a horn split into a
