@@ -1,0 +1,220 @@
+"""Our jointed pose against Blender's armature on the same joint rotations (issues 45/46).
+
+    python benchmarks/blender_armature.py --bpy /path/to/venv-with-bpy/bin/python \
+        [--figure benchmarks/figures/skeleton-biped-vs-blender.png]
+
+The procedural biped's skeleton (`fj.skeleton`, 200 spheres): one leg posed at its hip 40°,
+knee 70°, ankle 20°, one arm at its shoulder, elbow and wrist alike, the head 30° (float64).
+Blender (`pip install bpy` in another environment: `--bpy` names its Python) gets one bone
+per limb (head at the limb's bend start, tail where its bend is complete), a still body
+bone, automatic heat weights, and as each bone's rotation the rotation our pose gives that
+limb's end (so both pose the same joints by the same angles). Prints a Markdown table:
+volume change, the worst edge stretch and how many edges stretch past 2.5×, the body's
+largest drift, flagged vertices (ours) and the time of a frame (ours: float32, jitted;
+Blender: its depsgraph's evaluation of the armature modifier, LBS and DQS).
+"""
+
+from __future__ import annotations
+
+import argparse
+import subprocess
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+
+def ours(out: Path):
+    import jax
+
+    jax.config.update("jax_enable_x64", True)
+    import fleshing_jax as fj
+    from fleshing_jax._medial_axis.characters import biped
+    from fleshing_jax._skeleton.posing import posed_limbs
+
+    mesh = biped()
+    vertices, faces = np.asarray(mesh.vertices), np.asarray(mesh.faces)
+    skeleton = fj.skeleton(mesh)
+    registration = fj.register_skeleton(mesh, skeleton)
+    count = len(skeleton.limbs)
+    chains = {}
+    for k in range(count):
+        chain = skeleton.chain(k)
+        if len(chain) > len(chains.get(chain[0], ())):
+            chains[chain[0]] = chain
+
+    def tip(chain):
+        spine = skeleton.limbs[chain[-1]].spine
+        return np.asarray(spine(spine.length))
+
+    leg = next(c for c in chains.values() if tip(c)[2] < 0.1 and tip(c)[1] > 0)
+    arm = next(c for c in chains.values() if 0.3 < tip(c)[2] < 0.7 and tip(c)[1] > 0)
+    head = next(c for c in chains.values() if tip(c)[2] > 0.9)
+    poses = {k: fj.LimbPose(a) for c in (leg, arm) for k, a in zip(c, (40.0, 70.0, 20.0))}
+    poses[head[0]] = fj.LimbPose(30.0)
+    posed = fj.pose_skeleton(registration, skeleton, poses)
+    rotations = np.tile(np.eye(3), (count, 1, 1))
+    for k, (_, _, motion) in posed_limbs(registration, poses, "radial", True, False).items():
+        rotations[k] = np.asarray(motion.rotation)
+    joints, stops = registration.joints, registration.stops
+    limbs = skeleton.limbs
+    heads = np.array([np.asarray(limbs[k].spine(joints[k])) for k in range(count)])
+    tails = np.array([np.asarray(limbs[k].spine(min(float(stops[k]),
+                                                    float(limbs[k].spine.length))))
+                      for k in range(count)])  # fmt: skip
+    fast = fj.register_skeleton(mesh, skeleton, dtype=np.float32)
+    frame = jax.jit(lambda scale: fj.pose_skeleton(
+        fast, skeleton, {k: fj.LimbPose(scale * p.bend) for k, p in poses.items()}).vertices)
+    frame(np.float32(1.0)).block_until_ready()
+    times = []
+    for i in range(20):
+        start = time.perf_counter()
+        frame(np.float32(1.0 + 1e-4 * i)).block_until_ready()
+        times.append(time.perf_counter() - start)
+    np.savez(out, vertices=vertices, faces=faces, posed=np.asarray(posed.vertices),
+             valid=np.asarray(posed.valid), region=np.asarray(skeleton.region),
+             rotations=rotations, heads=heads, tails=tails,
+             parents=np.array([limb.parent for limb in limbs]),
+             frame_ms=1e3 * np.median(times))  # fmt: skip
+
+
+def blender(data: Path, out: Path):
+    """Run under bpy's Python: the armature, heat weights, the pose, LBS and DQS."""
+    import bpy
+    import mathutils
+
+    d = np.load(data)
+    vertices, parents = d["vertices"], d["parents"]
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    mesh = bpy.data.meshes.new("mesh")
+    mesh.from_pydata(vertices.tolist(), [], d["faces"].tolist())
+    mesh.update()
+    body = bpy.data.objects.new("mesh", mesh)
+    armature = bpy.data.objects.new("rig", bpy.data.armatures.new("rig"))
+    for thing in (body, armature):
+        bpy.context.scene.collection.objects.link(thing)
+    bpy.context.view_layer.objects.active = armature
+    bpy.ops.object.mode_set(mode="EDIT")
+    bones = armature.data.edit_bones
+    torso = bones.new("body")
+    centre = vertices[d["region"] == -1].mean(axis=0)
+    torso.head, torso.tail = centre - (0, 0, 0.1), centre + (0, 0, 0.15)
+    made = []
+    for k, parent in enumerate(parents):
+        bone = bones.new(f"limb{k}")
+        bone.head, bone.tail = d["heads"][k], d["tails"][k]
+        bone.parent = torso if parent < 0 else made[parent]
+        made.append(bone)
+    bpy.ops.object.mode_set(mode="OBJECT")
+    body.select_set(True)
+    armature.select_set(True)
+    bpy.context.view_layer.objects.active = armature
+    start = time.perf_counter()
+    bpy.ops.object.parent_set(type="ARMATURE_AUTO")
+    result = {"weights_s": time.perf_counter() - start}
+    for k in range(len(parents)):
+        # Our rotation R of the limb's end, in the armature's space: the bone's own
+        # rotation is B^T R B in its rest frame B.
+        frame = np.array(armature.data.bones[f"limb{k}"].matrix_local.to_3x3())
+        pose = armature.pose.bones[f"limb{k}"]
+        pose.rotation_mode = "QUATERNION"
+        pose.rotation_quaternion = mathutils.Matrix(
+            (frame.T @ d["rotations"][k] @ frame).tolist()).to_quaternion()
+    for name, volume_preserving in (("lbs", False), ("dqs", True)):
+        body.modifiers[0].use_deform_preserve_volume = volume_preserving
+        times = []
+        for _ in range(20):
+            armature.update_tag()
+            start = time.perf_counter()
+            graph = bpy.context.evaluated_depsgraph_get()
+            graph.update()
+            evaluated = body.evaluated_get(graph)
+            posed = evaluated.to_mesh()
+            times.append(time.perf_counter() - start)
+            result[name] = np.array([v.co for v in posed.vertices])
+            evaluated.to_mesh_clear()
+        result[name + "_ms"] = 1e3 * np.median(times)
+    np.savez(out, **result)
+
+
+def measures(rest, faces, posed, region):
+    import trimesh
+
+    import fleshing_jax as fj
+
+    edges = trimesh.Trimesh(rest, faces, process=False).edges_unique
+    before = np.linalg.norm(rest[edges[:, 0]] - rest[edges[:, 1]], axis=1)
+    after = np.linalg.norm(posed[edges[:, 0]] - posed[edges[:, 1]], axis=1)
+    stretch = np.maximum(after / before, before / after)
+    change = float(fj.volume(posed, faces) / fj.volume(rest, faces)) - 1
+    diagonal = np.linalg.norm(np.ptp(rest, axis=0))
+    drift = np.linalg.norm(posed[region == -1] - rest[region == -1], axis=1).max() / diagonal
+    return change, stretch.max(), int(np.sum(stretch > 2.5)), drift
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--bpy", required=True, help="a Python with `bpy` installed")
+    parser.add_argument("--figure", type=Path, default=None)
+    parser.add_argument("--blender-side", nargs=2, help=argparse.SUPPRESS)
+    args = parser.parse_args()
+    if args.blender_side:
+        return blender(*map(Path, args.blender_side))
+    with tempfile.TemporaryDirectory() as folder:
+        mine, theirs = Path(folder) / "ours.npz", Path(folder) / "blender.npz"
+        ours(mine)
+        subprocess.run([args.bpy, __file__, "--bpy", args.bpy, "--blender-side", str(mine),
+                        str(theirs)], check=True, capture_output=True)  # fmt: skip
+        o, b = dict(np.load(mine)), dict(np.load(theirs))
+    rest, faces, region = o["vertices"], o["faces"], o["region"]
+    print(f"Blender's heat weights: {b['weights_s']:.2f} s\n")
+    print("| method | flagged | dV/V (%) | worst edge stretch | edges > 2.5x | body drift "
+          "(% of diagonal) | frame (ms) |")
+    print("|---|---|---|---|---|---|---|")
+    rows = [("fleshing_jax (float32, jit)", o["posed"], int(np.sum(~o["valid"])),
+             float(o["frame_ms"])),
+            ("Blender LBS", b["lbs"], "-", float(b["lbs_ms"])),
+            ("Blender DQS", b["dqs"], "-", float(b["dqs_ms"]))]  # fmt: skip
+    for name, posed, flagged, ms in rows:
+        change, worst, torn, drift = measures(rest, faces, posed, region)
+        print(f"| {name} | {flagged} | {100 * change:+.3f} | {worst:.2f} | {torn} | "
+              f"{100 * drift:.3f} | {ms:.2f} |")
+    if args.figure is not None:
+        _figure(args.figure, rest, faces, [o["posed"], b["lbs"], b["dqs"]])
+
+
+def _figure(path, rest, faces, posed):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from mpl_toolkits.mplot3d.art3d import Poly3DCollection
+
+    titles = ["rest", "fleshing_jax", "Blender LBS", "Blender DQS"]
+    figure = plt.figure(figsize=(16, 6))
+    light = np.array([0.3, -0.5, 0.8]) / np.linalg.norm([0.3, -0.5, 0.8])
+    for i, (points, title) in enumerate(zip([rest, *posed], titles)):
+        ax = figure.add_subplot(1, 4, i + 1, projection="3d")
+        triangles = points[faces]
+        normals = np.cross(triangles[:, 1] - triangles[:, 0], triangles[:, 2] - triangles[:, 0])
+        normals /= np.linalg.norm(normals, axis=1, keepdims=True) + 1e-300
+        shade = 0.3 + 0.7 * np.abs(normals @ light)
+        ax.add_collection3d(Poly3DCollection(triangles, facecolors=shade[:, None]
+                                             * np.array([0.85, 0.72, 0.6]), edgecolors="none"))
+        low, high = rest.min(axis=0), rest.max(axis=0)
+        centre, half = (low + high) / 2, (high - low).max() / 2
+        for set_limits, c in zip((ax.set_xlim, ax.set_ylim, ax.set_zlim), centre):
+            set_limits(c - half, c + half)
+        ax.view_init(10, -70)
+        ax.set_axis_off()
+        ax.set_title(title)
+    figure.tight_layout()
+    temporary = Path(path).with_suffix(".tmp.png")
+    figure.savefig(temporary, dpi=90)
+    temporary.replace(path)
+    plt.close(figure)
+
+
+if __name__ == "__main__":
+    main()
