@@ -171,9 +171,8 @@ def restricted(registration: SkeletonRegistration, ids: np.ndarray):
         positions = np.searchsorted(unique, np.asarray(limb_ids)[rows])
         indices.append(jnp.asarray(positions, jnp.int32))
     vertices = jax.device_put(np.asarray(registration.vertices)[unique])
-    small = SkeletonRegistration(tuple(registrations), registration.rests, tuple(indices),
-                                 registration.joints, registration.stops, vertices,
-                                 registration.margin)
+    small = eqx.tree_at(lambda r: (r.registrations, r.indices, r.vertices), registration,
+                        (tuple(registrations), tuple(indices), vertices))
     return small, jnp.asarray(np.searchsorted(unique, ids), jnp.int32)
 
 
