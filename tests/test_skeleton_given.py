@@ -106,3 +106,77 @@ def test_a_limb_a_bend_would_not_visibly_move_joins_its_parent(given):
     # The legs, with their knees, are kept as they are.
     limbs, kept = _visible(list(skeleton.limbs), np.asarray(skeleton.region), vertices)
     assert len(limbs) == 6 and np.array_equal(kept, np.asarray(skeleton.region))
+
+
+def _bones(chains):
+    """The armature of `chains`: one bone per pair of consecutive points, each chain's first
+    a root bone, the others connected to the one before."""
+    heads, tails, parents = [], [], []
+    for chain in chains:
+        for i in range(len(chain) - 1):
+            parents.append(len(heads) - 1 if i else -1)
+            heads.append(chain[i])
+            tails.append(chain[i + 1])
+    return np.array(heads), np.array(tails), np.array(parents)
+
+
+def test_bones_of_chains_of_joints_are_the_chains_limbs(given):
+    mesh, skeleton = given
+    bones = fj.skeleton(mesh, bones=_bones(CHAINS))
+    assert [limb.parent for limb in bones.limbs] == [limb.parent for limb in skeleton.limbs]
+    assert np.array_equal(np.asarray(bones.region), np.asarray(skeleton.region))
+    for ours, theirs in zip(bones.limbs, skeleton.limbs, strict=True):
+        assert np.array_equal(ours.spine.control_points, theirs.spine.control_points)
+        assert float(ours.joint) == float(theirs.joint)
+
+
+def test_a_bone_starting_inside_its_parent_hangs_from_it():
+    """The shin's head below the thigh's tail: a chain of its own, cut out of the thigh's
+    region; a bone whose parent's region does not hold its head (a rig's root bone) hangs
+    from the nearest ancestor's that does: the body for a leg under the tail bone."""
+    mesh = quadruped(32)
+    heads = np.array([(0.75, 0.08, 0.40), (0.75, 0.08, 0.15), (0.10, 0.0, 0.52),
+                      (0.25, -0.08, 0.40)])  # fmt: skip
+    tails = np.array([(0.75, 0.08, 0.17), (0.75, 0.08, -0.06), (-0.08, 0.0, 0.50),
+                      (0.25, -0.08, -0.06)])  # fmt: skip
+    skeleton = fj.skeleton(mesh, bones=(heads, tails, np.array([-1, 0, -1, 2])))
+    assert [limb.parent for limb in skeleton.limbs] == [-1, 0, -1, -1]
+    vertices, region = np.asarray(mesh.vertices), np.asarray(skeleton.region)
+    for k in (1, 3):
+        foot = np.linalg.norm(vertices - tails[k], axis=1) < 0.06
+        assert foot.any() and np.all(region[foot] == k)
+    leg = fj.skeleton(mesh, bones=(heads[:2], tails[:2], np.array([-1, 0])))
+    assert np.array_equal(np.asarray(leg.region) == 1, region == 1)
+    for dtype in (np.float32, np.float64):
+        registration = fj.register_skeleton(mesh, leg, dtype=dtype)
+        assert registration.vertices.dtype == dtype
+
+
+def test_bad_bones_are_refused_by_name(given):
+    mesh, _ = given
+    heads, tails, parents = _bones(CHAINS)
+    names = [f"b{k}" for k in range(len(heads))]
+    flank = (np.array([(0.5, 0.0, 0.47)]), np.array([(0.5, 0.02, 0.47)]), np.array([-1]))
+    cases = [
+        ("bones", TypeError, "`bones` must be a tuple"),
+        ((heads, tails), TypeError, "`bones` must be a tuple"),
+        ((heads, tails[:-1], parents), ValueError, r"`bones\[1\]`.*shape"),
+        ((heads, tails, parents[:-1]), ValueError, r"`bones\[2\]`"),
+        ((heads, tails, parents + 0.5), ValueError, r"`bones\[2\]`"),
+        ((heads, tails, np.r_[parents[:-1], 9]), ValueError, r"bone 5's parent 9 is not"),
+        ((heads, tails, np.r_[3, parents[1:3], 1, parents[4:]]), ValueError,
+         "cycle: bone 0 → bone 3 → bone 1 → bone 0"),
+        ((heads, np.r_[tails[:2], heads[2:3], tails[3:]], parents, names), ValueError,
+         r"bone 2 \('b2'\) has zero length"),
+        ((heads, np.r_[tails[:1], [(0.75, 0.08, -0.5)], tails[2:]], parents), ValueError,
+         r"bone 1's tail .* outside the mesh"),
+        (flank, ValueError, "bone 0 gets no part of the surface"),
+        # The knee's bone from just below the hip: no room to bend the thigh.
+        ((heads[:2] + [(0, 0, 0), (0, 0, 0.2)], tails[:2] + [(0, 0, 0.2), (0, 0, 0)],
+          parents[:2]), ValueError, "region begins before its parent bone 0"),
+    ]  # fmt: skip
+    for bones, error, message in cases:
+        with pytest.raises(error, match=message):
+            fj.skeleton(mesh, bones=bones)
+    with pytest.raises(ValueError, match="`chains` and `bones` exclude"):
+        fj.skeleton(mesh, chains=CHAINS, bones=(heads, tails, parents))

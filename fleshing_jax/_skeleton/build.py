@@ -8,6 +8,7 @@ from scipy.spatial import cKDTree
 from .._checks import check_number
 from .._medial_axis.medial_mesh import MedialMesh
 from .._mesh.deform import longest_edge
+from .bones import bone_limbs
 from .chains import split_chains
 from .given import given_limbs
 from .limb_fit import fit_limb
@@ -35,7 +36,7 @@ REACHES = 4
 
 
 def skeleton(mesh, *, medial: MedialMesh | None = None, spheres: int = 200,
-             seed: int = 0, chains=None) -> Skeleton:  # fmt: skip
+             seed: int = 0, chains=None, bones=None) -> Skeleton:  # fmt: skip
     """The limbs of a closed mesh, found on its medial mesh, and the part of the surface each
     one moves.
 
@@ -88,12 +89,25 @@ def skeleton(mesh, *, medial: MedialMesh | None = None, spheres: int = 200,
       (`_skeleton.given`). A chain whose `p0` lies in an earlier chain's region (an ear on a
       head) hangs from that limb.
 
+    - `bones`: the limbs of an armature instead, as Blender exports it: `(heads (m, 3),
+      tails (m, 3), parents (m,))` (parents: each bone's parent's index, −1 for a root
+      bone), optionally with the bones' names as a fourth entry (for the errors). Each bone
+      is a limb (limb `k` bone `k` when every parent comes before its children, as Blender
+      lists them). A bone whose head is its parent's tail continues its parent's chain of
+      joints, and the chains are cut as `chains` are (`_skeleton.bones`); a bone starting
+      elsewhere (a clavicle on the chest) starts a chain of its own, hanging from the limb
+      of its nearest ancestor (its parent first) whose region holds its head: the body for
+      a root bone, and for a thigh under a root bone that points up into the torso.
+      The body is what no bone takes: a torso is the body, not a tube to bend.
+
     **Returns:** an `fj.Skeleton` whose `vertices` are the mesh's (n, 3), in its order.
 
     **Raises:** `TypeError`/`ValueError` naming the argument: a `mesh` that is not a closed
     triangle mesh (see `fj.medial_mesh`), `spheres` < 2, a `medial` that is not a
     `MedialMesh` or does not belong to `mesh`; `chains` with a point outside the mesh, a
-    limb that gets no surface, or a child cut before its parent leaves room to bend.
+    limb that gets no surface, or a child cut before its parent leaves room to bend; `bones`
+    of zero length, outside the mesh, with parents out of range or in a cycle, or that get
+    no surface to move (each error names the bone).
     """
     from .._medial_axis.surface import closed_mesh_arrays
 
@@ -103,16 +117,23 @@ def skeleton(mesh, *, medial: MedialMesh | None = None, spheres: int = 200,
     vertices, faces = closed_mesh_arrays(mesh)
     adjacency = mesh_adjacency(vertices, faces)
     margin = 0.5 * longest_edge(vertices, faces)  # `register_skeleton`'s default
-    if chains is not None:
+    if chains is not None and bones is not None:
+        raise ValueError("`chains` and `bones` exclude each other: give the limbs one way.")
+    if chains is not None or bones is not None:
+        name = "chains" if chains is not None else "bones"
         if medial is not None:
-            raise ValueError("`medial` and `chains` exclude each other: chains are the limbs.")
-        limbs, region = given_limbs(chains, vertices, faces, adjacency, margin)
+            raise ValueError(f"`medial` and `{name}` exclude each other: {name} are the limbs.")
+        if chains is not None:
+            limbs, region = given_limbs(chains, vertices, faces, adjacency, margin)
+            names = [f"limb {k}" for k in range(len(limbs))]
+        else:
+            limbs, region, names = bone_limbs(bones, vertices, faces, adjacency, margin)
         conflict = _conflict(limbs, region, vertices, adjacency)
         if conflict is not None:
+            parent, child = names[conflict[0]], names[conflict[1]]
             raise ValueError(
-                f"`chains`: limb {conflict[1]}'s region begins before its parent limb "
-                f"{conflict[0]} leaves its own parent: no room to bend limb {conflict[0]}; "
-                "move their points apart."
+                f"`{name}`: {child}'s region begins before its parent {parent} leaves its own "
+                f"parent: no room to bend {parent}; move their joints apart."
             )
     else:
         limbs, region = _found_limbs(vertices, faces, medial, spheres, seed, adjacency,

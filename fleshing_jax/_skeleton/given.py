@@ -23,6 +23,12 @@ from .limbs import LimbPath
 from .skeleton import Limb
 
 
+def outside_mesh(points: np.ndarray, vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """The indices of the `points` ((k, 3)) that lie outside the closed mesh."""
+    a, b, c = (vertices[faces[:, k]] for k in range(3))
+    return np.flatnonzero(~ray_inside(points, a, b, c))
+
+
 def check_chains(chains, vertices: np.ndarray, faces: np.ndarray) -> list[np.ndarray]:
     """`chains` as a list of (k, 3) float64 arrays, k ≥ 2, every point inside the mesh and no
     two consecutive points equal; else `TypeError`/`ValueError` naming the chain and point."""
@@ -31,7 +37,6 @@ def check_chains(chains, vertices: np.ndarray, faces: np.ndarray) -> list[np.nda
             "`chains` must be a non-empty list of chains, each a list of points [p0, p1, …] "
             f"from the body outwards, got {type(chains).__name__}."
         )
-    a, b, c = (vertices[faces[:, k]] for k in range(3))
     diagonal = float(np.linalg.norm(np.ptp(vertices, axis=0)))
     checked = []
     for i, chain in enumerate(chains):
@@ -45,7 +50,7 @@ def check_chains(chains, vertices: np.ndarray, faces: np.ndarray) -> list[np.nda
         if np.any(steps <= 1e-9 * diagonal):
             j = int(np.argmax(steps <= 1e-9 * diagonal))
             raise ValueError(f"`chains[{i}]`: points {j} and {j + 1} are the same point.")
-        outside = np.flatnonzero(~ray_inside(points, a, b, c))
+        outside = outside_mesh(points, vertices, faces)
         if len(outside):
             raise ValueError(
                 f"`chains[{i}][{int(outside[0])}]` = {points[outside[0]].tolist()} lies outside "
@@ -63,25 +68,34 @@ def given_limbs(chains, vertices, faces, adjacency, margin):
     region = np.full(len(vertices), -1)
     limbs: list[Limb] = []
     for c, points in enumerate(check_chains(chains, vertices, faces)):
-        radius = tree.query(points)[0]  # the distance to the surface, at a vertex's precision
-        # As spheres: a point a radius before p0 (inside the parent: the spine starts there),
-        # then the chain's points.
-        out = (points[1] - points[0]) / np.linalg.norm(points[1] - points[0])
-        centers = np.concatenate([(points[0] - radius[0] * out)[None], points])
-        radii = np.r_[radius[0], radius]
         parent = int(region[tree.query(points[0])[1]])
         for i in range(len(points) - 1):
-            path = np.arange(i + 1, len(centers))  # p(i) … pn
-            found = LimbPath(path, i, np.zeros(0, int), path, parent)
-            spine, part = fit_limb(found, centers, radii, vertices, adjacency, region == parent,
-                                   margin, cut_at=points[i])  # fmt: skip
-            if part is None:
+            limb = chain_limb(points, i, parent, tree, region, vertices, adjacency, margin)
+            if limb is None:
                 raise ValueError(
                     f"`chains[{c}]`: the limb from point {i} to its tip gets no part of the "
                     "surface to move (no vertex past the point within the spine's reach, or "
                     "less than a radius to bend): move the point towards the body or drop it."
                 )
-            region[part.vertices] = len(limbs)
-            limbs.append(Limb(spine, part.joint, parent))
+            region[limb[1]] = len(limbs)
+            limbs.append(limb[0])
             parent = len(limbs) - 1
     return limbs, region
+
+
+def chain_limb(points, i, parent, tree, region, vertices, adjacency, margin):
+    """The limb of the chain of joints `points` ((k, 3)) from its point `i` to its tip, cut out
+    of the region of limb `parent` (−1: the body; `region` (n,) the limbs' so far):
+    `(Limb, its region's vertex indices)`, or `None` when it gets no part of the surface.
+    `tree`: a `cKDTree` of `vertices`."""
+    radius = tree.query(points)[0]  # the distance to the surface, at a vertex's precision
+    # As spheres: a point a radius before p0 (inside the parent: the spine starts there),
+    # then the chain's points.
+    out = (points[1] - points[0]) / np.linalg.norm(points[1] - points[0])
+    centers = np.concatenate([(points[0] - radius[0] * out)[None], points])
+    radii = np.r_[radius[0], radius]
+    path = np.arange(i + 1, len(centers))  # p(i) … pn
+    found = LimbPath(path, i, np.zeros(0, int), path, parent)
+    spine, part = fit_limb(found, centers, radii, vertices, adjacency, region == parent,
+                           margin, cut_at=points[i])  # fmt: skip
+    return None if part is None else (Limb(spine, part.joint, parent), part.vertices)

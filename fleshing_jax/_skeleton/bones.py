@@ -1,0 +1,196 @@
+"""A skeleton from an armature's bones: what Blender exports (heads, tails, parents).
+
+`fj.skeleton(mesh, bones=(heads, tails, parents))`, each bone a limb. A bone whose head is its
+parent's tail (a connected bone: forearm after upper arm) continues its parent's chain of
+joints; a bone starting elsewhere (a clavicle on the chest, a root bone) starts a chain of its
+own that hangs from its nearest ancestor (its parent first) whose region holds its head (the
+body when none does). The chains are then cut as `fj.skeleton(mesh, chains=…)` cuts them
+(`_skeleton.given`): limb `k` is bone `k`'s, its spine from about a radius before its head
+through the later joints of its chain to the surface, its region cut out of its parent's at
+its head.
+
+The body is what no bone takes. A torso is the body, not a tube: a rig's spine bones in it
+get no region (on the procedural biped, a bone up the torso's middle reaches 1.5 radii of
+0.08, not the sides at 0.14, and its region ends at the neck), so the arms, legs and neck
+of an armature hang from the body (parent −1, or under a root bone whose region does not
+hold their heads). A bone's last tail is best a radius inside its end (a head bone through
+the head's middle): the local radius is the tail's distance to the surface.
+"""
+
+from __future__ import annotations
+
+import heapq
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from .._checks import check_finite_points
+from .given import chain_limb, outside_mesh
+from .skeleton import Limb
+
+# A bone continues its parent's chain when its head lies within this fraction of the mesh's
+# diagonal from the parent's tail (Blender writes a connected bone's head as its parent's
+# tail; a float32 export rounds both alike).
+CONNECTED = 1e-6
+
+
+def bone_limbs(bones, vertices, faces, adjacency, margin):
+    """`(limbs, region, names)` of the armature `bones` (see the module's docstring): limb `k`
+    bone `order[k]`, parents before children (the bones' own order when they list every
+    parent before its children, as Blender does), `names[k]` how errors name it."""
+    heads, tails, parents, labels = check_bones(bones, vertices, faces)
+    order = _order(parents)
+    diagonal = float(np.linalg.norm(np.ptp(vertices, axis=0)))
+    # Each bone's chain of joints (its first bone's head, then each bone's tail) and its
+    # place in it: a bone continues its parent's chain when its head is the parent's tail
+    # and no earlier sibling continues it already.
+    continued = np.zeros(len(heads), bool)
+    chain_of: dict[int, tuple[list[int], int]] = {}
+    for b in order:
+        p = int(parents[b])
+        if (
+            p >= 0
+            and not continued[p]
+            and (np.linalg.norm(heads[b] - tails[p]) <= CONNECTED * diagonal)
+        ):
+            continued[p] = True
+            chain, _ = chain_of[p]
+            chain.append(b)
+            chain_of[b] = (chain, len(chain) - 1)
+        else:
+            chain_of[b] = ([b], 0)
+    tree = cKDTree(vertices)
+    region = np.full(len(vertices), -1)
+    index = {}  # bone → limb
+    limbs: list[Limb] = []
+    for b in order:
+        chain, i = chain_of[b]
+        points = np.concatenate([heads[chain[0]][None], tails[chain]])
+        parent = index[int(parents[b])] if parents[b] >= 0 else -1
+        if i == 0:
+            parent = _holding(heads[b], b, parents, index, region, tree)
+        limb = chain_limb(points, i, parent, tree, region, vertices, adjacency, margin)
+        if limb is None:
+            raise ValueError(
+                f"`bones`: {labels[b]} gets no part of the surface to move (no vertex past "
+                "its head within reach of its spine, or less than a radius to bend): move its "
+                "head towards its parent, or merge it into its parent."
+            )
+        index[b] = len(limbs)
+        region[limb[1]] = len(limbs)
+        limbs.append(limb[0])
+    return limbs, region, [labels[b] for b in order]
+
+
+def _holding(head, b, parents, index, region, tree) -> int:
+    """The limb of bone `b`'s nearest ancestor whose region holds its `head` (the region of
+    the vertex nearest to it, as a chain's first point finds its parent), −1 (the body) if
+    none: the thighs of a rig whose root bone (the hips) points up into the torso hang from
+    the body, which holds them."""
+    holder = int(region[tree.query(head)[1]])
+    a = int(parents[b])
+    while a >= 0:
+        if index[a] == holder:
+            return holder
+        a = int(parents[a])
+    return -1
+
+
+def check_bones(bones, vertices, faces):
+    """`(heads (n, 3), tails (n, 3), parents (n,) int, labels)` of `bones`, `(heads, tails,
+    parents)` or `(heads, tails, parents, names)`; else `TypeError`/`ValueError` naming the
+    bone: a bone of zero length, with its head or tail outside the mesh, a parent out of
+    range or in a cycle."""
+    if (
+        isinstance(bones, str | bytes)
+        or not isinstance(bones, tuple | list)
+        or (len(bones) not in (3, 4))
+    ):
+        raise TypeError(
+            "`bones` must be a tuple (heads (n, 3), tails (n, 3), parents (n,)) or with bone "
+            f"names as a 4th entry, got {type(bones).__name__}."
+        )
+    heads = check_finite_points(bones[0], "bones[0]")
+    tails = check_finite_points(bones[1], "bones[1]")
+    n = len(heads) if heads.ndim == 2 else -1
+    if heads.ndim != 2 or heads.shape[1:] != (3,) or n == 0:
+        raise ValueError(
+            f"`bones[0]` (the heads) must have shape (n, 3), n ≥ 1, got {heads.shape}."
+        )
+    if tails.shape != heads.shape:
+        raise ValueError(f"`bones[1]` (the tails) must have the heads' shape {heads.shape}, got "
+                         f"{tails.shape}.")  # fmt: skip
+    parents = np.asarray(bones[2])
+    if (
+        parents.shape != (n,)
+        or not (
+            np.issubdtype(parents.dtype, np.integer)
+            or (np.issubdtype(parents.dtype, np.floating) and np.all(parents == np.round(parents)))
+        )
+        or parents.dtype == bool
+    ):
+        raise ValueError(
+            f"`bones[2]` (the parents) must be ({n},) integers (a bone's parent's index, -1 "
+            f"for a root bone), got shape {parents.shape} and dtype {parents.dtype}."
+        )
+    parents = parents.astype(np.int64)
+    names = bones[3] if len(bones) == 4 else None
+    if names is not None and (isinstance(names, str) or len(names) != n):
+        raise ValueError(f"`bones[3]` (the names) must be a list of {n} bone names.")
+    labels = [f"bone {b}" + (f" ({names[b]!r})" if names is not None else "") for b in range(n)]
+    bad = np.flatnonzero((parents < -1) | (parents >= n))
+    if len(bad):
+        b = int(bad[0])
+        raise ValueError(f"`bones`: {labels[b]}'s parent {int(parents[b])} is not a bone index "
+                         f"in [0, {n}) nor -1 (a root bone).")  # fmt: skip
+    cycle = _cycle(parents)
+    if cycle:
+        raise ValueError("`bones`: the parents form a cycle: "
+                         + " → ".join(labels[b] for b in cycle) + ".")  # fmt: skip
+    diagonal = float(np.linalg.norm(np.ptp(vertices, axis=0)))
+    short = np.flatnonzero(np.linalg.norm(tails - heads, axis=1) <= 1e-9 * diagonal)
+    if len(short):
+        raise ValueError(f"`bones`: {labels[int(short[0])]} has zero length (its head is its "
+                         "tail).")  # fmt: skip
+    for end, points in (("head", heads), ("tail", tails)):
+        outside = outside_mesh(points, vertices, faces)
+        if len(outside):
+            b = int(outside[0])
+            raise ValueError(
+                f"`bones`: {labels[b]}'s {end} {points[b].tolist()} lies outside the mesh: "
+                "every bone must lie inside the shape (a tip a little inside its end)."
+            )
+    return heads, tails, parents, labels
+
+
+def _cycle(parents: np.ndarray) -> list[int]:
+    """The bones of a cycle of `parents` (the first bone repeated at its end), or []."""
+    state = np.zeros(len(parents), int)  # 0: unseen, 1: on the current walk, 2: done
+    for start in range(len(parents)):
+        walk, b = [], start
+        while b >= 0 and state[b] == 0:
+            state[b] = 1
+            walk.append(b)
+            b = int(parents[b])
+        if b >= 0 and state[b] == 1:
+            return [*walk[walk.index(b) :], b]
+        state[walk] = 2
+    return []
+
+
+def _order(parents: np.ndarray) -> list[int]:
+    """The bones, each after its parent, otherwise in their own order (the identity when
+    every parent comes first)."""
+    children = [[] for _ in parents]
+    for b, p in enumerate(parents):
+        if p >= 0:
+            children[p].append(b)
+    ready = [b for b, p in enumerate(parents) if p < 0]
+    heapq.heapify(ready)
+    order = []
+    while ready:
+        b = heapq.heappop(ready)
+        order.append(b)
+        for c in children[b]:
+            heapq.heappush(ready, c)
+    return order
