@@ -180,3 +180,81 @@ def test_bad_bones_are_refused_by_name(given):
             fj.skeleton(mesh, bones=bones)
     with pytest.raises(ValueError, match="`chains` and `bones` exclude"):
         fj.skeleton(mesh, chains=CHAINS, bones=(heads, tails, parents))
+
+
+THIGH = (0.75, 0.08, 0.29)  # the front leg's thigh (limb 0), halfway from hip to knee
+
+
+@pytest.fixture(scope="module")
+def split(given):
+    mesh, skeleton = given
+    return skeleton.split(0, THIGH)
+
+
+def test_split_makes_the_part_past_a_point_a_child_limb(given, split):
+    mesh, skeleton = given
+    # The knee's limb (its joint below the split) goes to the new limb; the rest renumbered.
+    assert [limb.parent for limb in split.limbs] == [-1, 0, 1, -1, 3, -1, -1]
+    vertices, region, new = (np.asarray(a) for a in (mesh.vertices, skeleton.region,
+                                                     split.region))  # fmt: skip
+    assert np.array_equal(new[region >= 1], region[region >= 1] + 1)
+    thigh = region == 0
+    assert np.all(new[thigh & (vertices[:, 2] > THIGH[2] + 0.03)] == 0)
+    assert np.all(new[thigh & (vertices[:, 2] < THIGH[2] - 0.03)] == 1)
+    assert np.isin(new[thigh], [0, 1]).all()
+    # The new limb bends on the thigh's spine from the split on.
+    assert split.limbs[1].spine is skeleton.limbs[0].spine
+    at = float(split.limbs[1].joint)
+    assert np.linalg.norm(np.asarray(skeleton.limbs[0].spine(at)) - THIGH) < 0.01
+    assert np.array_equal(np.asarray(skeleton.split(0, at=at).region), new)
+    merged = split.merge(1)
+    assert np.array_equal(np.asarray(merged.region), region)
+    assert [limb.parent for limb in merged.limbs] == [limb.parent for limb in skeleton.limbs]
+
+
+def test_a_split_limb_poses_with_the_rest_still(given, split):
+    mesh, _ = given
+    for dtype in (np.float32, np.float64):
+        assert fj.register_skeleton(mesh, split, dtype=dtype).vertices.dtype == dtype
+    vertices, region = np.asarray(mesh.vertices), np.asarray(split.region)
+    posed = fj.pose_skeleton(mesh, split, {1: fj.LimbPose(30.0)})
+    moved = np.asarray(posed.vertices)
+    assert np.asarray(posed.valid).all()
+    below = np.isin(region, [1, 2])  # the lower thigh and the knee's limb below it
+    assert np.array_equal(moved[~below], vertices[~below])
+    diagonal = np.linalg.norm(np.ptp(vertices, axis=0))
+    foot = np.linalg.norm(vertices - CHAINS[0][-1], axis=1) < 0.05
+    assert np.linalg.norm(moved[foot] - vertices[foot], axis=1).min() > 0.04 * diagonal
+    change = float(fj.volume(moved, mesh.faces) / fj.volume(vertices, mesh.faces)) - 1
+    assert abs(change) < 1e-3
+
+
+def test_bad_splits_are_refused_by_name(given):
+    _, skeleton = given
+    cases = [
+        ((6, THIGH), {}, "`index`"),
+        ((0,), {}, "`point` or its arc length `at`"),
+        ((0, THIGH), {"at": 0.2}, "`point` or its arc length `at`"),
+        ((0, (0.75, 0.3, 0.29)), {}, "outside limb 0"),
+        ((0, (0.75, 0.08, 0.39)), {}, "too near an end of limb 0"),
+        ((1, (0.75, 0.08, -0.085)), {}, "too near an end of limb 1"),
+        ((0, (0.75, 0.08)), {}, r"`point` must have shape"),
+        ((0, [THIGH, THIGH]), {}, r"`point` must have shape \(3,\)"),
+        ((0,), {"at": -1.0}, "`at`"),
+    ]
+    for args, kwargs, message in cases:
+        with pytest.raises(ValueError, match=message):
+            skeleton.split(*args, **kwargs)
+
+
+def test_bones_and_split_skeletons_save_and_load(given, split, tmp_path):
+    mesh, _ = given
+    bones = fj.skeleton(mesh, bones=_bones(CHAINS))
+    for k, skeleton in enumerate((bones, split)):
+        path = tmp_path / f"skeleton{k}.json"
+        fj.save_skeleton(skeleton, path)
+        loaded = fj.load_skeleton(path)
+        assert np.array_equal(np.asarray(loaded.region), np.asarray(skeleton.region))
+        for ours, theirs in zip(loaded.limbs, skeleton.limbs, strict=True):
+            assert ours.parent == theirs.parent and float(ours.joint) == float(theirs.joint)
+            assert np.array_equal(ours.spine.control_points, theirs.spine.control_points)

@@ -14,7 +14,7 @@ import numpy as np
 from jaxtyping import Array, ArrayLike
 from scipy.spatial import cKDTree
 
-from .._checks import check_finite_points, is_concrete
+from .._checks import check_finite_points, check_number, is_concrete
 from .._spines.spine import AbstractSpine
 
 
@@ -150,13 +150,93 @@ class Skeleton(eqx.Module):
         """This skeleton with limb `index` merged into its parent (the body for a body's
         limb): its region and its children go to the parent, the later limbs are renumbered
         (a knee a user does not want: `skeleton.merge(knee)`)."""
+        limbs, region = merge_limb(self.limbs, np.asarray(self.region), self._limb(index))
+        return Skeleton(limbs, region, self.vertices)
+
+    def _limb(self, index) -> int:
+        """`index` as a limb index, else `ValueError`."""
         count = len(self.limbs)
-        if isinstance(index, bool | np.bool_) or not isinstance(index, int | np.integer) or not (
-            0 <= index < count
+        if (
+            isinstance(index, bool | np.bool_)
+            or not isinstance(index, int | np.integer)
+            or not (0 <= index < count)
         ):
             raise ValueError(f"`index` must be a limb index in [0, {count}), got {index!r}.")
-        limbs, region = merge_limb(self.limbs, np.asarray(self.region), int(index))
-        return Skeleton(limbs, region, self.vertices)
+        return int(index)
+
+    def split(self, index: int, point: ArrayLike | None = None, *,
+              at: float | None = None) -> Skeleton:  # fmt: skip
+        """This skeleton with limb `index` split in two at `point` or at the arc length `at`
+        on its spine (a knee a user wants that the skeleton lacks): the part of its region
+        past the split, the vertices whose nearest spine point lies beyond it, becomes a new
+        limb `index + 1`, the child of limb `index` (the later limbs renumbered). The new
+        limb bends on limb `index`'s rest spine from the split on (its `joint` there), as a
+        chain's limbs do (each spine runs on to the chain's tip); limb `index` keeps its
+        spine, and its region ends at the split. Each child limb of `index` goes to the piece
+        holding its joint: the new limb when its joint's point lies beyond the split.
+
+        **Arguments:** `index`: a limb index; `point`: (3,), a point on or near the limb's
+        spine, inside the limb (the split is at the spine's point nearest to it); `at`: or
+        the arc length of the split on the spine, instead of `point`.
+
+        **Returns:** the new `Skeleton`; `skeleton.split(k, p).merge(k + 1)` is `skeleton`.
+
+        **Raises:** `ValueError` naming the argument: a bad `index`, both or neither of
+        `point` and `at`, a `point` outside the limb (farther from the spine than its surface
+        there), or a split less than the limb's local thickness (the distance from its spine
+        to its surface there) past its joint or before its spine's end.
+        """
+        from .regions import spine_samples
+
+        index = self._limb(index)
+        if (point is None) == (at is None):
+            raise ValueError("Give the split's `point` or its arc length `at`, one of them.")
+        limb = self.limbs[index]
+        s, samples, _ = map(np.asarray, spine_samples(limb.spine))
+        spine = cKDTree(samples)
+        if point is not None:
+            point = check_finite_points(point, "point")
+            if point.shape != (3,):
+                raise ValueError(f"`point` must have shape (3,), got {point.shape}.")
+            gap, foot = spine.query(point)
+            at = float(s[foot])
+        else:
+            at = check_number(at, "at", 0.0, float(s[-1]))
+        region = np.asarray(self.region)
+        ids = np.flatnonzero(region == index)
+        distance, feet = spine.query(np.asarray(self.vertices, np.float64)[ids])
+        along = s[feet]
+        # The limb's local thickness: its farthest vertex from the spine among those whose
+        # feet lie within its typical thickness of the split.
+        window = float(np.median(distance)) if len(ids) else 0.0
+        near = np.abs(along - at) <= window
+        thickness = float(distance[near].max()) if near.any() else 0.0
+        where = f"`point` {point.tolist()}" if point is not None else f"`at` = {at:.6g}"
+        if point is not None and (not near.any() or gap > thickness):
+            raise ValueError(
+                f"{where} lies outside limb {index}: {gap:.4g} from its spine, where its "
+                f"surface lies {thickness:.4g} from it."
+            )
+        joint = float(limb.joint)
+        if not near.any() or at - joint < thickness or float(s[-1]) - at < thickness:
+            raise ValueError(
+                f"{where} is too near an end of limb {index}: the split (arc length {at:.4g}) "
+                f"must lie at least its thickness there ({thickness:.4g}) past the limb's joint "
+                f"({joint:.4g}) and before its spine's end ({float(s[-1]):.4g})."
+            )
+        beyond = np.zeros(len(region), bool)
+        beyond[ids[along > at]] = True
+
+        def parent(other: Limb) -> int:  # renumbered; a child of `index` to its piece
+            if other.parent != index:
+                return other.parent + (other.parent > index)
+            base = np.asarray(other.spine(other.joint), np.float64)
+            return index + (float(s[spine.query(base)[1]]) > at)
+
+        limbs = [Limb(other.spine, other.joint, parent(other)) for other in self.limbs]
+        limbs.insert(index + 1, Limb(limb.spine, at, index))
+        region = np.where(region > index, region + 1, region)
+        return Skeleton(limbs, np.where(beyond, index + 1, region), self.vertices)
 
     def chain(self, index: int) -> tuple[int, ...]:
         """The limbs from the body down to limb `index` (a jointed chain: hip → knee → ankle),
