@@ -23,15 +23,22 @@ import optimistix as optx
 from jaxtyping import Array, ArrayLike
 
 from .._fleshing.projection import Registration
+from . import verdict
 from .problem import (
     AbstractPoseProblem,
     FitResult,
     Parameters,
     Regularizers,
     check_cloud,
+    check_tolerance,
     default_solver,
     fit,
     prepare,
+)
+
+ADVICE = (
+    "start closer: `init` from a fit with correspondences or an `Arc` fitted first, a few "
+    "starts (keep the lowest rms), or `fixed=` for the root's control points."
 )
 
 
@@ -54,7 +61,7 @@ class Chamfer(AbstractPoseProblem):
     invalid: str = eqx.field(static=True)
     check_projection: bool = eqx.field(static=True)
 
-    def distances(self, images: Array, valid: Array):
+    def differences(self, images: Array, valid: Array):
         """Forward (N, 3) and backward (K, 3) difference vectors, and the forward mask."""
         used = valid if self.invalid == "exclude" else jnp.ones_like(valid)
         everywhere = jnp.ones(self.cloud.shape[0], dtype=bool)
@@ -64,7 +71,7 @@ class Chamfer(AbstractPoseProblem):
 
     def __call__(self, y, args=None):
         images, valid = self.images(y)
-        forward, backward, used = self.distances(images, valid)
+        forward, backward, used = self.differences(images, valid)
         n = jnp.maximum(jnp.sum(used), 1).astype(forward.dtype)
         k = self.cloud.shape[0]
         residuals = (forward.reshape(-1) / jnp.sqrt(n), backward.reshape(-1) / k**0.5)
@@ -72,10 +79,18 @@ class Chamfer(AbstractPoseProblem):
 
     def rms(self, images, valid):
         """`√(Chamfer distance / 2)`: nearest-neighbour distances averaged both ways."""
-        forward, backward, used = self.distances(images, valid)
+        forward, backward, used = self.differences(images, valid)
         n = jnp.maximum(jnp.sum(used), 1)
         chamfer = jnp.sum(forward**2) / n + jnp.mean(jnp.sum(backward**2, axis=-1))
         return jnp.sqrt(chamfer / 2)
+
+    def distances(self, images, valid):
+        """The forward term's distances: each counted image to its nearest cloud point."""
+        forward, _, used = self.differences(images, valid)
+        return jnp.linalg.norm(forward, axis=-1), used.astype(forward.dtype)
+
+    def data(self):
+        return self.cloud
 
 
 def fit_spine_to_points(
@@ -99,6 +114,7 @@ def fit_spine_to_points(
     atol: float | None = None,
     max_steps: int = 256,
     throw: bool = False,
+    tolerance: float | None = verdict.TOLERANCE,
 ) -> FitResult:
     """Fits the bent spine `C₁` whose fleshing of `source` best matches an unordered `cloud`.
 
@@ -111,7 +127,10 @@ def fit_spine_to_points(
     **Arguments:** as for `fit_spine`, with `cloud`: (K, 3) finite target points instead of
     `target`, and `solver`: any optimistix minimiser or least-squares solver (default
     `optimistix.BFGS(rtol, atol)`, tolerances from the dtype). `invalid="exclude"` leaves
-    invalid images out of both terms; `"penalize"` counts them as unmoved points.
+    invalid images out of both terms; `"penalize"` counts them as unmoved points. As for
+    `fit_spine`, `converged` is True only when the solve stopped with the rms within
+    `tolerance` (default 1e-3) of the cloud's bounding-box diagonal; otherwise `message`
+    says what most likely went wrong and what to try.
 
     **Returns:** a `FitResult` whose `rms` is `√(Chamfer distance / 2)`: the root-mean-square
     of the nearest-neighbour distances, averaged over both directions.
@@ -139,4 +158,4 @@ def fit_spine_to_points(
     )
     if solver is None:
         solver = default_solver("minimise", dtype, rtol, atol)
-    return fit(problem, solver, setup.y0, max_steps, throw)
+    return fit(problem, solver, setup.y0, max_steps, throw, check_tolerance(tolerance), ADVICE)

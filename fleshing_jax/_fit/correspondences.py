@@ -20,15 +20,26 @@ from jaxtyping import Array, ArrayLike
 
 from .._batching.buckets import bucket, pad_batch, unpad_batch
 from .._fleshing.projection import Registration
+from . import verdict
+from .continuation import AUTO_STAGES, staged_targets
 from .problem import (
     AbstractPoseProblem,
     FitResult,
     Parameters,
     Regularizers,
     check_cloud,
+    check_tolerance,
     default_solver,
+    explain,
     fit,
     prepare,
+    solve,
+)
+
+ADVICE = (
+    "start closer: more `continuation=` stages (the target reached in steps from the rest "
+    "pose), an `Arc` fitted first with a free-form `init` on it, or `fixed=` for the root's "
+    "control points."
 )
 
 
@@ -71,6 +82,14 @@ class Correspondence(AbstractPoseProblem):
         counted = valid if self.invalid == "exclude" else jnp.ones_like(valid)
         return weighted_rms(images - self.target, self.weights, counted)
 
+    def distances(self, images, valid):
+        counted = valid if self.invalid == "exclude" else jnp.ones_like(valid)
+        d = jnp.linalg.norm(images - self.target, axis=-1)
+        return d, jnp.where(counted, self.weights, 0)
+
+    def data(self):
+        return self.target
+
 
 def fit_spine(
     source_spine,
@@ -94,12 +113,22 @@ def fit_spine(
     atol: float | None = None,
     max_steps: int = 256,
     throw: bool = False,
+    tolerance: float | None = verdict.TOLERANCE,
+    continuation: int | str = "auto",
 ) -> FitResult:
     """Fits the bent spine `C₁` that fleshes `source[i]` (around `C₀`) onto `target[i]`.
 
     Nonlinear least squares over the free parameters of `init` (and optionally the twist),
     solved with optimistix (Levenberg–Marquardt by default). Non-convergence is reported in
-    `result`/`converged`, never raised (unless `throw=True`) and never hidden.
+    `result`/`converged`, never raised (unless `throw=True`) and never hidden: `converged` is
+    True only when the loss stopped decreasing *and* the rms is within `tolerance` of the
+    targets' bounding-box diagonal; otherwise `message` says which failure it most likely is
+    (stall, local minimum, unreachable target, invalid targets) and what to try.
+
+    A far target (a bend of 60–90° from the rest spine) is reached by continuation: the
+    target approached in stages, each fit started from the one before
+    (`_fit.continuation`). By default (`continuation="auto"`) a fit that stops at a local
+    minimum or stalls is retried so, in 4 stages.
 
     **Arguments:**
 
@@ -129,7 +158,17 @@ def fit_spine(
     - `solver`: any optimistix least-squares solver or minimiser; default
       `LevenbergMarquardt(rtol, atol)` with tolerances from the dtype (1e-10 in float64,
       1e-5 in float32).
-    - `max_steps`, `throw`: passed to `optimistix.least_squares`.
+    - `max_steps`, `throw`: passed to `optimistix.least_squares` (each stage's).
+    - `tolerance`: the rms the data allows, as a fraction of the targets' bounding-box
+      diagonal (default 1e-3): about the targets' noise over the diagonal for noisy targets;
+      `None` for no residual test (the solver's alone, e.g. a regularised fit that trades
+      data for smoothness on purpose).
+    - `continuation`: `"auto"` (the default: a plain fit, retried in 4 stages when it stops
+      at a local minimum or stalls; when both stop at the same rms the target is reported
+      unreachable), or the number of stages `n ≥ 1` (1: one plain fit). Stage `k` targets
+      each point's rest position moved `k/n` of the way: the best rigid motion onto the
+      targets followed `k/n` of its angle and shift, plus `k/n` of the rest; the last stage is
+      `target` itself.
 
     **Returns:** a `FitResult`. Its `rms` is the weighted root-mean-square distance between
     the fleshed source and `target` over all points (`"penalize"`) or over the valid ones
@@ -184,8 +223,40 @@ def fit_spine(
     )
     if solver is None:
         solver = default_solver("least_squares", dtype, rtol, atol)
-    result = fit(problem, solver, setup.y0, max_steps, throw)
+
+    def staged(stages: int) -> FitResult:
+        # The stages before the last only move the start: their solve alone.
+        y = setup.y0
+        for goal in staged_targets(source, target, weights, stages)[:-1]:
+            staged_problem = eqx.tree_at(lambda p: p.target, problem, jnp.asarray(goal))
+            spine, twist_k = solve(staged_problem, solver, y, int(max_steps), False)[:2]
+            y = setup.parameters.of(spine, twist_k if fit_twist else None)
+        return fit(problem, solver, y, max_steps, throw, tolerance, ADVICE)
+
+    tolerance = check_tolerance(tolerance)
+    if continuation == "auto":
+        result = staged(1)
+        if result.stalled or result.unexplained.startswith("local minimum"):
+            retried = staged(AUTO_STAGES)
+            low, high = sorted((float(result.rms), float(retried.rms)))
+            result = retried if float(retried.rms) <= float(result.rms) else result
+            if result.unexplained.startswith("local minimum") and (
+                high < verdict.SAME_RESIDUAL * low
+            ):  # two starts, one residual: most likely the best this spine can do
+                result = explain(problem, result, tolerance, ADVICE, same_from_elsewhere=True)
+    else:
+        result = staged(_check_stages(continuation))
     return eqx.tree_at(lambda r: r.valid, result, unpad_batch(result.valid, n))
+
+
+def _check_stages(continuation) -> int:
+    if isinstance(continuation, bool) or not isinstance(continuation, int | np.integer) or (
+        continuation < 1
+    ):
+        raise ValueError(
+            f"`continuation` must be 'auto' or a number of stages ≥ 1, got {continuation!r}."
+        )
+    return int(continuation)
 
 
 def _check_weights(weights, n: int, dtype) -> Array:

@@ -29,6 +29,7 @@ from .._numerics import cast_floats
 from .._spines.analytic import Arc, Helix, Line
 from .._spines.bspline import BSpline
 from .._spines.spine import AbstractSpine
+from . import verdict
 from .jacobian import for_solver
 
 INVALID_MODES = ("penalize", "exclude")
@@ -96,6 +97,10 @@ class Parameters(eqx.Module):
     def initial(self, twist: Array | None):
         leaves = _as_tuple(self.where(self.base))
         return tuple(leaf.reshape(-1)[i] for leaf, i in zip(leaves, self.free)), twist
+
+    def of(self, spine: AbstractSpine, twist: Array | None):
+        """The `y` of `spine` (a fit's result: the same structure as `base`) and `twist`."""
+        return Parameters(spine, self.free, self.where).initial(twist)
 
     def spine(self, y) -> AbstractSpine:
         leaves = _as_tuple(self.where(self.base))
@@ -262,8 +267,8 @@ class AbstractFitOutcome(eqx.Module):
 
     @property
     def converged(self) -> bool:
-        """Whether the solver reported success and did not stall (never trust the fitted
-        values when this is False)."""
+        """Whether the solver reported success, did not stall and (a spine fit) explained
+        its data to the tolerance (never trust the fitted values when this is False)."""
         return bool(self.result == optx.RESULTS.successful) and not self._stall()
 
     @property
@@ -290,6 +295,11 @@ class FitResult(AbstractFitOutcome):
     - `stalled`: "" or, for a solve that optimistix reports as successful although its
       steps shrank to nothing without reducing the loss meaningfully (no minimum), what
       happened and what to try; `converged` is then False and `message` says it.
+    - `tolerance`: the rms the data allows (absolute): the `tolerance=` given to the fit times
+      the targets' bounding-box diagonal (`inf` with `tolerance=None`).
+    - `unexplained`: "" or, for a solve that stopped (no stall) with `rms` above `tolerance`,
+      which failure it most likely is (local minimum, unreachable target, invalid targets:
+      `_fit.verdict`) and what to try; `converged` is then False and `message` says it.
     """
 
     spine: AbstractSpine
@@ -301,9 +311,12 @@ class FitResult(AbstractFitOutcome):
     loss: Float[Array, ""]
     stats: dict
     stalled: str = eqx.field(static=True, default="")
+    tolerance: Float[Array, ""] = eqx.field(default_factory=lambda: jnp.asarray(jnp.inf))
+    unexplained: str = eqx.field(static=True, default="")
 
     def _stall(self) -> str:
-        return self.stalled
+        # Not converged either: a solve that stopped without explaining its data.
+        return self.stalled or self.unexplained
 
     @property
     def num_invalid(self) -> int:
@@ -336,6 +349,21 @@ class AbstractPoseProblem(eqx.Module):
     @abc.abstractmethod
     def rms(self, images: Array, valid: Array) -> Array:
         """The fit's reported root-mean-square distance for final `images` (N, 3)."""
+
+    @abc.abstractmethod
+    def distances(self, images: Array, valid: Array) -> tuple[Array, Array]:
+        """Each source point's distance to its target at final `images`, and its weight in
+        `rms`: `(d (N,), w (N,))`, `rms = √(Σ w d² / Σ w)` over the forward term."""
+
+    @abc.abstractmethod
+    def data(self) -> Array:
+        """The target points (K, 3), whose bounding-box diagonal scales the tolerance."""
+
+    @property
+    def regularized(self) -> bool:
+        """Whether any regulariser is on (it may hold the fit away from the data)."""
+        r = self.regularizers
+        return r.length_weight is not None or r.smoothness is not None or bool(r.extra)
 
 
 class Setup(eqx.Module):
@@ -474,24 +502,70 @@ def stall_message(losses, radius, steps, advice: str = SPINE_ADVICE) -> str:
     )
 
 
-def fit(problem: AbstractPoseProblem, solver, y0, max_steps: int, throw: bool) -> FitResult:
+def check_tolerance(tolerance) -> float:
+    """`tolerance=` of a fit: a finite number > 0, or `None` (no residual test: `inf`)."""
+    if tolerance is None:
+        return np.inf
+    value = float(tolerance)
+    if not np.isfinite(value) or value <= 0:
+        raise ValueError(f"`tolerance` must be a finite number > 0 or None, got {tolerance!r}.")
+    return value
+
+
+def fit(
+    problem: AbstractPoseProblem,
+    solver,
+    y0,
+    max_steps: int,
+    throw: bool,
+    tolerance: float,
+    advice: str,
+) -> FitResult:
     """Solves `problem` and reports the fit, validity checked with the full projection test.
 
-    A solve that optimistix calls successful but that stalled (`stall_message`) is reported
-    as not converged."""
+    A solve that optimistix calls successful but that stalled (`stall_message`), or that
+    stopped with its rms above `tolerance` times the targets' diagonal (`explain`, with
+    `advice` at a local minimum), is reported as not converged."""
     spine, twist, losses, radius, result, stats = solve(
         problem, solver, y0, int(max_steps), bool(throw)
     )
-    images, valid = pose(problem.registration, spine, method=problem.method, twist=twist)
     successful = bool(result == optx.RESULTS.successful)
-    return FitResult(
+    out = FitResult(
         spine=spine,
         twist=twist,
-        rms=problem.rms(images, valid),
-        valid=valid,
+        rms=jnp.zeros((), twist.dtype),  # set by `explain`
+        valid=jnp.ones(problem.registration.points.shape[0], bool),
         result=result,
         num_steps=stats["num_steps"],
         loss=losses[1],
         stats=stats,
         stalled=stall_message(losses, radius, stats["num_steps"]) if successful else "",
+    )
+    return explain(problem, out, tolerance, advice)
+
+
+def explain(
+    problem: AbstractPoseProblem,
+    out: FitResult,
+    tolerance: float,
+    advice: str,
+    same_from_elsewhere: bool | None = None,
+) -> FitResult:
+    """`out` with its `rms`, `valid`, `tolerance` and `unexplained` from posing `problem`'s
+    source on its spine (the full projection test): `verdict.verdict`, told whether a fit from
+    another start ended at the same rms (`same_from_elsewhere`; `None`: not known)."""
+    images, valid = pose(problem.registration, out.spine, method=problem.method, twist=out.twist)
+    rms = problem.rms(images, valid)
+    scale = verdict.diagonal(problem.data())
+    bound = tolerance * scale
+    unexplained = ""
+    if bool(out.result == optx.RESULTS.successful) and not out.stalled:
+        distances, weights = problem.distances(images, valid)
+        unexplained = verdict.verdict(
+            rms, distances, weights, valid, bound, scale=scale, advice=advice,
+            regularized=problem.regularized, same_from_elsewhere=same_from_elsewhere,
+        )
+    return dataclasses.replace(
+        out, rms=rms, valid=valid, tolerance=jnp.asarray(bound, rms.dtype),
+        unexplained=unexplained,
     )
