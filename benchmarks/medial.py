@@ -144,11 +144,12 @@ def memory():
         print(f"| {name} | {vertices} | 200 | {elapsed} | {peak} |", flush=True)
 
 
-def compare(path: str, mesh_path: str, seed: int) -> None:
+def compare(path: str, mesh_path: str, seed: int, header: bool = True) -> None:
     """One row of the accuracy table for a `.ma` file made by any tool (Q-MAT, Coverage
     Axis, ...) of the mesh at `mesh_path`, measured as ours are: `medial_distance(...,
     seed=1)` both ways, the volume error, `V − E + F`, the widest slab; and the spheres in
-    no edge and the graph's connected components (ours: none, and one per volume)."""
+    no edge and the graph's connected components (ours: none, and one per volume).
+    `header`: print the table's header first (`qmat_build.py` prints rows one after another)."""
     from fleshing_jax._medial_axis.connect import components
 
     mesh = trimesh.load(mesh_path, process=False)
@@ -160,9 +161,10 @@ def compare(path: str, mesh_path: str, seed: int) -> None:
     centers, _, edges, faces = medial.numpy()
     lone = int((np.bincount(edges.reshape(-1), minlength=len(centers)) == 0).sum())
     volume = medial.volume() / mesh.volume - 1
-    print("| file | spheres | surface → envelope | envelope → surface | volume error "
-          "| V − E + F | widest slab | spheres in no edge | components |")
-    print("| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |")
+    if header:
+        print("| file | spheres | surface → envelope | envelope → surface | volume error "
+              "| V − E + F | widest slab | spheres in no edge | components |")
+        print("| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |")
     print(f"| {Path(path).name} | {len(centers)} | {100 * to_envelope:.2f} % | "
           f"{100 * to_surface:.2f} % | {100 * volume:+.2f} % | "
           f"{len(centers) - len(edges) + len(faces)} | "
