@@ -39,11 +39,18 @@ def fit_limb(found: LimbPath, centers, radii, vertices, adjacency, allowed, marg
         if far is None:
             break
         for share in STRAIGHTER:
-            spine, cut, tip, arc, local = limb_spine(found, centers, radii, vertices, margin,
-                                                     share * far, cut_at)
-            part = limb_region(spine, cut, tip, arc, local, vertices, adjacency, allowed)
-            if part is not None:
+            refit = limb_spine(found, centers, radii, vertices, margin, share * far, cut_at)
+            refit_part = limb_region(*refit, vertices, adjacency, allowed)
+            if refit_part is not None:
                 break
+        if refit_part is None:
+            # Straightened, a limb bent at rest loses its region (an insect's leg, its knee
+            # the highest point: the straight spine misses it, and the leg stayed in the
+            # body); it keeps the fit before, some far vertices nearer a focal point than
+            # the margin (the insect's six legs bent 30° at once flag none).
+            break
+        spine, cut, tip, arc, local = refit
+        part = refit_part
     return spine, part
 
 
