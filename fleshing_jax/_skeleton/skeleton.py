@@ -84,7 +84,12 @@ def merge_limb(limbs, region: np.ndarray, k: int):
 
 
 class Skeleton(eqx.Module):
-    """A shape as a body and a tree of limbs (built by `fj.skeleton`).
+    """A shape as a body and a tree of limbs (built by `fj.skeleton`: found on the medial
+    mesh, from chains of joints, or from an armature's bones).
+
+    Edited by hand with `merge(k)` (a joint removed: limb `k` joins its parent) and
+    `split(k, point)` (a joint added: the part of limb `k` past the point a child limb);
+    `fj.save_skeleton` writes it as JSON.
 
     **Arguments/fields:**
 
