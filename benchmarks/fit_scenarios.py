@@ -1,6 +1,9 @@
-"""Spine fitting scenarios (GitHub issue 5): steps, time and final rms of each.
+"""Spine fitting scenarios (GitHub issue 5): steps, time and final rms of each; free-form
+fits from the rest spine onto far bends (issue 48).
 
-    python benchmarks/fit_scenarios.py
+    python benchmarks/fit_scenarios.py            # both tables
+    python benchmarks/fit_scenarios.py --far      # the far bends only
+    python benchmarks/fit_scenarios.py --far --points=200 --shape=tube  # fewer, one shape
 
 float64, 32 points in a tube of radius 0.5 (0.4 for B-splines) around the rest spine, as in
 `tests/test_fit.py`. Prints a Markdown table: optimistix steps, wall time of the first call
@@ -63,7 +66,72 @@ def scenarios():
     return out
 
 
+def far_bends(points: int = 500, angles=(30, 60, 90), shape: str = ""):
+    """`(name, thunk, diagonal)` triples: a free-form rest spine's shape fleshed onto an `Arc`
+    of the same length, placed at the rest spine's start along its start tangent and bent
+    `angle` degrees, fitted by `fit_spine(C0, C0, source, target)` (every default: the
+    continuation when the plain fit stops short). Rest spines: a straight 13-control-point
+    quintic B-spline in a tube of radius 0.3 (length 4), and the insect's body
+    (`characters.insect`, `rest_spine`: a curved quintic of 16 control points, length 1.70;
+    `points` of its vertices valid on it, legs included); one case also twisted 0.5 rad
+    (`fit_twist=True`)."""
+    from fleshing_jax._medial_axis.characters import insect
+    from fleshing_jax._skeleton.rest_spine import rest_spine
+
+    rng = np.random.default_rng(0)
+    k = 13
+    straight = fj.BSpline(np.c_[np.linspace(0, 4, k), np.zeros(k), np.zeros(k)], degree=5)
+    mesh = insect()
+    body = rest_spine(mesh)
+    vertices = np.asarray(mesh.vertices)
+    valid = np.flatnonzero(np.asarray(fj.register(vertices, body).valid))
+    shapes = [
+        ("tube, straight quintic (13)", straight, cloud(straight, n=points, radius=0.3)),
+        ("insect body, rest_spine", body, vertices[rng.choice(valid, points, replace=False)]),
+    ]
+    out = []
+    for label, rest, source in [s for s in shapes if shape in s[0]]:
+        t0 = np.asarray(jax.jacfwd(rest)(0.0))
+        t0 /= np.linalg.norm(t0)
+        normal = np.cross(t0, [0.0, 0.0, 1.0])
+        normal = normal if np.linalg.norm(normal) > 1e-3 else np.cross(t0, [0.0, 1.0, 0.0])
+        length = float(rest.length)
+        cases = [(a, 0.0) for a in angles] + [(angles[-1], 0.5)]
+        for angle, twist in cases:
+            arc = fj.Arc(length / np.deg2rad(angle), length, origin=np.asarray(rest(0.0)),
+                         tangent=t0, normal=normal / np.linalg.norm(normal))
+            target, _ = fj.flesh(source, rest, arc, twist=twist)
+            name = f"{label} onto {angle}°" + (f", twist {twist}" if twist else "")
+            out.append((name, lambda r=rest, x=source, y=target, w=twist: fj.fit_spine(
+                r, r, x, y, twist=0.0, fit_twist=w != 0), _diagonal(target)))  # fmt: skip
+    return out
+
+
+def _diagonal(points) -> float:
+    points = np.asarray(points)
+    return float(np.linalg.norm(points.max(0) - points.min(0)))
+
+
+def main_far():
+    print("| free-form fit from the rest spine | stages | steps | time s | rms / diagonal "
+          "| converged |")
+    print("|---|---:|---:|---:|---:|---|")
+    options = dict(a[2:].split("=") for a in sys.argv[1:] if "=" in a)
+    cases = far_bends(int(options.get("points", 500)), shape=options.get("shape", ""))
+    for name, run, diagonal in cases:
+        start = time.perf_counter()
+        fit = run()
+        jax.block_until_ready(fit.rms)
+        seconds = time.perf_counter() - start
+        print(f"| {name} | {fit.stages} | {int(fit.num_steps)} | {seconds:.0f} | "
+              f"{float(fit.rms) / diagonal:.1e} | {fit.converged} |", flush=True)
+        if not fit.converged:
+            print(f"<!-- {fit.message[:160]} -->", flush=True)
+
+
 def main():
+    if "--far" in sys.argv:
+        return main_far()
     print("| scenario | steps | first call s | solve s | rms | converged |")
     print("|---|---:|---:|---:|---:|---|")
     for name, run in scenarios():
@@ -78,6 +146,8 @@ def main():
             f"{float(fit.rms):.2e} | {fit.converged} |",
             flush=True,
         )
+    print()
+    main_far()
 
 
 if __name__ == "__main__":

@@ -9,6 +9,7 @@ frames, the arc-length reparameterisation and the closed-form maps).
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable, Sequence
 
 import equinox as eqx
@@ -228,10 +229,13 @@ def fit_spine(
         # The stages before the last only move the start: their solve alone.
         y = setup.y0
         for goal in staged_targets(source, target, weights, stages)[:-1]:
-            staged_problem = eqx.tree_at(lambda p: p.target, problem, jnp.asarray(goal))
+            # Invalid points followed by the formula: no cliffs on the way (`followed_images`).
+            staged_problem = dataclasses.replace(problem, target=jnp.asarray(goal),
+                                                 invalid="follow")
             spine, twist_k = solve(staged_problem, solver, y, int(max_steps), False)[:2]
             y = setup.parameters.of(spine, twist_k if fit_twist else None)
-        return fit(problem, solver, y, max_steps, throw, tolerance, ADVICE)
+        result = fit(problem, solver, y, max_steps, throw, tolerance, ADVICE)
+        return dataclasses.replace(result, stages=stages)
 
     tolerance = check_tolerance(tolerance)
     if continuation == "auto":

@@ -23,7 +23,7 @@ from jaxtyping import Array, ArrayLike, Bool, Float
 
 from .._checks import as_float_array, as_points, as_twist, is_concrete
 from .._fleshing.methods import check_method
-from .._fleshing.pipeline import pose, pose_points, register
+from .._fleshing.pipeline import Poser, pose, pose_points, register
 from .._fleshing.projection import Registration
 from .._numerics import cast_floats
 from .._spines.analytic import Arc, Helix, Line
@@ -299,7 +299,10 @@ class FitResult(AbstractFitOutcome):
       the targets' bounding-box diagonal (`inf` with `tolerance=None`).
     - `unexplained`: "" or, for a solve that stopped (no stall) with `rms` above `tolerance`,
       which failure it most likely is (local minimum, unreachable target, invalid targets:
-      `_fit.verdict`) and what to try; `converged` is then False and `message` says it.
+      `_fit.verdict`) and what to try; `converged` is then False and `message` says it. (Also
+      a note for a solve that ran out of steps with its rms already within `tolerance`.)
+    - `stages`: how many stages the fit took (1: one solve from `init`; more: a continuation,
+      see `fit_spine`).
     """
 
     spine: AbstractSpine
@@ -313,6 +316,7 @@ class FitResult(AbstractFitOutcome):
     stalled: str = eqx.field(static=True, default="")
     tolerance: Float[Array, ""] = eqx.field(default_factory=lambda: jnp.asarray(jnp.inf))
     unexplained: str = eqx.field(static=True, default="")
+    stages: int = eqx.field(static=True, default=1)
 
     def _stall(self) -> str:
         # Not converged either: a solve that stopped without explaining its data.
@@ -343,6 +347,8 @@ class AbstractPoseProblem(eqx.Module):
 
     def images(self, y, check_projection: bool | None = None) -> tuple[Array, Array]:
         spine, twist = self.spine_and_twist(y)
+        if self.invalid == "follow":
+            return followed_images(self.registration, spine, self.method, twist)
         check = self.check_projection if check_projection is None else check_projection
         return pose_points(self.registration, spine, self.method, twist, check)
 
@@ -364,6 +370,18 @@ class AbstractPoseProblem(eqx.Module):
         """Whether any regulariser is on (it may hold the fit away from the data)."""
         r = self.regularizers
         return r.length_weight is not None or r.smoothness is not None or bool(r.extra)
+
+
+def followed_images(registration: Registration, spine, method: str, twist) -> tuple[Array, Array]:
+    """Every point bent by the map's formula, valid or not (`invalid="follow"`, the stages of a
+    continuation): `(images (N, 3), valid (N,))`, the unmoved point only where the formula
+    gives no finite image. A point leaving the valid space then moves on smoothly instead of
+    jumping back to its rest position: the cliffs that stop a far fit are gone, and the stages
+    only bring the last one's start closer (it checks validity as asked)."""
+    poser = Poser(spine, method, twist, False, 0.0, registration.ends)
+    image, valid, _, _ = poser._bent_images(registration)
+    finite = jnp.all(jnp.isfinite(image), axis=-1)
+    return jnp.where(finite[:, None], image, registration.points), valid
 
 
 class Setup(eqx.Module):
@@ -559,6 +577,12 @@ def explain(
     scale = verdict.diagonal(problem.data())
     bound = tolerance * scale
     unexplained = ""
+    if bool(out.result == optx.RESULTS.nonlinear_max_steps_reached) and float(rms) <= bound:
+        unexplained = (  # not converged (the solver had not stopped), but say it is close
+            f"{optx.RESULTS[out.result]} The rms {float(rms):.3g} is already within the "
+            f"tolerance ({float(rms) / scale:.1e} of the targets' diagonal): raise `max_steps=` "
+            "or loosen `rtol=`/`atol=` for the solver to stop there."
+        )
     if bool(out.result == optx.RESULTS.successful) and not out.stalled:
         distances, weights = problem.distances(images, valid)
         unexplained = verdict.verdict(

@@ -113,8 +113,9 @@ def verdict(
     if same_from_elsewhere:
         return (
             f"unreachable target: {stated}, the same from the rest spine and from a "
-            "continuation, so most likely the best this spine can do: give it more freedom "
-            "(more control points or `subdivisions`, `fit_twist=True`, `length=\"free\"`, "
-            f"fewer `fixed` entries) or check the targets.{held}{noisy}"
+            "continuation, so most likely the best this spine can do (else a local minimum "
+            "both starts share): give it more freedom (more control points or "
+            "`subdivisions`, `fit_twist=True`, `length=\"free\"`, fewer `fixed` entries), "
+            f"start closer, or check the targets.{held}{noisy}"
         )
     return f"local minimum: {stated}: {advice}{held}{noisy}"
