@@ -11,6 +11,7 @@ from .medial_mesh import MedialMesh
 from .refine import refine_spheres
 from .simplify import contact_quadrics, simplify
 from .surface import SurfaceQuery, closed_mesh_arrays, sample_surface
+from .unit import UnitFrame
 from .voronoi import initial_medial_axis
 
 
@@ -39,7 +40,11 @@ def medial_mesh(mesh, spheres: int = 200, *, seed: int = 0, samples: int = 20_00
        Last, every centre is put inside the surface (told by rays: `surface.ray_inside`)
        and no sphere overhangs it by more than the farthest sample lies outside the union.
 
-    Deterministic for a given `seed` (NumPy and SciPy only; no threads involved).
+    Deterministic for a given `seed` (NumPy and SciPy only; no threads involved). Computed
+    on the mesh moved near the origin and scaled by a power of two to a diagonal near 1
+    (`unit.UnitFrame`, an exact map): a mesh scaled by a power of two or moved by a
+    multiple of it gives the same spheres, bit for bit; one scaled by 10 gives spheres as
+    close to the surface, but the collapses' order among near ties may differ.
 
     **Arguments:**
 
@@ -64,6 +69,10 @@ def medial_mesh(mesh, spheres: int = 200, *, seed: int = 0, samples: int = 20_00
     if int(samples) != samples or samples < 100:
         raise ValueError(f"samples must be an integer >= 100, got {samples!r}")
     vertices, faces = closed_mesh_arrays(mesh)
+    # Computed on the mesh moved near the origin and scaled to a diagonal near 1 (exactly),
+    # mapped back at the end: far from the origin its coordinates lose digits to the offset.
+    frame = UnitFrame.of(vertices)
+    vertices = frame.to_unit(vertices)
     query = SurfaceQuery(vertices, faces)
     diagonal = float(np.linalg.norm(np.ptp(vertices, axis=0)))
     rng = np.random.default_rng(seed)
@@ -99,7 +108,7 @@ def medial_mesh(mesh, spheres: int = 200, *, seed: int = 0, samples: int = 20_00
         centers, radii = refine_spheres(fit_points, targets, centers, radii, edges, tris,
                                         scale=diagonal, surface=query,
                                         iterations=int(refine))
-    return MedialMesh(centers, radii, edges, tris)
+    return MedialMesh(frame.from_unit(centers), frame.scale * radii, edges, tris)
 
 
 def axis_samples(query: SurfaceQuery, samples: int, rng: np.random.Generator):

@@ -58,6 +58,10 @@ def orient_shells(vertices, faces) -> tuple[np.ndarray, list[int]]:
     count, label = shells(faces)
     if count == 1:
         return faces, []
+    # About the box's centre: a small shell's signed volume is a sum of triple products that
+    # cancel, and far from the origin their rounding outgrew it (a 26-vertex shell of a
+    # mesh moved 1e6 diagonals away was flipped).
+    vertices = vertices - 0.5 * (vertices.min(axis=0) + vertices.max(axis=0))
     corners = [vertices[faces[:, k]] for k in range(3)]
     signed = np.einsum("ij,ij->i", corners[0], np.cross(corners[1], corners[2]))
     volume = np.bincount(label, weights=signed, minlength=count)

@@ -7,9 +7,11 @@ from scipy.spatial import cKDTree
 
 from .._checks import check_number
 from .._medial_axis.medial_mesh import MedialMesh
+from .._medial_axis.unit import UnitFrame
 from .._mesh.deform import longest_edge
 from .bones import bone_limbs
 from .chains import split_chains
+from .fit import sphere_gaps, spine_from_unit
 from .given import given_limbs
 from .limb_fit import fit_limb
 from .limbs import find_limbs
@@ -67,7 +69,12 @@ def skeleton(mesh, *, medial: MedialMesh | None = None, spheres: int = 200,
     base and a tip on a small head) joins its parent's region; a parent shorter than its
     child (a head too short before its ears) leaves its region to its own parent and its
     children to it. Every skeleton returned registers (`fj.register_skeleton`) and leaves
-    each limb room to bend.
+    each limb room to bend. A mesh of fewer than `FEWEST` vertices (a box) is a body, no
+    limb. The limbs are found on the mesh moved near the origin and scaled by a power of two
+    (`_medial_axis.unit`), with the same tolerances in any units and at any place: scaled by
+    a power of two or moved by a multiple of it, the same skeleton, mapped; scaled by 10 or
+    moved by 0.1, the input rounds differently and the medial mesh and its limbs may differ
+    (see that module).
 
     On spot (`fj.data.spot()`): the head and neck (its ears and horns as child limbs) and
     four legs. Its tail is a tuft on the rump: the medial mesh ends it with one small sphere,
@@ -147,15 +154,39 @@ def skeleton(mesh, *, medial: MedialMesh | None = None, spheres: int = 200,
 
 def _found_limbs(vertices, faces, medial, spheres, seed, adjacency, margin):
     """`(limbs, region)` found on the medial mesh (`medial`, computed when None), each limb
-    split into its jointed chain, every limb left room to bend."""
+    split into its jointed chain, every limb left room to bend.
+
+    Found on the mesh moved near the origin and scaled to a diagonal near 1 (`UnitFrame`,
+    exactly), the limbs mapped back: the same tolerances in any units and at any place."""
     from .._medial_axis.construct import medial_mesh
 
-    if medial is None:
-        medial = medial_mesh((vertices, faces), spheres, seed=seed, refine=0, progress=False)
-    elif not isinstance(medial, MedialMesh):
+    if medial is not None and not isinstance(medial, MedialMesh):
         raise TypeError(f"`medial` must be a MedialMesh or None, got {type(medial).__name__}.")
-    centers, radii, edges, _ = medial.numpy()
-    _check_belongs(centers, radii, vertices)
+    if len(vertices) < FEWEST:
+        # A limb moves at least `FEWEST` vertices: a box of 8 is a body, as a finer one is.
+        return [], np.full(len(vertices), -1)
+    frame = UnitFrame.of(vertices)
+    unit = frame.to_unit(vertices)
+    if medial is None:
+        medial = medial_mesh((unit, faces), spheres, seed=seed, refine=0, progress=False)
+        centers, radii, edges, _ = medial.numpy()
+    else:
+        centers, radii, edges, _ = medial.numpy()
+        centers, radii = frame.to_unit(centers), radii / frame.scale
+    _check_belongs(centers, radii, unit)
+    limbs, region = _unit_limbs(unit, centers, radii, edges, adjacency,
+                                0.5 * longest_edge(unit, faces))  # fmt: skip
+    return [_from_unit(limb, frame) for limb in limbs], region
+
+
+def _from_unit(limb: Limb, frame: UnitFrame) -> Limb:
+    """`limb` (found in the unit frame) in the mesh's: its spine mapped, its joint's arc
+    length scaled."""
+    return Limb(spine_from_unit(limb.spine, frame), frame.scale * float(limb.joint), limb.parent)
+
+
+def _unit_limbs(vertices, centers, radii, edges, adjacency, margin):
+    """`_found_limbs`'s limbs and region, in the unit frame."""
     region = np.full(len(vertices), -1)
     limbs, index = [], {}  # index: a found limb's number → its index in `limbs` (kept ones)
     founds = []  # the kept limbs' paths
@@ -248,10 +279,7 @@ def _check_belongs(centers, radii, vertices):
     outside = np.any((centers < low - slack) | (centers > high + slack), axis=1)
     clearance = cKDTree(vertices).query(centers)[0]
     # The largest gap between a vertex and the nearest sphere's surface.
-    uncovered = max(
-        float(np.min(np.linalg.norm(chunk[:, None] - centers, axis=-1) - radii, axis=1).max())
-        for chunk in np.array_split(vertices, 16)
-    )
+    uncovered = float(sphere_gaps(vertices, centers, radii).max())
     if outside.any() or np.any(radii > REACHES * clearance + 1e-9 * diagonal) or uncovered > slack:
         raise ValueError(
             "`medial` does not belong to `mesh`: its spheres must lie inside the mesh and reach "

@@ -34,7 +34,7 @@ import dataclasses
 import numpy as np
 from scipy.sparse import csgraph
 
-from .fit import farthest, medial_graph
+from .fit import farthest, medial_graph, sphere_gaps
 
 CORE = 0.6  # a core sphere is at least this fraction of the thickest sphere's radius
 ELONGATION = 1.5  # a limb protrudes at least this many of its thickest radii
@@ -134,8 +134,7 @@ def _split(graph, centers, radii, nodes, root, parent, limbs, depth):
         own = np.setdiff1d(spheres, children)
         own = np.intersect1d(own, _subtree(path[0], predecessors, distance, spheres))
         if len(children):
-            gaps = np.linalg.norm(centers[own, None] - centers[None, children], axis=-1)
-            outside = ~np.any(gaps < radii[children], axis=1)
+            outside = sphere_gaps(centers[own], centers[children], radii[children]) >= 0
             own = own[outside] if outside.any() else own
         if len(own):
             tip = own[np.argmax(distance[own] + 2 * radii[own])]
@@ -150,8 +149,7 @@ def _same_limb(centers, radii, path, limbs) -> int | None:
     the first one whose spheres hold half of the path's centres, or its tip. Legs side by
     side, touching at the top, are two limbs."""
     for k, spheres in enumerate(limbs):
-        held = np.linalg.norm(centers[path, None] - centers[None, spheres], axis=-1)
-        held = np.any(held < radii[spheres], axis=1)
+        held = sphere_gaps(centers[path], centers[spheres], radii[spheres]) < 0
         if held.mean() >= 0.5 or held[-1]:
             return k
     return None
@@ -166,11 +164,8 @@ def _assign(centers, radii, paths, predecessors, distance, nodes) -> list[np.nda
     hanging = np.unique(np.concatenate(
         [_subtree(p[0], predecessors, distance, nodes) for group in paths for p in group]
     ))  # fmt: skip
-    gaps = np.stack([
-        np.min(np.linalg.norm(centers[hanging, None] - centers[None, np.concatenate(group)],
-                              axis=-1) - radii[np.concatenate(group)], axis=1)
-        for group in paths
-    ])  # fmt: skip
+    groups = [np.concatenate(group) for group in paths]
+    gaps = np.stack([sphere_gaps(centers[hanging], centers[g], radii[g]) for g in groups])
     nearest = np.argmin(gaps, axis=0)
     # Each limb keeps its main path (the first limb a shared top sphere).
     for k in range(len(paths) - 1, -1, -1):
@@ -207,8 +202,7 @@ def _covered(centers, radii, chain, thickness) -> tuple[np.ndarray, np.ndarray]:
     first = int(np.argmax(thick)) if thick.any() else len(chain)
     thin = np.flatnonzero(~thick[first:])
     core = outwards[: first + thin[0] if len(thin) else len(chain)]
-    gaps = np.linalg.norm(centers[chain, None] - centers[None, core], axis=-1)
-    return np.any(gaps < radii[core], axis=1), core
+    return sphere_gaps(centers[chain], centers[core], radii[core]) < 0, core
 
 
 def _tips(nodes, reach, predecessors, distance) -> np.ndarray:

@@ -75,6 +75,8 @@ def limb_region(spine, cut: float, tip: np.ndarray, arc, radius, vertices, adjac
     # The parent keeps the largest part of what is left; pieces cut off from it (vertices
     # beyond the spine's reach, enclosed by the limb) go with the limb, or they would tear.
     rest = allowed & ~member
+    if not rest.any():
+        return None  # it would take all its parent's region: no still part to leave
     outside = sparse.diags(rest.astype(float))
     _, labels = csgraph.connected_components(outside @ adjacency @ outside, directed=False)
     kept = rest & (labels == np.argmax(np.bincount(labels[rest])))

@@ -15,8 +15,9 @@ from jaxtyping import ArrayLike
 from scipy.sparse import csgraph
 
 from .._medial_axis.medial_mesh import MedialMesh
+from .._medial_axis.unit import UnitFrame
 from .._spines.bspline import BSpline
-from .fit import extend_beyond, farthest, fit_bspline, medial_graph
+from .fit import extend_beyond, farthest, fit_bspline, medial_graph, spine_from_unit
 
 
 def rest_spine(
@@ -81,7 +82,11 @@ def rest_spine(
     points = np.concatenate([first[None], inward, last[None]])
     # The local radius at the points: the path's spheres', the end ones' for the extensions.
     local = radii[path][np.r_[0, np.arange(len(path)), len(path) - 1]]
-    return fit_bspline(points, local, control_points, degree)
+    # Fitted near the origin at a size near 1 and mapped back: 1e4 from the origin the least
+    # squares' right side carried the offset, and the fit lost the path's detail to it.
+    frame = UnitFrame.of(points)
+    spine = fit_bspline(frame.to_unit(points), local / frame.scale, control_points, degree)
+    return spine_from_unit(spine, frame)
 
 
 def _check_ends(ends):
