@@ -133,3 +133,77 @@ def test_bad_input(tube, skeleton, registration, ids):
         fit(vertex_ids=body, targets=np.zeros((3, 3)))
     with pytest.raises(ValueError, match="`method`"):
         fit(method="bent")
+
+
+# Fitting to a shape without correspondences (`target=`): limbs 0 and 2 of the tube bent,
+# recovered from 5,000 samples of the posed surface. (The tube is round: its twists are held.
+# Limb 1, its tip's cap, is too small for 0.5 % noise to resolve: not fitted here.)
+SHAPE_TRUTH = {0: fj.LimbPose(50.0, 60.0), 2: fj.LimbPose(60.0, 120.0)}
+
+
+@pytest.fixture(scope="module")
+def samples(tube, registration, skeleton):
+    """5,000 samples of the tube posed by `SHAPE_TRUTH` (K, 3), their normals (K, 3), and the
+    samples' diagonal."""
+    import trimesh
+
+    vertices = np.asarray(fj.pose_skeleton(registration, skeleton, SHAPE_TRUTH).vertices)
+    mesh = trimesh.Trimesh(vertices, tube.faces, process=False)
+    points, faces = trimesh.sample.sample_surface(mesh, 5000, seed=1)
+    return points, mesh.face_normals[faces], float(np.linalg.norm(np.ptp(points, axis=0)))
+
+
+def _angle_errors(fit):
+    return np.array([[float(fit.poses[k].bend) - float(pose.bend),
+                      float(fit.poses[k].direction) - float(pose.direction)]
+                     for k, pose in SHAPE_TRUTH.items()])
+
+
+def _shape_fit(registration, skeleton, points):
+    return fj.fit_skeleton_pose(registration, skeleton, target=points, limbs=[0, 2])
+
+
+def test_shape_fit_recovers_the_angles_of_a_clean_sample(skeleton, registration, samples):
+    fit = _shape_fit(registration, skeleton, samples[0])
+    assert fit.converged, fit.message
+    assert np.abs(_angle_errors(fit)).max() < 1.0, _angle_errors(fit)
+    assert float(fit.poses[0].twist) == 0.0  # held: a round limb's twist does not show
+    assert fit.num_invalid == 0 and fit.posed.vertices.shape == registration.vertices.shape
+
+
+@pytest.mark.slow
+def test_shape_fit_of_a_noisy_sample(skeleton, registration, samples):
+    points, _, diagonal = samples
+    noisy = points + np.random.default_rng(2).normal(0, 0.005 * diagonal, points.shape)
+    fit = _shape_fit(registration, skeleton, noisy)
+    assert fit.converged, fit.message
+    assert np.abs(_angle_errors(fit)).max() < 2.0, _angle_errors(fit)
+
+
+@pytest.mark.slow
+def test_shape_fit_of_a_partial_scan(skeleton, registration, samples):
+    points, normals, _ = samples
+    fit = _shape_fit(registration, skeleton, points[normals[:, 1] > 0])  # one side seen
+    assert fit.converged, fit.message
+    assert np.abs(_angle_errors(fit)).max() < 3.0, _angle_errors(fit)
+
+
+def test_shape_fit_to_another_shape_is_not_converged(skeleton, registration):
+    import trimesh
+
+    sphere = trimesh.creation.icosphere(3, radius=1.5)
+    sphere.apply_translation([3.0, 0.0, 0.0])
+    fit = _shape_fit(registration, skeleton, sphere)  # a mesh: its surface is sampled
+    assert not fit.converged
+    assert "does not explain the target" in fit.message
+
+
+def test_shape_fit_bad_input(skeleton, registration):
+    with pytest.raises(ValueError, match="nothing to fit to"):
+        fj.fit_skeleton_pose(registration, skeleton)
+    with pytest.raises(ValueError, match="`target`"):
+        fj.fit_skeleton_pose(registration, skeleton, target=np.full((10, 3), np.nan))
+    with pytest.raises(ValueError, match="`vertex_ids` and `targets`"):
+        fj.fit_skeleton_pose(registration, skeleton, [0, 1], target=np.zeros((10, 3)))
+    with pytest.raises(ValueError, match="at least 4 points"):
+        fj.fit_skeleton_pose(registration, skeleton, target=np.zeros((3, 3)), limbs=[0])

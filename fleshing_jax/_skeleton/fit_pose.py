@@ -216,23 +216,33 @@ def _default_limbs(skeleton: Skeleton, ids: np.ndarray) -> tuple[int, ...]:
 def fit_skeleton_pose(
     mesh_or_registration,
     skeleton: Skeleton,
-    vertex_ids: ArrayLike,
-    targets: ArrayLike,
+    vertex_ids: ArrayLike | None = None,
+    targets: ArrayLike | None = None,
     *,
+    target=None,
     limbs: Sequence[int] | None = None,
     init: dict | None = None,
     method: str = "radial",
+    fit_twist: bool | None = None,
     solver: optx.AbstractLeastSquaresSolver | optx.AbstractMinimiser | None = None,
     rtol: float | None = None,
     atol: float | None = None,
     max_steps: int = 64,
     throw: bool = False,
 ) -> SkeletonFit:
-    """Finds the limbs' poses that bring the vertices `vertex_ids` to `targets`.
+    """Finds the limbs' poses that bring the vertices `vertex_ids` to `targets` (markers),
+    or the posed surface onto a `target` shape (no correspondences), or both.
 
     Nonlinear least squares over the bend, direction and twist of each limb of `limbs`,
     through `pose_skeleton` (each limb's region fleshed with `det J = 1`, children carried).
     Non-convergence is reported (`converged`, `message`), never raised (unless `throw`).
+
+    With `target=`, the objective is a robust (Cauchy) symmetric Chamfer distance between
+    the posed vertices and the target, point to plane along the target's normals, solved from
+    `init` (the rest pose) at a decreasing robust scale (`_skeleton/fit_shape.py`): a partial
+    scan (one side seen) and stray points are tolerated. `converged` is then also False when
+    more than 2 % of the target lies farther from the posed surface than its own noise level
+    allows (another shape, a wrong local minimum), with a message saying so.
 
     **Arguments:**
 
@@ -241,34 +251,52 @@ def fit_skeleton_pose(
     - `skeleton`: an `fj.Skeleton`.
     - `vertex_ids`: (k,) int: the chosen vertices (indices into the mesh's vertices).
     - `targets`: (k, 3) finite: where each chosen vertex should go.
+    - `target`: a shape the posed mesh should cover: (K, 3) finite points (a scan, another
+      pose's vertices; more than 5,000 are sampled down) or a `trimesh.Trimesh` (its surface
+      sampled, 5,000 points). The same units and placement as the mesh.
     - `limbs`: the limb indices whose poses are fitted; default: the limbs whose regions hold
-      chosen vertices, and their ancestors.
+      chosen vertices, and their ancestors (with `target=`: every limb).
     - `init`: dict limb index → `fj.LimbPose`: the starting poses of fitted limbs (default:
       the rest pose) and the poses (`LimbPose` or spine) of other limbs, held fixed.
     - `method`: the fleshing (`"radial"`, `"normal"`, `"binormal"`).
+    - `fit_twist`: whether the twists are fitted (default: yes for markers; held at `init`'s
+      for a `target`, where a round limb's turn about its own axis does not show).
     - `solver`: any optimistix least-squares solver or minimiser; default
       `LevenbergMarquardt(rtol, atol)` with tolerances from the dtype (1e-10 in float64,
-      1e-5 in float32).
+      1e-5 in float32; 1e-6 for a `target`, whose nearest neighbours change with the pose).
     - `max_steps`, `throw`: passed to `optimistix.least_squares`.
 
     **Returns:** a `SkeletonFit` (its `poses` ready for `pose_skeleton`). Float32 works (the
-    registration's dtype); its `rms` then stops near 1e-6 of the limbs' size.
+    registration's dtype); its `rms` then stops near 1e-6 of the limbs' size. With `target=`,
+    `rms` is `√(Chamfer / 2)` between the whole posed mesh's vertices and the target (plus
+    the markers' mean squared distance), `valid` covers every vertex, and `num_steps` adds
+    the stages' steps.
 
     **Raises:** `TypeError`/`ValueError` naming the argument: `vertex_ids` empty, not integer
     or out of range; `targets` not (k, 3) or not finite; `limbs` or `init` naming a limb the
     skeleton does not have; nothing to fit.
     """
     registration = as_registration(mesh_or_registration, skeleton)
-    ids = _check_ids(vertex_ids, registration.vertices.shape[0])
-    targets = check_cloud(targets, "targets")
-    if targets.shape != (ids.shape[0], 3):
-        raise ValueError(
-            f"`targets` must have shape (k, 3) = ({ids.shape[0]}, 3), one point per vertex of "
-            f"`vertex_ids`, got {targets.shape}."
-        )
+    if target is None and vertex_ids is None:
+        raise ValueError("nothing to fit to: give `target=` (a shape), or `vertex_ids` and "
+                         "`targets` (markers), or both.")
+    if (vertex_ids is None) != (targets is None):
+        raise ValueError("`vertex_ids` and `targets` go together: give both, or neither.")
+    ids = None
+    if vertex_ids is not None:
+        ids = _check_ids(vertex_ids, registration.vertices.shape[0])
+        targets = check_cloud(targets, "targets")
+        if targets.shape != (ids.shape[0], 3):
+            raise ValueError(
+                f"`targets` must have shape (k, 3) = ({ids.shape[0]}, 3), one point per vertex "
+                f"of `vertex_ids`, got {targets.shape}."
+            )
     method = check_method(method)
     init = check_poses({} if init is None else init, skeleton, "init")
-    if limbs is None:
+    if limbs is None and target is not None:
+        # A shape may move any limb: all are fitted.
+        limbs = tuple(range(len(skeleton.limbs)))
+    elif limbs is None:
         limbs = _default_limbs(skeleton, ids)
     else:
         limbs = tuple(sorted({check_limb_index(k, skeleton, "limbs") for k in limbs}))
@@ -284,13 +312,28 @@ def fit_skeleton_pose(
     if max_steps < 1:
         raise ValueError(f"`max_steps` must be a positive integer, got {max_steps}.")
     dtype = registration.vertices.dtype
+    if target is not None:
+        # Here to avoid an import cycle: the shape's fit builds on this module's pieces.
+        from .fit_shape import SHAPE_TOLERANCE, fit_to_shape
+
+        if solver is None:
+            solver = default_solver("least_squares", dtype,
+                                    SHAPE_TOLERANCE if rtol is None else rtol,
+                                    SHAPE_TOLERANCE if atol is None else atol)
+        return fit_to_shape(registration, skeleton, target, ids=ids, targets=targets,
+                            limbs=limbs, init=init, method=method,
+                            fit_twist=bool(fit_twist), solver=solver, max_steps=max_steps,
+                            throw=bool(throw))
+    if solver is None:
+        solver = default_solver("least_squares", dtype, rtol, atol)
+    if fit_twist is False:
+        raise ValueError("`fit_twist=False` is for a shape's fit (`target=`): markers show a "
+                         "limb's twist.")
     targets = targets.astype(dtype)
     small, rows = restricted(registration, ids)
     held = {k: v for k, v in init.items() if k not in limbs}
     problem = PoseProblem(small, skeleton, held, rows, targets, limbs, method)
     y0 = jnp.stack([parameters_of(init.get(k, LimbPose()), dtype) for k in limbs])
-    if solver is None:
-        solver = default_solver("least_squares", dtype, rtol, atol)
     y, radius, result, stats = _solve(problem, solver, y0, max_steps, bool(throw))
 
     def outcome(poses):

@@ -1,0 +1,257 @@
+"""Fitting a skeleton's pose to a target shape without correspondences (`fit_skeleton_pose`'s
+`target=`).
+
+The limbs' angles that bring the posed surface onto a target point cloud (a scan, another
+pose's vertices, samples of a mesh), from the rest pose:
+
+- **Objective.** A robust symmetric Chamfer distance between a sample of the posed vertices
+  `{xᵢ}` (N) and the target `{yⱼ}` (K), each nearest-neighbour difference `d` weighted by the
+  Cauchy loss `ρ(|d|²) = σ² log(1 + |d|²/σ²)`:
+  `(1/N) Σᵢ ρ(|xᵢ − y_nn(i)|²) + (1/K) Σⱼ ρ(|yⱼ − x_nn(j)|²)`, as residuals `d √(ρ/|d|²)`
+  (their squares sum to the loss, so Levenberg–Marquardt minimises exactly it). The
+  neighbours are chosen on stopped gradients (`_fit.chamfer`): everything else is differentiated
+  through the posing, end to end. Cauchy's influence falls off as `1/|d|`: a stray scan point,
+  or a posed point the scan does not see (a partial scan), pulls ever less the farther it is.
+- **Continuation in σ.** From the rest pose a limb may lie a fifth of the diagonal from its
+  target, where a small σ would see only outliers. The solve runs at σ = 10 %, 3 % and 1 % of
+  the target's diagonal in turn, each stage from the last (one compiled program: the stage is
+  a leaf, `STAGES`), point to point first, then point to plane along the target's normals.
+- **Twist.** The surface of a round limb barely changes when it turns about its own axis: the
+  twists are held at `init`'s unless `fit_twist=True`.
+- **Honest convergence.** The fit explains the target when nearly every target point
+  (`EXPLAINED`) lies within `3 σ̂ + h/4` of the posed surface, along its normal: `σ̂` the
+  target's own noise (the rms distance of its points from the planes through their
+  neighbours) and `h` the mesh's vertex spacing. Otherwise `converged` is False with a
+  message (a solve that stalled leaves the target unexplained too).
+
+Nearest neighbours by brute force in JAX (`_fit.chamfer`'s `_nearest`), not a k-d tree: the
+search then runs inside the solve, so every Levenberg–Marquardt step sees its own neighbours
+(the true Chamfer gradient, no outer ICP loop of separate solves with host round trips), and
+at the sizes used (a few hundred moving vertices against at most `TARGET_POINTS`) one pass is a
+few million distances, a few milliseconds. scipy's `cKDTree` serves only the one-off checks
+outside the solve (the noise level and the final distances).
+"""
+
+from __future__ import annotations
+
+import equinox as eqx
+import jax.numpy as jnp
+import numpy as np
+import optimistix as optx
+import trimesh
+from jaxtyping import Array
+from scipy.spatial import cKDTree
+
+from .._fit.chamfer import _nearest
+from .._fit.problem import check_cloud
+from .fit_pose import SkeletonFit, _solve, parameters_of, pose_of, restricted
+from .limb_pose import LimbPose
+from .posing import SkeletonRegistration, pose_skeleton, posed
+from .skeleton import Skeleton, descendants
+
+TARGET_POINTS = 5000  # a larger cloud (or a mesh's surface) is sampled down to this many
+MOVING_PER_LIMB = 96  # posed vertices sampled from each moving limb's region
+STILL_POINTS = 1024  # vertices sampled from the parts no pose moves (the body)
+SOLVE_POINTS = 1500  # of the target, in the solve (the check of the result reads them all)
+# The continuation's stages: (Cauchy scale σ as a fraction of the target's diagonal, weight of
+# the posed-to-target term, weight of the differences' tangential part). The coarse stage
+# pulls the limbs from afar with the target-to-posed term alone (every target point has a
+# match on the right pose, even for a partial scan) point to point; the later ones are
+# symmetric and point to plane (the target's normals): neither the vertices' nor the samples'
+# spacing biases the angles.
+STAGES = ((0.1, 0.0, 1.0), (0.03, 1.0, 0.0), (0.01, 1.0, 0.0))
+COARSE_STEPS = 16  # the stages before the last only bring the pose near
+# The solver's default tolerances: the neighbours change with the pose, so the loss is only
+# piecewise smooth and far tighter tolerances spend steps on round-off-sized moves (1e-6 rad).
+SHAPE_TOLERANCE = 1e-6
+EXPLAINED = 0.98  # the fraction of the target that must lie near the fit
+NEIGHBOURS = 12  # for the target's noise level (local planes)
+SHAPE_ADVICE = (
+    "Check that the target is this character (same units and place: a scan may need its "
+    "rigid alignment first), start closer (`init=`), or fit the limbs that moved (`limbs=`)."
+)
+
+
+def as_target(target, dtype) -> np.ndarray:
+    """The target as (K, 3) points, at most `TARGET_POINTS` (a fixed-seed sample): a
+    `trimesh.Trimesh`'s surface sampled by area, or a point array (checked as `target`)."""
+    if isinstance(target, trimesh.Trimesh):
+        if len(target.faces) == 0:
+            raise ValueError("`target` is a mesh with no faces: pass its vertices as points.")
+        points = np.asarray(trimesh.sample.sample_surface(target, TARGET_POINTS, seed=0)[0])
+    else:
+        points = np.asarray(check_cloud(target, "target"))
+        if len(points) > TARGET_POINTS:
+            keep = np.random.default_rng(0).choice(len(points), TARGET_POINTS, replace=False)
+            points = points[np.sort(keep)]
+    return points.astype(dtype)
+
+
+def local_planes(points: np.ndarray) -> tuple[np.ndarray, float]:
+    """The planes through each point's `NEIGHBOURS` nearest of `points` (K, 3): their unit
+    normals (K, 3) (sign arbitrary: they enter squared), and the median rms distance of the
+    neighbours from them, the target's own noise (plus its curvature, small)."""
+    k = min(NEIGHBOURS, len(points))
+    if k < 4:
+        raise ValueError(f"`target` must hold at least 4 points, got {len(points)}.")
+    _, near = cKDTree(points).query(points, k)
+    local = points[near] - points[near].mean(axis=1, keepdims=True)
+    values, vectors = np.linalg.eigh(np.einsum("kni,knj->kij", local, local) / k)
+    return vectors[:, :, 0], float(np.median(np.sqrt(np.maximum(values[:, 0], 0))))
+
+
+def _sample(ids: np.ndarray, count: int, rng) -> np.ndarray:
+    return ids if len(ids) <= count else np.sort(rng.choice(ids, count, replace=False))
+
+
+def _cauchy(d: Array, sigma: Array) -> Array:
+    """Difference vectors `d` (…, 3) scaled to `d √(ρ(|d|²)/|d|²)`, `ρ` the Cauchy loss of
+    scale `sigma`: their squares sum to `Σ ρ`. `ρ(s)/s = log1p(u)/u` (u = s/σ²) is smooth
+    with value 1 at 0, taken from its series below 1e-4 (double `where`: finite gradients)."""
+    u = jnp.sum(d**2, axis=-1) / sigma**2
+    small = u < 1e-4
+    safe = jnp.where(small, 1.0, u)
+    ratio = jnp.where(small, 1 - u / 2 + u**2 / 3, jnp.log1p(safe) / safe)
+    return d * jnp.sqrt(ratio)[..., None]
+
+
+class ShapeProblem(eqx.Module):
+    """The residuals `y -> (…)` of a shape fit (the module's docstring): `y` (L, p), `p = 3`
+    (bend vector, twist) with `fit_twist`, else 2 and the twists held at `twists` (L,)."""
+
+    registration: SkeletonRegistration  # restricted to the moving sample and the markers
+    skeleton: Skeleton
+    held: dict  # the poses of the limbs not fitted
+    twists: Array  # (L,) radians: the fitted limbs' twists when they are held
+    moving: Array  # (m,) rows of the moving sample in the restricted registration
+    still: Array  # (s, 3) vertices no pose moves
+    cloud: Array  # (K, 3)
+    normals: Array  # (K, 3) the cloud's
+    stage: Array  # (3,): σ, the posed-to-target weight, the tangential weight (`STAGES`)
+    markers: Array  # (k,) rows of the marker vertices (k = 0: none)
+    marker_targets: Array  # (k, 3)
+    limbs: tuple[int, ...] = eqx.field(static=True)
+    method: str = eqx.field(static=True)
+
+    def parameters(self, y: Array) -> Array:
+        """(L, 3): `y` with the held twists."""
+        if y.shape[-1] == 3:
+            return y
+        return jnp.concatenate([y, self.twists[:, None]], axis=-1)
+
+    def poses(self, y: Array) -> dict:
+        full = self.parameters(y)
+        return {**self.held, **{k: pose_of(full[i]) for i, k in enumerate(self.limbs)}}
+
+    def _robust(self, d: Array, nearest: Array) -> Array:
+        """`d` (…, 3), each with its target point's normal (…, 3): its tangential part
+        weighted, then the Cauchy loss."""
+        sigma, _, tangential = self.stage
+        along = jnp.sum(d * nearest, axis=-1, keepdims=True) * nearest
+        return _cauchy(along + tangential * (d - along), sigma)
+
+    def __call__(self, y, args=None):
+        # Without the global projection check (as the markers' fit): the result's validity is
+        # checked on the whole mesh afterwards.
+        vertices = posed(self.registration, self.skeleton, self.poses(y), self.method, False,
+                         stacked=True).vertices
+        surface = jnp.concatenate([vertices[self.moving], self.still])
+        everywhere = jnp.ones(self.cloud.shape[0], bool)
+        near = _nearest(surface, self.cloud, everywhere)
+        forward = self._robust(surface - self.cloud[near], self.normals[near])
+        back = _nearest(self.cloud, surface, jnp.ones(surface.shape[0], bool))
+        backward = self._robust(self.cloud - surface[back], self.normals)
+        weight = jnp.sqrt(self.stage[1] / surface.shape[0])
+        out = (weight * forward.reshape(-1), backward.reshape(-1) / np.sqrt(self.cloud.shape[0]))
+        if self.markers.shape[0]:
+            diff = vertices[self.markers] - self.marker_targets
+            out = (*out, diff.reshape(-1) / np.sqrt(self.markers.shape[0]))
+        return out
+
+
+def _moving_limbs(skeleton: Skeleton, posed_limbs) -> list[int]:
+    lineage = descendants(skeleton.limbs)
+    return sorted({j for k in posed_limbs for j in (k, *lineage[k])})
+
+
+def fit_to_shape(registration: SkeletonRegistration, skeleton: Skeleton, target, *,
+                 ids: np.ndarray | None, targets: Array | None, limbs: tuple[int, ...],
+                 init: dict, method: str, fit_twist: bool, solver, max_steps: int,
+                 throw: bool) -> SkeletonFit:
+    """`fit_skeleton_pose` with `target=` (its arguments checked there; `ids`/`targets`: the
+    markers, or None)."""
+    dtype = registration.vertices.dtype
+    cloud = as_target(target, dtype)
+    rest = np.asarray(registration.vertices)
+    region = np.asarray(skeleton.region)
+    rng = np.random.default_rng(0)
+    held = {k: v for k, v in init.items() if k not in limbs}
+    moving_limbs = _moving_limbs(skeleton, [*limbs, *held])
+    moving = np.concatenate([_sample(np.flatnonzero(region == k), MOVING_PER_LIMB, rng)
+                             for k in moving_limbs])
+    still = _sample(np.flatnonzero(~np.isin(region, moving_limbs)), STILL_POINTS, rng)
+    markers = np.zeros(0, np.int64) if ids is None else ids
+    small, rows = restricted(registration, np.concatenate([moving, markers]))
+    marker_targets = (jnp.zeros((0, 3), dtype) if targets is None
+                      else jnp.asarray(targets, dtype))
+    diagonal = float(np.linalg.norm(np.ptp(cloud, axis=0)))
+    normals, noise = local_planes(cloud)
+    solved = _sample(np.arange(len(cloud)), SOLVE_POINTS, rng)
+    starts = jnp.stack([parameters_of(init.get(k, LimbPose()), dtype) for k in limbs])
+    problem = ShapeProblem(
+        small, skeleton, held, starts[:, 2], rows[: len(moving)], jnp.asarray(rest[still]),
+        jnp.asarray(cloud[solved]), jnp.asarray(normals[solved], dtype),
+        jnp.zeros(3, dtype), rows[len(moving):], marker_targets, limbs, method)
+    y = starts if fit_twist else starts[:, :2]
+    steps = 0
+    for i, (sigma, forward, tangential) in enumerate(STAGES):
+        stage = jnp.asarray([sigma * diagonal, forward, tangential], dtype)
+        problem = eqx.tree_at(lambda p: p.stage, problem, stage)
+        last = i == len(STAGES) - 1
+        y, _, result, stats = _solve(problem, solver, y, max_steps if last else
+                                     min(max_steps, COARSE_STEPS), throw and last)
+        steps += int(stats["num_steps"])
+    poses = dict(sorted(problem.poses(y).items()))
+    whole = pose_skeleton(registration, skeleton, poses, method=method)
+    vertices = np.asarray(whole.vertices)
+    backward, nearest = cKDTree(vertices).query(cloud)
+    forward, _ = cKDTree(cloud).query(vertices)
+    # Along the target's normals: a target point between two vertices is not unexplained.
+    off = np.abs(np.sum((cloud - vertices[nearest]) * normals, axis=-1))
+    loss = (np.mean(forward**2) + np.mean(backward**2)) / 2
+    if ids is not None:
+        loss = loss + np.mean(np.sum((vertices[ids] - np.asarray(targets)) ** 2, axis=-1))
+    successful = bool(result == optx.RESULTS.successful)
+    # No separate stall test (`fit_pose`'s): a solve that stopped short of a minimum leaves
+    # the target unexplained, which is tested on every successful solve.
+    message = _unexplained(off, noise, rest) if successful else ""
+    return SkeletonFit(
+        poses=poses,
+        rms=jnp.sqrt(jnp.asarray(loss, dtype)),
+        valid=whole.valid,
+        posed=whole,
+        result=result,
+        num_steps=jnp.asarray(steps),
+        loss=jnp.asarray(loss, dtype),
+        stats=stats,
+        stalled=message,
+    )
+
+
+def _unexplained(distances: np.ndarray, noise: float, rest: np.ndarray) -> str:
+    """"" when at least `EXPLAINED` of the target lies within `3 σ̂ + h/4` of the posed
+    vertices' planes (`distances` (K,): from each target point along its normal to its nearest
+    vertex; `noise` σ̂, `h` the vertices' spacing: a quarter of it for the surface's curvature
+    between vertices), else what is left unexplained and what to try."""
+    spacing = float(np.median(cKDTree(rest).query(rest, 2)[0][:, 1]))
+    reach = 3 * noise + spacing / 4
+    near = float(np.mean(distances <= reach))
+    if near >= EXPLAINED:
+        return ""
+    return (
+        f"the posed surface does not explain the target: {100 * (1 - near):.1f} % of its "
+        f"points lie farther than {reach:.3g} from it (3 × the target's noise {noise:.2g} + "
+        f"a quarter of the vertex spacing {spacing:.2g}; at most "
+        f"{100 * (1 - EXPLAINED):.0f} % may). "
+        + SHAPE_ADVICE
+    )
