@@ -383,3 +383,21 @@ def test_an_unreachable_target_and_noise():
         fj.fit_spine(LINE, TRUTH, SOURCE, target, tolerance=0.0)
     with pytest.raises(ValueError, match="`continuation`"):
         fj.fit_spine(LINE, TRUTH, SOURCE, target, continuation=0)
+
+
+@needs_bspline
+@pytest.mark.slow  # (a B-spline fit's compile, and the continuation's own)
+def test_continuation_reaches_a_far_bend_from_straight():
+    # A straight free B-spline onto a quarter circle, every control point free: the
+    # continuation's stages (`continuation=4`) bring it there; `stages` says how it went.
+    rest = BSpline(_STRAIGHT, degree=3)
+    source = cloud(rest, radius=0.3)
+    quarter = fj.Arc(4.0 / (np.pi / 2), 4.0)
+    target, valid = fj.flesh(source, rest, quarter)
+    assert bool(valid.all())
+    init = BSpline(_STRAIGHT, degree=3, subdivisions=16)
+    fit = fj.fit_spine(rest, init, source, target, continuation=4)
+    assert fit.stages == 4
+    diagonal = np.linalg.norm(np.ptp(np.asarray(target), axis=0))
+    assert fit.converged == (float(fit.rms) <= 1e-3 * diagonal), fit.message
+    assert float(fit.rms) <= 1e-3 * diagonal, fit.message

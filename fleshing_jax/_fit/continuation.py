@@ -11,6 +11,8 @@ the best rigid motion `x ↦ c′ + R (x − c)` of the source onto the target (
 followed a fraction `t` of its rotation angle and translation, plus that fraction of what is
 left (the bend). The stages in between need not be reachable exactly (a linear blend of a bend
 is not a bend); each only brings the next start closer. The last stage is the target itself.
+`fit_spine` solves each stage with every point posed by the map's formula, valid or not
+(`problem.followed_images`), then the target as asked from there.
 """
 
 from __future__ import annotations

@@ -128,8 +128,8 @@ def fit_spine(
 
     A far target (a bend of 60–90° from the rest spine) is reached by continuation: the
     target approached in stages, each fit started from the one before
-    (`_fit.continuation`). By default (`continuation="auto"`) a fit that stops at a local
-    minimum or stalls is retried so, in 4 stages.
+    (`_fit.continuation`). By default (`continuation="auto"`) a fit that does not converge
+    with its rms above the tolerance is retried so, in 4 stages.
 
     **Arguments:**
 
@@ -164,12 +164,14 @@ def fit_spine(
       diagonal (default 1e-3): about the targets' noise over the diagonal for noisy targets;
       `None` for no residual test (the solver's alone, e.g. a regularised fit that trades
       data for smoothness on purpose).
-    - `continuation`: `"auto"` (the default: a plain fit, retried in 4 stages when it stops
-      at a local minimum or stalls; when both stop at the same rms the target is reported
-      unreachable), or the number of stages `n ≥ 1` (1: one plain fit). Stage `k` targets
+    - `continuation`: `"auto"` (the default: a plain fit, retried in 4 stages when it does
+      not converge with its rms above the tolerance; the lower rms is kept, and when both
+      stop at the same rms at a minimum the target is reported unreachable), or the number
+      of stages `n ≥ 1` (1: one plain fit). Stage `k` targets
       each point's rest position moved `k/n` of the way: the best rigid motion onto the
       targets followed `k/n` of its angle and shift, plus `k/n` of the rest; the last stage is
-      `target` itself.
+      `target` itself. Every stage poses each point by the map's formula, valid or not (no
+      jump back to its rest position on the way); the fit as asked (`invalid=`) follows.
 
     **Returns:** a `FitResult`. Its `rms` is the weighted root-mean-square distance between
     the fleshed source and `target` over all points (`"penalize"`) or over the valid ones
@@ -226,10 +228,12 @@ def fit_spine(
         solver = default_solver("least_squares", dtype, rtol, atol)
 
     def staged(stages: int) -> FitResult:
-        # The stages before the last only move the start: their solve alone.
+        # Each stage only moves the start: its solve alone, every point posed by the map's
+        # formula (`followed_images`: no cliffs on the way). The target itself is solved so
+        # too before the fit as asked: near it, points at the edge of the valid space would
+        # otherwise stop the solve at their cliffs.
         y = setup.y0
-        for goal in staged_targets(source, target, weights, stages)[:-1]:
-            # Invalid points followed by the formula: no cliffs on the way (`followed_images`).
+        for goal in staged_targets(source, target, weights, stages) if stages > 1 else ():
             staged_problem = dataclasses.replace(problem, target=jnp.asarray(goal),
                                                  invalid="follow")
             spine, twist_k = solve(staged_problem, solver, y, int(max_steps), False)[:2]
@@ -240,14 +244,19 @@ def fit_spine(
     tolerance = check_tolerance(tolerance)
     if continuation == "auto":
         result = staged(1)
-        if result.stalled or result.unexplained.startswith("local minimum"):
+        if not result.converged and not float(result.rms) <= float(result.tolerance):
             retried = staged(AUTO_STAGES)
             low, high = sorted((float(result.rms), float(retried.rms)))
+            stopped = [r.result == optx.RESULTS.successful for r in (result, retried)]
+            same = all(stopped) and high < verdict.SAME_RESIDUAL * low and not (
+                result.stalled and retried.stalled
+            )
             result = retried if float(retried.rms) <= float(result.rms) else result
-            if result.unexplained.startswith("local minimum") and (
-                high < verdict.SAME_RESIDUAL * low
-            ):  # two starts, one residual: most likely the best this spine can do
-                result = explain(problem, result, tolerance, ADVICE, same_from_elsewhere=True)
+            if same and not result.converged:
+                # Two starts, one residual (a stall there: the second start was already at
+                # the minimum): most likely the best this spine can do.
+                result = explain(problem, dataclasses.replace(result, stalled=""), tolerance,
+                                 ADVICE, same_from_elsewhere=True)
     else:
         result = staged(_check_stages(continuation))
     return eqx.tree_at(lambda r: r.valid, result, unpad_batch(result.valid, n))

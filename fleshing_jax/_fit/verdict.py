@@ -8,9 +8,9 @@ at most `tolerance` times the targets' bounding-box diagonal (default `TOLERANCE
 need a looser one: about their noise's rms). When it is not, `verdict` says which of these it
 most likely is and what to try, from the per-point distances at the end of the fit:
 
-- **invalid targets**: the points that do not map validly onto the fitted spine carry most of
-  the residual, or the rms over all but the worst few percent (outliers) is within the
-  tolerance: those targets cannot be reached;
+- **invalid targets**: the rms over the points that map validly onto the fitted spine, or over
+  all but the worst few percent (outliers), is within the tolerance: the others' targets
+  cannot be reached;
 - **unreachable target**: the fit stopped at the same rms from the rest spine and from a
   continuation (`fit_spine(..., continuation=...)`): two different paths ending at one residual,
   most likely the best this spine's parameters can do;
@@ -80,14 +80,13 @@ def verdict(
         f"{bound:.3g} ({bound / scale:.1e} of it)"
     )
     invalid = (~valid) & (w > 0)
-    share = (w * d**2)[invalid].sum() / (w * d**2).sum()
-    if share >= 0.5:
+    if invalid.any() and _rms(d, np.where(valid, w, 0)) <= bound:
         return (
-            f"invalid targets: {stated}; {int(invalid.sum())} source points fall outside the "
-            f"valid space of the fitted spine and carry {share:.0%} of the residual: their "
-            "targets cannot be reached (they count as unmoved). Leave them out "
-            "(`invalid=\"exclude\"`, or weight 0 in `weights=`), or check that the targets "
-            "came from valid points (`flesh`'s `valid`)."
+            f"invalid targets: {stated}, but within it over the points that map validly: "
+            f"{int(invalid.sum())} source points fall outside the valid space of the fitted "
+            "spine and their targets cannot be reached (they count as unmoved). Leave them "
+            "out (`invalid=\"exclude\"`, or weight 0 in `weights=`), or check that the "
+            "targets came from valid points (`flesh`'s `valid`)."
         )
     order = np.argsort(-np.where(w > 0, d, -np.inf))
     worst = np.cumsum(w[order]) <= OUTLIER_SHARE * w.sum()
