@@ -45,8 +45,9 @@ def scenarios():
         out.append((label, lambda t=target, m=method, w=twist: fj.fit_spine(
             LINE, NEARLY_STRAIGHT, source, t, method=m, fit_twist=w != 0)))  # fmt: skip
     target, _ = fj.flesh(source, LINE, TRUTH)
-    out.append(("arc, inextensible + smoothness 0.05", lambda: fj.fit_spine(
-        LINE, fj.Arc(100.0, 3.0), source, target, length="fixed", smoothness=0.05)))  # fmt: skip
+    out.append(("arc, inextensible + smoothness 0.05 (tolerance None)", lambda: fj.fit_spine(
+        LINE, fj.Arc(100.0, 3.0), source, target, length="fixed", smoothness=0.05,
+        tolerance=None)))  # fmt: skip
     scan = np.asarray(target)[np.random.default_rng(2).permutation(len(target))]
     out.append(("arc, Chamfer (no correspondences)", lambda: fj.fit_spine_to_points(
         LINE, fj.Arc(6.0, 3.5), source, scan)))  # fmt: skip
@@ -61,8 +62,8 @@ def scenarios():
     noisy = btarget + 0.01 * np.random.default_rng(1).normal(size=btarget.shape)
     out.append(("B-spline from straight, root fixed", lambda: fj.fit_spine(
         rest, init, bsource, btarget, fixed=ROOT)))  # fmt: skip
-    out.append(("B-spline, root fixed, noise σ = 0.01", lambda: fj.fit_spine(
-        rest, init, bsource, noisy, fixed=ROOT)))  # fmt: skip
+    out.append(("B-spline, root fixed, noise σ = 0.01 (tolerance 5e-3)", lambda: fj.fit_spine(
+        rest, init, bsource, noisy, fixed=ROOT, tolerance=5e-3)))  # fmt: skip
     return out
 
 
@@ -91,7 +92,7 @@ def far_bends(points: int = 500, angles=(30, 60, 90), shape: str = ""):
     ]
     out = []
     for label, rest, source in [s for s in shapes if shape in s[0]]:
-        t0 = np.asarray(jax.jacfwd(rest)(0.0))
+        t0 = np.array(jax.jacfwd(rest)(0.0))
         t0 /= np.linalg.norm(t0)
         normal = np.cross(t0, [0.0, 0.0, 1.0])
         normal = normal if np.linalg.norm(normal) > 1e-3 else np.cross(t0, [0.0, 1.0, 0.0])

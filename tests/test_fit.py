@@ -179,7 +179,9 @@ def test_bspline_gradient_and_recovery_from_straight_with_fixed_root_and_noise()
     # Noisy targets: the rms is the noise's, the spine stays close.
     noise = 0.01
     noisy = target + noise * np.random.default_rng(1).normal(size=target.shape)
-    fit = fj.fit_spine(rest, init, source, noisy, fixed=fixed)  # same compilation
+    # Explained to the noise's level, once it is stated (the default asks for 1e-3 of the
+    # diagonal, below this noise).
+    fit = fj.fit_spine(rest, init, source, noisy, fixed=fixed, tolerance=5e-3)  # same compile
     assert fit.converged, fit.message
     expected = noise * np.sqrt(3)  # rms of the noise vectors themselves
     assert 0.6 * expected < float(fit.rms) < expected
