@@ -32,6 +32,7 @@ from .._fit.problem import (
     AbstractFitOutcome,
     check_cloud,
     default_solver,
+    default_tolerance,
     stall_message,
     trust_radius,
 )
@@ -317,9 +318,9 @@ def fit_skeleton_pose(
         from .fit_shape import SHAPE_TOLERANCE, fit_to_shape
 
         if solver is None:
-            solver = default_solver("least_squares", dtype,
-                                    SHAPE_TOLERANCE if rtol is None else rtol,
-                                    SHAPE_TOLERANCE if atol is None else atol)
+            tol = max(SHAPE_TOLERANCE, default_tolerance(dtype))  # float32: its own
+            solver = default_solver("least_squares", dtype, tol if rtol is None else rtol,
+                                    tol if atol is None else atol)
         return fit_to_shape(registration, skeleton, target, ids=ids, targets=targets,
                             limbs=limbs, init=init, method=method,
                             fit_twist=bool(fit_twist), solver=solver, max_steps=max_steps,
