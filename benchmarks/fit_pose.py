@@ -1,0 +1,84 @@
+"""Fitting spot's pose to a shape without correspondences (issue 48, item 3).
+
+    python benchmarks/fit_pose.py            # float64
+    python benchmarks/fit_pose.py --float32
+
+Spot (2,930 vertices) on its saved skeleton, three limbs posed by the library (`TRUTH`: the
+head and two legs, bends of 10-30°), 5,000 samples of the posed surface as the
+target; the pose recovered from the rest pose by `fj.fit_skeleton_pose(registration, skeleton,
+target=..., limbs=...)` from the clean samples, with 0.5 % (of the diagonal) Gaussian noise,
+and from one side only (the samples whose normals face +x: a partial scan); then spot's rest
+skeleton against a ball (another shape: must not converge). Prints a Markdown table: the
+largest bend and direction errors over the limbs (degrees), `converged`, steps, seconds (the
+first call includes its compilation; the second, of the same target, is the warm time).
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from pathlib import Path
+
+import jax
+import numpy as np
+import trimesh
+
+import fleshing_jax as fj
+
+SAVED_SKELETON = Path(__file__).resolve().parents[1] / "notebooks" / "data" / "spot-skeleton.json"
+# The head and two legs (bend, direction) (spot's legs are short and thick: a
+# hind leg bent 60° flags 5 of its 125 vertices, `benchmarks/posing.py`).
+TRUTH = {0: (10.0, 90.0), 5: (20.0, 180.0), 8: (30.0, 0.0)}
+
+
+def errors(fit, truth):
+    """The largest |bend| and |direction| errors over the fitted limbs (degrees)."""
+    bend = max(abs(float(fit.poses[k].bend) - float(p.bend)) for k, p in truth.items())
+    turn = max(abs((float(fit.poses[k].direction) - float(p.direction) + 180) % 360 - 180)
+               for k, p in truth.items())
+    return bend, turn
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--float32", action="store_true")
+    args = parser.parse_args()
+    if not args.float32:
+        jax.config.update("jax_enable_x64", True)
+    dtype = np.float32 if args.float32 else np.float64
+    spot = fj.data.spot()
+    skeleton = fj.load_skeleton(SAVED_SKELETON)
+    registration = fj.register_skeleton(spot, skeleton, dtype=dtype)
+    truth = {k: fj.LimbPose(*v) for k, v in TRUTH.items()}
+    posed = fj.pose_skeleton(registration, skeleton, truth)
+    region, valid = np.asarray(skeleton.region), np.asarray(posed.valid)
+    flagged = {k: int(np.sum(~valid[region == k])) for k in TRUTH}
+    mesh = trimesh.Trimesh(np.asarray(posed.vertices, np.float64), spot.faces, process=False)
+    points, faces = trimesh.sample.sample_surface(mesh, 5000, seed=1)
+    diagonal = float(np.linalg.norm(np.ptp(points, axis=0)))
+    noisy = points + np.random.default_rng(2).normal(0, 0.005 * diagonal, points.shape)
+    partial = points[mesh.face_normals[faces][:, 0] > 0]
+    other = trimesh.creation.icosphere(3, radius=diagonal / 4)  # a ball where spot stands
+    other.apply_translation(spot.bounds.mean(axis=0))
+    print(f"spot, {np.dtype(dtype).name}, limbs {sorted(TRUTH)}, diagonal {diagonal:.3f}, "
+          f"vertices flagged at the true pose by limb: {flagged}\n")
+    print("| target | points | max bend error (°) | max direction error (°) | converged | steps "
+          "| first call (s) | second call (s) |")
+    print("|---|---:|---:|---:|---|---:|---:|---:|")
+    for name, target in (("clean", points), ("0.5 % noise", noisy), ("one side", partial),
+                         ("a sphere (another shape)", other)):
+        seconds = []
+        for _ in range(2):
+            start = time.perf_counter()
+            fit = fj.fit_skeleton_pose(registration, skeleton, target=target, limbs=list(TRUTH))
+            seconds.append(time.perf_counter() - start)
+        bend, turn = errors(fit, truth)
+        count = len(target.vertices) if isinstance(target, trimesh.Trimesh) else len(target)
+        print(f"| {name} | {count} | {bend:.2f} | {turn:.2f} | {fit.converged} | "
+              f"{int(fit.num_steps)} | {seconds[0]:.1f} | {seconds[1]:.2f} |", flush=True)
+        if not fit.converged:
+            print(f"\n  message: {fit.message}\n")
+
+
+if __name__ == "__main__":
+    main()
