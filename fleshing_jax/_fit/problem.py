@@ -293,8 +293,9 @@ class FitResult(AbstractFitOutcome):
     - `loss`: the final value of the objective (sum of squared residuals, regularisers included).
     - `stats`: the solver's statistics dictionary.
     - `stalled`: "" or, for a solve that optimistix reports as successful although its
-      steps shrank to nothing without reducing the loss meaningfully (no minimum), what
-      happened and what to try; `converged` is then False and `message` says it.
+      steps shrank to nothing without reducing the loss meaningfully (no minimum) and whose
+      rms is above `tolerance`, what happened and what to try; `converged` is then False and
+      `message` says it.
     - `tolerance`: the rms the data allows (absolute): the `tolerance=` given to the fit times
       the targets' bounding-box diagonal (`inf` with `tolerance=None`).
     - `unexplained`: "" or, for a solve that stopped (no stall) with `rms` above `tolerance`,
@@ -577,6 +578,10 @@ def explain(
     scale = verdict.diagonal(problem.data())
     bound = tolerance * scale
     unexplained = ""
+    if out.stalled and float(rms) <= bound:
+        # Stopped where the data are explained: a stall there is the solver starting at (or
+        # reaching) the best the spine can do, its steps rejected for round-off, not a cliff.
+        out = dataclasses.replace(out, stalled="")
     if bool(out.result == optx.RESULTS.nonlinear_max_steps_reached) and float(rms) <= bound:
         unexplained = (  # not converged (the solver had not stopped), but say it is close
             f"{optx.RESULTS[out.result]} The rms {float(rms):.3g} is already within the "
