@@ -51,9 +51,11 @@ from ._mesh.volume import (
     volume as volume,
     volume_change as volume_change,
 )
+from ._skeleton.aim import aim as aim
 from ._skeleton.build import skeleton as skeleton
 from ._skeleton.files import load_skeleton as load_skeleton, save_skeleton as save_skeleton
 from ._skeleton.fit_pose import SkeletonFit as SkeletonFit, fit_skeleton_pose as fit_skeleton_pose
+from ._skeleton.joint_zone import joint_range as joint_range
 from ._skeleton.limb_pose import LimbPose as LimbPose
 from ._skeleton.plot import plot_skeleton as plot_skeleton
 from ._skeleton.posing import (

@@ -10,7 +10,7 @@
     fleshing-jax skeleton IN OUT.json [--spheres N] [--seed S] [--png FILE]
     fleshing-jax pose IN OUT [--skeleton S.json] ((--limb K | --at X,Y,Z) --bend DEG
                              [--direction DEG] [--twist DEG])... | --poses P.json)
-                             [--method M] [--max-stretch X] [--allow-invalid] [--spheres N]
+                             [--method M] [--max-stretch X] [--allow-inexact] [--spheres N]
     fleshing-jax demo [--out DIR]
     fleshing-jax --version
 
@@ -268,10 +268,13 @@ def _parser() -> argparse.ArgumentParser:
         "it into a blade); beyond it the pose is not written and the status is 3",
     )
     pose.add_argument(
+        "--allow-inexact",
         "--allow-invalid",
+        dest="allow_invalid",
         action="store_true",
-        help="write OUT even when vertices are invalid (left where they were: the mesh may be "
-        "torn around them); without it such a pose is not written and the status is 3",
+        help="write OUT even when vertices are posed inexactly (past a joint's range: placed "
+        "continuously, the volume not kept there); without it such a pose is not written and "
+        "the status is 3",
     )
     demo = commands.add_parser(
         "demo",
@@ -376,7 +379,8 @@ def _deform(args) -> int:
         registration = register(jnp.asarray(np.asarray(mesh.vertices)), source, margin=margin)
         options = dict(method=args.method, twist=args.twist, margin=margin, beyond=args.beyond)
         if not valid.all():
-            _print_causes(diagnose(registration, target, **options))
+            _print_causes(diagnose(registration, target, **options),
+                          "bend less (the largest valid bend is below), or try another --method")
         sign = -1.0 if args.bend_angle is not None and args.bend_angle < 0 else 1.0
         angle = largest_valid_bend(registration, source, sign=sign, **options)
         radius = float(source.length) / angle if angle > 0 else float("inf")
@@ -428,7 +432,8 @@ def _print_volumes(mesh, bent, volume) -> None:
         print("advice: the mesh has holes; pass --cap-holes to close them (exact volumes)")
 
 
-def _print_causes(causes) -> None:
+def _print_causes(causes, advice: str) -> None:
+    """Prints `causes` (`fj.diagnose`'s counts), and `advice` where a smaller bend helps."""
     print(f"  outside the rest spine's reach: {causes.outside_source}")
     print(f"  beyond the rest spine's reach (the map is discontinuous there): "
           f"{causes.beyond_reach}")
@@ -441,7 +446,7 @@ def _print_causes(causes) -> None:
             "close to each other, or bend tightly, tear the shape between them)"
         )
     if causes.beyond_limit or causes.outside_target:
-        print("advice: bend less (a larger arc radius, below), or try another --method")
+        print(f"advice: {advice}")
 
 
 def _medial(args) -> int:
@@ -655,6 +660,7 @@ def _pose(args) -> int:
     from ._mesh.files import check_output_path, write_mesh_atomic
     from ._mesh.stretch import edge_stretch
     from ._mesh.volume import volume
+    from ._skeleton.joint_zone import joint_range
     from ._skeleton.posing import limb_causes, pose_skeleton, register_skeleton
     from ._skeleton.stretch import pose_stretch
 
@@ -698,11 +704,13 @@ def _pose(args) -> int:
         for limb, causes in limb_causes(registration, skeleton, poses, args.method).items():
             if causes.invalid:
                 print(f" limb {limb}:")
-                _print_causes(causes)
+                largest = np.floor(100 * float(joint_range(registration, limb))) / 100
+                _print_causes(causes, f"bend limb {limb} at most {largest:.2f} degrees (its exact "
+                                      "range at its joint), or try another --method")
         if not args.allow_invalid:
-            print(f"not written: {int(np.sum(~valid))} vertices are invalid and would be left in "
-                  "place, tearing the mesh around them; bend less, or pass --allow-invalid to "
-                  "write it anyway", file=sys.stderr)
+            print(f"not written: {int(np.sum(~valid))} vertices are posed inexactly (past "
+                  "their joint's range: placed continuously, the volume not kept there); bend "
+                  "less, or pass --allow-inexact to write it anyway", file=sys.stderr)
             return 3
     for what, factor in (("the pose stretches or squeezes the shape", principal[squeezed]),
                          ("an edge changes length", stretch[worst])):

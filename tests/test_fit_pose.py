@@ -23,7 +23,9 @@ TRUTH = {0: fj.LimbPose(40, 60, 15), 1: fj.LimbPose(25, -30, 0), 2: fj.LimbPose(
 def ids(skeleton):
     """Five vertices on each limb's far end, off its axis (so that its twist shows)."""
     region = np.asarray(skeleton.region)
-    return np.concatenate([np.flatnonzero(region == k)[-40::9] for k in range(3)])
+    # (Farthest from the body, at x = 3: past each limb's bending zone.)
+    far = np.argsort(-np.abs(np.asarray(skeleton.vertices)[:, 0] - 3.0), kind="stable")
+    return np.concatenate([far[region[far] == k][:40:9] for k in range(3)])
 
 
 def _targets(registration, skeleton, ids, poses):

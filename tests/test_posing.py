@@ -258,7 +258,10 @@ def test_pose_command(tube, skeleton, tmp_path, capsys):
     posed = fj.load_mesh(out)
     stretch = np.asarray(fj.edge_stretch(tube, posed.vertices))
     worst = int(np.argmax(stretch))
-    assert f"largest edge stretch: {stretch[worst]:.3g}× (limb {skeleton.region[worst]}" in printed
+    # (Both bent limbs' zones squeeze their inner sides alike: either may hold the largest.)
+    ties = {int(skeleton.region[v]) for v in np.flatnonzero(stretch > stretch[worst] - 1e-6)}
+    assert any(f"largest edge stretch: {stretch[worst]:.3g}× (limb {limb}," in printed
+               for limb in ties)
     rest, region = np.asarray(tube.vertices), np.asarray(skeleton.region)
     np.testing.assert_allclose(posed.vertices[region == -1], rest[region == -1], atol=1e-6)
     moved = np.linalg.norm(posed.vertices - rest, axis=1)
@@ -287,6 +290,8 @@ def test_pose_command(tube, skeleton, tmp_path, capsys):
     assert main([*arguments[:2], str(folded), *arguments[3:], "--limb", "2", "--bend", "175"]) == 3
     captured = capsys.readouterr()
     assert "limb 2:" in captured.out and "not written" in captured.err and not folded.exists()
+    largest = np.floor(100 * float(fj.joint_range(fj.register_skeleton(tube, skeleton), 2))) / 100
+    assert f"advice: bend limb 2 at most {largest:.2f} degrees" in captured.out
     # Written anyway, the mesh is torn around the vertices left in place: only the edges
     # see it (the map there is no more than 2.5× squeezed, the torn edges 13× longer).
     assert main([*arguments[:2], str(folded), *arguments[3:], "--limb", "2", "--bend", "175",

@@ -146,5 +146,6 @@ def _place(poser, bent, points):
 def _pose_pending(poser, registration, images, valid, index):
     part = jax.tree.map(lambda a: a[index] if jnp.ndim(a) > 0 else a, registration)
     ok = poser.projects(part)
-    images = images.at[index].set(jnp.where(ok[:, None], images[index], part.points))
+    kept = poser._kept(ok, part)
+    images = images.at[index].set(jnp.where(kept[:, None], images[index], part.points))
     return images, valid.at[index].set(ok)

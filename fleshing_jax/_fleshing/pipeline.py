@@ -162,14 +162,20 @@ class Poser(eqx.Module):
     check_projection: bool = eqx.field(static=True)
     region: ValidRegion | None  # for the projection check, without a closed-form foot
     ends: EndFrames | None  # the target's end frames, for `beyond="rigid"`
+    fallback: bool = eqx.field(static=True)
 
     def __init__(
         self, target, method, twist, check_projection=True, margin=0.0, start=None,
-        beyond="continue",
+        beyond="continue", fallback=False,
     ):
         """`start`: the source's `EndFrames`, from which the target's first normal is carried
         (`ends.aligned_twist`; `None`: the target's own, for callers that align the twist
-        themselves); `beyond`: `"continue"` or `"rigid"` (`ends`)."""
+        themselves); `beyond`: `"continue"` or `"rigid"` (`ends`); `fallback`: the points
+        registered on the source but not validly bent keep their image (still flagged): the
+        map's formulas continued past their conditions, continuous in the point and the target
+        (the radial map's root stays at its branch point `1/√3` past it), where otherwise they
+        are left where they were."""
+        self.fallback = fallback
         target = target._prepare()  # once: each preparation is traced again
         if start is not None:
             twist = aligned_twist(start, target, twist)
@@ -196,8 +202,13 @@ class Poser(eqx.Module):
         image, _, valid, pending = self._bent_images(registration)
         if self.region is not None:  # the sampled test, for the images left pending
             valid = clear_where(pending, self.region, self._image, valid, registration)
-        image = jnp.where(valid[:, None], image, registration.points)
+        image = jnp.where(self._kept(valid, registration)[:, None], image, registration.points)
         return self.rigid(registration, image, valid)
+
+    def _kept(self, valid: Array, registration: Registration) -> Array:
+        """(n,) the points whose image is kept: the valid ones, and with `fallback` every
+        point registered on the source."""
+        return valid | registration.valid if self.fallback else valid
 
     def rigid(self, registration: Registration, images: Array, valid: Array):
         """`(images, valid)` with the points beyond the source's ends moved rigidly with the
@@ -220,8 +231,8 @@ class Poser(eqx.Module):
         pending points (valid but not certified by the reach bound; none on lines and arcs)
         have their image but are not valid yet, for `eager` to check them."""
         image, _, certified, pending = self._bent_images(registration)
-        kept = jnp.where((certified | pending)[:, None], image, registration.points)
-        return kept, certified, pending
+        kept = self._kept(certified | pending, registration)
+        return jnp.where(kept[:, None], image, registration.points), certified, pending
 
     def bend(self, registration: Registration) -> Bent:
         """`pose_certified` up to the images: where each point goes, as a `Bent` (the
@@ -237,7 +248,8 @@ class Poser(eqx.Module):
         s1, x, y, valid, distance = jax.vmap(offset, in_axes=(batch_axes(registration),))(
             registration
         )
-        return Bent(s1, x, y, *self._certify(valid, s1, distance))
+        certified, pending = self._certify(valid, s1, distance)
+        return Bent(s1, x, y, certified, pending, self._kept(certified | pending, registration))
 
     def place(self, bent: Bent, points: Array) -> Array:
         """The images of `bend`, `(n, 3)`, or the `points` themselves where neither certified
@@ -246,8 +258,7 @@ class Poser(eqx.Module):
         def image(s1, x, y, kept, point):
             return jnp.where(kept, in_frame(self.frames(s1), jnp.stack([x, y])), point)
 
-        kept = bent.certified | bent.pending
-        return jax.vmap(image)(bent.arc_length, bent.x, bent.y, kept, points)
+        return jax.vmap(image)(bent.arc_length, bent.x, bent.y, bent.kept, points)
 
     def projects(self, registration: Registration) -> Array:
         """The region's sampled check of each registered point's image (n,), bent again."""
@@ -289,13 +300,15 @@ class Poser(eqx.Module):
 class Bent(NamedTuple):
     """Registered points bent onto a target, not yet placed there (`Poser.bend`): the arc
     length `s₁` on the target, the offset `(x, y)` in its twisted normals (`d₁`), and the
-    flags of `Poser.pose_certified`; each (n,)."""
+    flags of `Poser.pose_certified`, and those placed (certified, pending, or kept by the
+    poser's `fallback`); each (n,)."""
 
     arc_length: Array
     x: Array
     y: Array
     certified: Array
     pending: Array
+    kept: Array
 
 
 def pose_points(
@@ -534,16 +547,18 @@ def prepare_target(
     margin: ArrayLike = 0.0,
     start: EndFrames | None = None,
     beyond: str = "continue",
+    fallback: bool = False,
 ) -> Poser:
     """`target` prepared once for posing points of `dtype` (`pose` = `pose_prepared` of this):
     a compiled call of its own, which `_mesh.overlap` may run beside the registration.
     `start`: the source's `EndFrames` (`Registration.ends`, or `EndFrames(source)`), from
-    which the target's first normal is carried; `beyond` as for `Fleshing`."""
+    which the target's first normal is carried; `beyond` as for `Fleshing`; `fallback` as
+    for `Poser`."""
     _check_spine(target, "target")
     target, twist, start = cast_floats((target, as_twist(twist, dtype), start), dtype)
     margin = as_margin(margin, dtype)
     options = (check_method(method), twist, bool(check_projection), margin, start,
-               check_beyond(beyond))
+               check_beyond(beyond), bool(fallback))
     return _poser(target._bucketed(), *options)
 
 
@@ -560,9 +575,10 @@ def pose_prepared(registration: Registration, poser: Poser) -> tuple[Array, Arra
 
 
 @eqx.filter_jit
-def _poser(target, method, twist, check_projection, margin=0.0, start=None, beyond="continue"):
+def _poser(target, method, twist, check_projection, margin=0.0, start=None, beyond="continue",
+           fallback=False):
     # (compiled apart, as `_registrar`)
-    return Poser(target, method, twist, check_projection, margin, start, beyond)
+    return Poser(target, method, twist, check_projection, margin, start, beyond, fallback)
 
 
 @eqx.filter_jit

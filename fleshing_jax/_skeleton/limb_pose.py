@@ -12,16 +12,23 @@ from .._spines.bent import BentSpine
 from .._spines.spine import AbstractSpine
 
 
+FULL_TURN = 360.0  # degrees: the largest bend or twist a pose takes
+
+
 class LimbPose(eqx.Module):
     """A limb's pose: its bend from the joint, the direction of the bend, its twist (degrees).
 
     **Arguments/fields** (scalars, degrees; differentiable):
 
-    - `bend`: the angle the limb turns through, spread smoothly along it from its joint (no
-      kink there) to its end (or where its first child limb starts).
+    - `bend`: the angle the limb turns through at its joint: in a short zone past the joint
+      (no kink there; as short as the map's validity allows for the angle, `fj.joint_range`),
+      the limb past it moving rigidly.
     - `direction`: the direction the limb bends towards, about its tangent at the joint,
       measured from the first normal of its rest spine's frame there.
-    - `twist`: the turn of the limb about its tangent at the joint, spread as the bend.
+    - `twist`: the turn of the limb about its tangent at the joint, in the same zone.
+    - `towards` (3,), instead of `direction`: the direction the limb bends towards, in the
+      mesh's coordinates at rest (a limb below a posed one turns with it): its part across
+      the limb's tangent at the joint. `LimbPose(90, towards=(0, 0, 1))` raises a limb.
 
     `LimbPose()` is the rest pose. See `fj.BentSpine` for the spine it makes.
     """
@@ -29,19 +36,63 @@ class LimbPose(eqx.Module):
     bend: Array
     direction: Array
     twist: Array
+    towards: Array | None
 
-    def __init__(self, bend: ArrayLike = 0.0, direction: ArrayLike = 0.0, twist: ArrayLike = 0.0):
+    def __init__(self, bend: ArrayLike = 0.0, direction: ArrayLike = 0.0, twist: ArrayLike = 0.0,
+                 *, towards: ArrayLike | None = None):
         self.bend = as_float_array(bend, "bend", ())
         self.direction = as_float_array(direction, "direction", ())
         self.twist = as_float_array(twist, "twist", ())
-        for name in ("bend", "direction", "twist"):
+        for name, value in (("bend", bend), ("direction", direction), ("twist", twist)):
+            if isinstance(value, bool | np.bool_) or getattr(value, "dtype", None) == bool:
+                raise TypeError(f"`{name}` must be an angle in degrees, got {value!r}.")
             value = getattr(self, name)
             if is_concrete(value) and not np.isfinite(float(value)):
                 raise ValueError(f"`{name}` must be a finite angle in degrees, got {float(value)}.")
+            if name != "direction" and is_concrete(value) and abs(float(value)) > FULL_TURN:
+                raise ValueError(f"`{name}` must be at most a full turn ({FULL_TURN:g} degrees) "
+                                 f"either way, got {float(value):g}.")
+        self.towards = None if towards is None else as_float_array(towards, "towards", (3,))
+        if self.towards is not None and is_concrete(self.towards):
+            if not np.all(np.isfinite(self.towards)) or not np.any(self.towards):
+                raise ValueError(f"`towards` must be a finite non-zero direction (3,), got "
+                                 f"{np.asarray(self.towards).tolist()}.")
+            if is_concrete(self.direction) and float(self.direction) != 0:
+                raise ValueError("give the bend's `direction` or `towards`, not both.")
 
     def spine(self, rest: AbstractSpine, joint: Array, stop: Array) -> BentSpine:
         """The limb's `rest` spine bent by this pose from arc length `joint` to `stop`."""
         dtype = rest.length.dtype
-        angle = [jnp.deg2rad(v).astype(dtype) for v in (self.bend, self.direction, self.twist)]
-        return BentSpine(rest, joint=joint, stop=stop, bend=angle[0], direction=angle[1],
-                         twist=angle[2])
+        bend, direction, twist = (jnp.deg2rad(v).astype(dtype)
+                                  for v in (self.bend, self.direction, self.twist))
+        if self.towards is not None:
+            direction = _direction_of(rest, joint, self.towards.astype(dtype))
+        return BentSpine(rest, joint=joint, stop=stop, bend=bend, direction=direction,
+                         twist=twist)
+
+
+def _direction_of(rest: AbstractSpine, joint: Array, towards: Array) -> Array:
+    """The bend direction (radians, from the first normal of `rest`'s frame at `joint`) of the
+    world direction `towards` (3,); `ValueError` where it runs along the limb (concrete)."""
+    (_, tangent, _), (first, second) = rest._prepare()._jet_and_normals(joint)
+    x, y = jnp.dot(towards, first), jnp.dot(towards, second)
+    across = jnp.hypot(x, y)
+    if is_concrete(across) and float(across) <= 1e-6 * float(jnp.linalg.norm(towards)):
+        raise ValueError(
+            f"`towards` {np.asarray(towards).tolist()} runs along the limb's tangent at its "
+            f"joint, {np.round(np.asarray(tangent), 6).tolist()}: it names no bend direction."
+        )
+    # (Safe at x = y = 0 under tracing: that direction is refused eagerly.)
+    safe = across > 0
+    return jnp.where(safe, jnp.arctan2(y, jnp.where(safe, x, 1.0)), 0.0)
+
+
+def sane_angles(pose: LimbPose) -> Array:
+    """Whether `pose`'s angles are finite and its bend and twist at most a full turn (scalar
+    bool): what a traced pose cannot refuse, and flags instead."""
+    angles = jnp.stack([pose.bend, pose.direction, pose.twist])
+    turns = jnp.abs(jnp.stack([pose.bend, pose.twist]))
+    finite = jnp.all(jnp.isfinite(angles))
+    if pose.towards is not None:
+        finite = finite & jnp.all(jnp.isfinite(pose.towards))
+    return finite & jnp.all(turns <= FULL_TURN)

@@ -12,7 +12,10 @@ No crack at a region's borders, by construction of where the bend starts and sto
   with the parent (or the limb's own `joint`, if larger). Before it the bent spine is the rest
   spine (frames and all), so those vertices map to themselves (to round-off): the seam with the
   still parent is closed.
-- **Children.** A limb's bend is complete at the smallest arc length of its vertices on its
+- **Joint zone.** The bend is concentrated just past the joint, in the shortest zone that
+  keeps the map's curvature bound for the angle (`joint_zone`): the limb past it moves as one
+  rigid piece, as a bone does.
+- **Children.** A limb's bend is complete by the smallest arc length of its vertices on its
   borders with its child limbs; past it the bent spine is the rest spine moved rigidly, and so
   is the fleshing. A child's region is first fleshed by its own pose (if any: it is still up to
   its own joint), then moved by that same rigid motion (its parent's end frame), composed with
@@ -43,7 +46,8 @@ from .._numerics import cast_floats
 from .._spines.looked_up import LookedUpSpine
 from .._spines.spine import AbstractSpine
 from .._spines.table import tabulates
-from .limb_pose import LimbPose
+from .joint_zone import JointZone, joint_zone
+from .limb_pose import LimbPose, sane_angles
 from .skeleton import Skeleton, descendants
 
 
@@ -56,9 +60,10 @@ class SkeletonRegistration(eqx.Module):
     takes each limb's first rows, to its own bucket size: `posed_limbs`); `rests`: the rest
     spines, in the vertices' dtype and padded alike (in float32 read from a table, with its
     values where bent spines read them: `LookedUpSpine`); `indices` (n_k,) int32:
-    the region's vertices; `joints`, `stops`: scalars, where each limb's bend starts and is
-    complete (see the module's docstring); `vertices` (n, 3): the rest vertices; `margin`:
-    scalar.
+    the region's vertices; `joints`, `stops`: scalars, where each limb's bend may start and
+    must be complete (see the module's docstring); `vertices` (n, 3): the rest vertices;
+    `margin`: scalar; `zones`: each limb's `JointZone`, where a bend of a given angle is
+    concentrated past the joint (`joint_zone`).
     """
 
     registrations: tuple[Registration, ...]
@@ -68,11 +73,15 @@ class SkeletonRegistration(eqx.Module):
     stops: tuple[Array, ...]
     vertices: Array
     margin: Array
+    zones: tuple[JointZone, ...]
 
 
 class PosedSkeleton(NamedTuple):
-    """A posed mesh: `vertices` (n, 3) and `valid` (n,) bool (a vertex of a posed region outside
-    its limb's valid space is left where it was, flagged `False`)."""
+    """A posed mesh: `vertices` (n, 3) and `valid` (n,) bool: `False` where the pose is not
+    exact. A vertex of a posed region outside its limb's valid space (a bend past the joint's
+    range, `fj.joint_range`) is placed by the map continued past its conditions: continuous in
+    the vertex and the angle, so the mesh stays whole, but its volume is not kept there; one
+    not registered on its limb's rest spine, or with a non-finite image, is left where it was."""
 
     vertices: Float[Array, "n 3"]
     valid: Bool[Array, " n"]
@@ -109,7 +118,7 @@ def register_skeleton(mesh, skeleton: Skeleton, *, margin: float | None = None,
     region = np.asarray(skeleton.region)
     lineage = descendants(skeleton.limbs)
     edges = _edges(faces)
-    registrations, rests, indices, joints, stops = [], [], [], [], []
+    registrations, rests, indices, joints, stops, zones = [], [], [], [], [], []
     # Every limb's region padded to the largest's bucket: one compiled program for all.
     size = bucket(max([int(np.sum(region == k)) for k in range(len(skeleton.limbs))], default=0))
     for k, limb in enumerate(skeleton.limbs):
@@ -131,13 +140,15 @@ def register_skeleton(mesh, skeleton: Skeleton, *, margin: float | None = None,
                 f"`skeleton`: limb {k}'s region meets its child limbs (arc length {stop:.4g}) "
                 f"before it leaves its parent ({joint:.4g}): there is no room to bend it."
             )
+        zones.append(joint_zone(arc[ids], *(np.asarray(f)[: len(ids)] for f in (
+            reg.offset, reg.curvature, reg.valid)), joint, stop, points.dtype))
         registrations.append(reg)
         rests.append(_looked_up(spine) if tabulates(spine) else spine)
         indices.append(jnp.asarray(ids, jnp.int32))
         joints.append(jnp.asarray(joint, points.dtype))
         stops.append(jnp.asarray(stop, points.dtype))
     return SkeletonRegistration(tuple(registrations), tuple(rests), tuple(indices), tuple(joints),
-                                tuple(stops), points, margin)
+                                tuple(stops), points, margin, tuple(zones))
 
 
 def _edges(faces: np.ndarray) -> np.ndarray:
@@ -264,6 +275,7 @@ def posed(registration: SkeletonRegistration, skeleton: Skeleton, poses: dict,
     valid = jnp.ones(vertices.shape[0], bool)
     moved = posed_limbs(reg, poses, method, check, stacked)
     carried: dict[int, Rigid | None] = {}  # what moves each touched limb's children
+    trusted: dict[int, Array] = {}  # whether the angles of the limb and its ancestors are sane
     for k, limb in enumerate(skeleton.limbs):
         carry = carried.get(limb.parent)
         pose = poses.get(k)
@@ -272,14 +284,20 @@ def posed(registration: SkeletonRegistration, skeleton: Skeleton, poses: dict,
         ids = reg.indices[k]
         n = ids.shape[0]
         images, ok, motion = reg.vertices[ids], jnp.ones(n, bool), None
+        trust = trusted.get(limb.parent, jnp.asarray(True))
         if pose is not None:
             images, ok, motion = moved[k]
             images, ok = images[:n], ok[:n]
+            if isinstance(pose, LimbPose):
+                trust = trust & sane_angles(pose)
         if carry is not None:
             images = carry(images)
-        carried[k] = carry if motion is None else motion.then(carry)
-        vertices = vertices.at[ids].set(images)
-        valid = valid.at[ids].set(ok)
+        carried[k], trusted[k] = (carry if motion is None else motion.then(carry)), trust
+        # A traced pose flags what it cannot place: a NaN or infinite angle, one past a full
+        # turn (refused eagerly by `LimbPose`), and any non-finite image (left at rest).
+        finite = jnp.all(jnp.isfinite(images), axis=1)
+        vertices = vertices.at[ids].set(jnp.where(finite[:, None], images, reg.vertices[ids]))
+        valid = valid.at[ids].set(ok & trust & finite)
     return PosedSkeleton(vertices, valid)
 
 
@@ -319,22 +337,27 @@ def _limb_registration(registration: SkeletonRegistration, k: int, own: bool) ->
 
 def limb_target(registration: SkeletonRegistration, k: int, pose) -> AbstractSpine:
     """Limb `k`'s target: `pose` itself if it is a spine, else the limb's rest spine bent by
-    the `LimbPose` from its joint to its stop."""
+    the `LimbPose` in the zone past its joint that the angle needs (`joint_zone`)."""
     if isinstance(pose, AbstractSpine):
         return pose
-    return pose.spine(registration.rests[k], registration.joints[k], registration.stops[k])
+    joint = registration.joints[k]
+    zone = registration.zones[k].length(jnp.deg2rad(pose.bend).astype(joint.dtype))
+    # (`minimum`: the whole room in single precision is at most the stop, not an ulp past it.)
+    return pose.spine(registration.rests[k], joint, jnp.minimum(joint + zone,
+                                                                registration.stops[k]))
 
 
 def limb_poser(registration: Registration, target: AbstractSpine, method: str,
                check: bool = True) -> Poser:
     """`target` prepared for posing a limb's region (`registration`): the points past the end
-    move rigidly, and the images are checked to project back onto it with no margin (the
+    move rigidly, those not validly bent keep their continued image (`Poser`'s `fallback`),
+    and the images are checked to project back onto it with no margin (the
     margin keeps edges whole on the rest side, the registration's: with the margin on the
     bent spine too, the region's bounds on a bend's changing curvature flagged most of a thin
     leg bent 60°)."""
     return prepare_target(target, registration.points.dtype, method=method,
                           check_projection=check, margin=0.0, start=registration.ends,
-                          beyond="rigid")
+                          beyond="rigid", fallback=True)
 
 
 def _pose_limb(registration, target, method, check=True):

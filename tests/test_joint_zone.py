@@ -1,0 +1,165 @@
+"""A limb bent at its joint (`_skeleton.joint_zone`): the bend concentrated in the shortest zone
+past the joint that keeps the map's curvature bound, the limb past it rigid, continuous in the
+angle. On the posing tests' tube (`_posing_shapes`: radius 0.3, its left limb 2 bendable over
+2 units), in float64."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import fleshing_jax as fj
+from fleshing_jax._skeleton.joint_zone import JOINT_CURVATURE, ZONE_LENGTHS, joint_zone
+from fleshing_jax._skeleton.posing import limb_target, posed
+
+from _posing_shapes import RADIUS
+
+
+def test_a_zone_is_as_long_as_its_angle_needs_on_a_straight_tube():
+    # Rings of radius 0.3 every 0.01 along a straight spine, bendable from 1 to 3.
+    s = np.repeat(np.linspace(0, 4, 401), 8)
+    angle = np.tile(np.linspace(0, 2 * np.pi, 8, endpoint=False), 401)
+    offset = RADIUS * np.stack([np.cos(angle), np.sin(angle)], 1)
+    zone = joint_zone(s, offset, np.zeros_like(offset), np.ones(len(s), bool), 1.0, 3.0,
+                      np.float64)
+    # κ = 4θ/(3L) on the ramp's plateau, κ·ρ = JOINT_CURVATURE: L = 4θρ/(3 JOINT_CURVATURE).
+    for degrees in (20.0, 45.0, 90.0):
+        theta = np.radians(degrees)
+        needed = 4 * theta * RADIUS / (3 * JOINT_CURVATURE)
+        length = float(zone.length(theta))
+        # (The cubic between tabulated zones starts flat at the shortest: 3 % short at most.)
+        assert 0.97 * needed <= length <= needed + 2.0 / ZONE_LENGTHS + 1e-12
+        assert float(zone.length(-theta)) == length  # either way
+    np.testing.assert_allclose(float(zone.range), 3 * JOINT_CURVATURE * 2.0 / (4 * RADIUS))
+    # Past the range: the whole room, as a bend spread over the limb.
+    assert float(zone.length(zone.range + 1)) == 2.0
+
+
+def test_a_thick_part_lengthens_the_zone_continuously():
+    # The same tube, twice as thick from arc length 1.5: zones reaching it are bounded by it.
+    s = np.repeat(np.linspace(0, 4, 401), 8)
+    angle = np.tile(np.linspace(0, 2 * np.pi, 8, endpoint=False), 401)
+    radius = np.where(s > 1.5, 2 * RADIUS, RADIUS)[:, None]
+    offset = radius * np.stack([np.cos(angle), np.sin(angle)], 1)
+    zone = joint_zone(s, offset, np.zeros_like(offset), np.ones(len(s), bool), 1.0, 3.0,
+                      np.float64)
+    capacities, lengths = np.asarray(zone.capacities), np.asarray(zone.lengths)
+    assert np.all(np.diff(capacities) >= 0) and np.all(np.diff(lengths) >= 0)
+    # Every tabulated zone keeps the bound for its capacity.
+    rho = np.where(1.0 + lengths > 1.5, 2 * RADIUS, RADIUS)
+    assert np.all(4 * capacities * rho / (3 * lengths) <= JOINT_CURVATURE * (1 + 1e-9))
+    # The zone's length is smooth in the angle: no kink for a fit of the angle to stop at.
+    knots = np.unique(capacities)
+    slope = jax.vmap(jax.grad(zone.length))
+    left, right = (np.asarray(slope(jnp.asarray(knots + step))) for step in (-1e-9, 1e-9))
+    np.testing.assert_allclose(left, right, rtol=1e-5, atol=1e-6)
+    assert np.all(left >= 0) and np.all(right >= 0)
+    # The length grows without a jump: a fine sweep of the angle moves it by small steps.
+    sweep = np.asarray(jax.vmap(zone.length)(jnp.linspace(0, float(zone.range), 2001)))
+    assert np.max(np.abs(np.diff(sweep))) < 2.0 / ZONE_LENGTHS
+
+
+def _rigid_error(before, after):
+    """The largest change of a distance between two of the points (0 for a rigid motion)."""
+    d0 = np.linalg.norm(before[:, None] - before[None], axis=-1)
+    d1 = np.linalg.norm(after[:, None] - after[None], axis=-1)
+    return np.max(np.abs(d1 - d0))
+
+
+def test_the_limb_past_its_zone_moves_rigidly(tube, skeleton, registration):
+    posed = fj.pose_skeleton(registration, skeleton, {2: fj.LimbPose(60.0, 30.0)})
+    assert np.asarray(posed.valid).all()
+    rest, after = np.asarray(tube.vertices), np.asarray(posed.vertices)
+    length = float(registration.zones[2].length(np.radians(60.0)))
+    assert length < 0.6 * float(registration.stops[2] - registration.joints[2])
+    # Limb 2 runs towards -x from its bend's start at x = 2.
+    start = 2.0 - (float(registration.joints[2]) - 0.5)
+    past = rest[:, 0] < start - length - 0.05
+    inside = (rest[:, 0] < start) & (rest[:, 0] > start - length)
+    assert past.sum() > 100
+    assert _rigid_error(rest[past], after[past]) < 1e-9
+    assert _rigid_error(rest[inside], after[inside]) > 1e-2  # the zone itself is bent
+    # The tip turned by the whole angle.
+    tip = after[rest[:, 0] < 1e-9].mean(axis=0) - after[past].mean(axis=0)
+    axis = rest[rest[:, 0] < 1e-9].mean(axis=0) - rest[past].mean(axis=0)
+    turned = np.degrees(np.arccos(tip @ axis / np.linalg.norm(tip) / np.linalg.norm(axis)))
+    np.testing.assert_allclose(turned, 60.0, atol=1e-6)
+
+
+def test_a_sweep_of_the_angle_moves_every_vertex_continuously(tube, skeleton, registration):
+    # Through the exact range, in 1/4° steps, the frames batched in one program (without the
+    # global projection check: the vertices are what is compared); then angles a traced pose
+    # cannot refuse, in the same batch.
+    # Past the range (129°), the vertices outside the map's conditions are placed by its
+    # formulas continued: flagged, but the mesh stays whole.
+    largest = np.degrees(float(registration.zones[2].range))
+    angles = np.linspace(0.0, 180.0, 721)
+    absurd = np.array([np.nan, np.inf, -np.inf, 1e9, 361.0])
+    sweep = jax.jit(jax.vmap(lambda bend: posed(registration, skeleton, {2: fj.LimbPose(bend)},
+                                                "radial", check=False)))
+    vertices, valid = (np.asarray(x) for x in sweep(jnp.asarray(np.r_[angles, absurd])))
+    rest = np.asarray(tube.vertices)
+    edges = tube.edges_unique
+    shortest = np.min(np.linalg.norm(rest[edges[:, 0]] - rest[edges[:, 1]], axis=1))
+    steps = np.linalg.norm(np.diff(vertices[: len(angles)], axis=0), axis=-1)
+    # The tip turns 1/4° a step at 2 units from the joint: 0.009; no vertex jumps an edge.
+    assert steps.max() < 0.3 * shortest
+    np.testing.assert_allclose(vertices[0], rest, atol=1e-12)  # (traced: to round-off)
+    assert valid[: len(angles)][angles <= largest].all() and not valid[len(angles) - 1].all()
+    # A NaN, infinite or past-a-full-turn angle flags the whole limb, and nothing else.
+    region = np.asarray(skeleton.region)
+    for row in valid[len(angles):]:
+        assert not row[region == 2].any() and row[region != 2].all()
+
+
+def test_towards_bends_a_limb_towards_a_world_direction(tube, skeleton, registration):
+    rest = np.asarray(tube.vertices)
+    tip, base = rest[:, 0] < 1e-9, np.abs(rest[:, 0] - 0.8) < 1e-9  # rings of the rigid part
+    for towards in ([0.0, 0.0, 1.0], [0.3, -1.0, 1.0]):
+        pose = fj.LimbPose(60.0, towards=towards)
+        after = np.asarray(fj.pose_skeleton(registration, skeleton, {2: pose}).vertices)
+        axis = after[tip].mean(axis=0) - after[base].mean(axis=0)
+        axis /= np.linalg.norm(axis)
+        # Limb 2 runs along -x: it turns 60° towards the part of `towards` across x.
+        across = np.array([0.0, *towards[1:]]) / np.linalg.norm(towards[1:])
+        expected = np.cos(np.radians(60)) * np.array([-1.0, 0, 0]) + np.sin(np.radians(60)) * across
+        np.testing.assert_allclose(axis, expected, atol=1e-6)
+
+
+def test_joint_range_and_bad_poses(registration):
+    ranges = [float(fj.joint_range(registration, k)) for k in range(3)]
+    np.testing.assert_allclose(ranges[2], np.degrees(float(registration.zones[2].range)))
+    assert 60 < ranges[2] < 360
+    with pytest.raises(ValueError, match="`limb`: 3 is not a limb index"):
+        fj.joint_range(registration, 3)
+    with pytest.raises(ValueError, match="runs along the limb's tangent"):
+        fj.LimbPose(30.0, towards=(-2.0, 0.0, 0.0)).spine(registration.rests[2],
+                                                          registration.joints[2],
+                                                          registration.stops[2])
+    with pytest.raises(ValueError, match="`direction` or `towards`, not both"):
+        fj.LimbPose(30.0, 90.0, towards=(0.0, 0.0, 1.0))
+    with pytest.raises(ValueError, match="`towards` must be a finite non-zero"):
+        fj.LimbPose(30.0, towards=(0.0, 0.0, 0.0))
+    with pytest.raises(ValueError, match="at most a full turn"):
+        fj.LimbPose(1e9)
+    with pytest.raises(ValueError, match="`twist` must be at most a full turn"):
+        fj.LimbPose(10.0, twist=-400.0)
+    with pytest.raises(TypeError, match="`bend` must be an angle in degrees, got True"):
+        fj.LimbPose(True)
+
+
+def test_aim_points_a_limb_at_a_point(tube, skeleton, registration):
+    # Limb 2 (along -x from x = 2) aimed at a point above and behind its tip.
+    point = np.array([0.5, 0.0, 1.5])
+    pose = fj.aim(registration, skeleton, 2, point)
+    assert 0 < float(pose.bend) < 90
+    bent = limb_target(registration, 2, pose)
+    origin = np.asarray(registration.rests[2](registration.joints[2]))
+    chord = np.asarray(bent(registration.stops[2])) - origin
+    towards = point - origin
+    np.testing.assert_allclose(chord / np.linalg.norm(chord),
+                               towards / np.linalg.norm(towards), atol=1e-6)
+    with pytest.raises(ValueError, match="`limb`: 7 is not a limb index"):
+        fj.aim(registration, skeleton, 7, point)
+    with pytest.raises(ValueError, match="`point` must be finite"):
+        fj.aim(registration, skeleton, 2, [np.nan, 0, 0])
