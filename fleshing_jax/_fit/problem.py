@@ -374,15 +374,13 @@ class AbstractPoseProblem(eqx.Module):
 
 
 def followed_images(registration: Registration, spine, method: str, twist) -> tuple[Array, Array]:
-    """Every point bent by the map's formula, valid or not (`invalid="follow"`, the stages of a
-    continuation): `(images (N, 3), valid (N,))`, the unmoved point only where the formula
-    gives no finite image. A point leaving the valid space then moves on smoothly instead of
-    jumping back to its rest position: the cliffs that stop a far fit are gone, and the stages
-    only bring the last one's start closer (it checks validity as asked)."""
-    poser = Poser(spine, method, twist, False, 0.0, registration.ends)
-    image, valid, _, _ = poser._bent_images(registration)
-    finite = jnp.all(jnp.isfinite(image), axis=-1)
-    return jnp.where(finite[:, None], image, registration.points), valid
+    """Every registered point bent by the map's formulas continued past their conditions
+    (`invalid="follow"`, the stages of a continuation; `Poser`'s `fallback`): `(images (N, 3),
+    valid (N,))`. A point leaving the valid space then moves on continuously instead of
+    jumping back to its rest position: the cliffs that stop a far fit are gone, and the
+    stages only bring the last one's start closer (it checks validity as asked)."""
+    poser = Poser(spine, method, twist, False, 0.0, registration.ends, fallback=True)
+    return poser.pose_all(registration)
 
 
 class Setup(eqx.Module):
