@@ -219,6 +219,24 @@ def test_bad_poses(tube, skeleton, registration):
     other = fj.Skeleton(skeleton.limbs, np.full(10, -1), np.zeros((10, 3)))
     with pytest.raises(ValueError, match="another mesh"):
         fj.register_skeleton(tube, other)
+    # The same count of vertices, moved: another mesh too, said so before any work.
+    moved = (np.asarray(tube.vertices) * 1.5, np.asarray(tube.faces))
+    with pytest.raises(ValueError, match="built on another mesh: its rest vertices differ"):
+        fj.register_skeleton(moved, skeleton)
+    # A skeleton whose regions differ from the registration's (limb 0's first ring given to
+    # the body).
+    region = np.array(skeleton.region)
+    region[(region == 0) & (np.asarray(tube.vertices)[:, 0] < 4.15)] = -1
+    edited = fj.Skeleton(skeleton.limbs, region, tube.vertices)
+    with pytest.raises(ValueError, match="not the one `mesh_or_registration` was registered on"):
+        fj.pose_skeleton(registration, edited, {0: fj.LimbPose(10)})
+    # A spine for a limb must be its rest spine bent past the joint.
+    with pytest.raises(ValueError, match=r"`poses\[0\]`: a spine given for limb 0 must be as long"):
+        fj.pose_skeleton(registration, skeleton, {0: fj.Line(0.1)})
+    rest = skeleton.limbs[0].spine
+    shifted = fj.BSpline(np.asarray(rest.control_points) + [0.0, 0.05, 0.0], subdivisions=32)
+    with pytest.raises(ValueError, match="must follow its rest spine up to the joint"):
+        fj.pose_skeleton(registration, skeleton, {0: shifted})
 
 
 def test_a_bend_beyond_the_limb_s_reach_is_flagged(skeleton, registration):

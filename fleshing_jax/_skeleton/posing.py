@@ -63,7 +63,8 @@ class SkeletonRegistration(eqx.Module):
     the region's vertices; `joints`, `stops`: scalars, where each limb's bend may start and
     must be complete (see the module's docstring); `vertices` (n, 3): the rest vertices;
     `margin`: scalar; `zones`: each limb's `JointZone`, where a bend of a given angle is
-    concentrated past the joint (`joint_zone`).
+    concentrated past the joint (`joint_zone`); `skeleton_id`: the skeleton's `fingerprint`,
+    so that a pose with another skeleton is refused.
     """
 
     registrations: tuple[Registration, ...]
@@ -74,6 +75,7 @@ class SkeletonRegistration(eqx.Module):
     vertices: Array
     margin: Array
     zones: tuple[JointZone, ...]
+    skeleton_id: int = eqx.field(static=True)  # `fingerprint` of the skeleton registered on
 
 
 class PosedSkeleton(NamedTuple):
@@ -95,6 +97,24 @@ def _check_skeleton(skeleton, vertices: np.ndarray) -> None:
             f"`skeleton` has regions for {skeleton.region.shape[0]} vertices, the mesh has "
             f"{vertices.shape[0]}: it was built on another mesh."
         )
+    rest = np.asarray(skeleton.vertices, float)
+    if rest.shape == vertices.shape:
+        # (Read back from a mesh file, the vertices may differ in their last digits.)
+        size = max(float(np.linalg.norm(np.ptp(rest, axis=0))), np.finfo(float).tiny)
+        apart = float(np.max(np.abs(rest - vertices), initial=0.0))
+        if not apart <= 1e-6 * size:
+            raise ValueError(
+                f"`skeleton` was built on another mesh: its rest vertices differ from the mesh's "
+                f"by up to {apart:.3g} ({100 * apart / size:.3g} % of its size; moved, scaled or "
+                "reordered). Build the skeleton of this mesh (fj.skeleton) or load its own."
+            )
+
+
+def fingerprint(skeleton: Skeleton) -> int:
+    """A hash of `skeleton`'s limbs' regions and parents: a registration's, checked by every
+    pose, so that a pose never uses another skeleton's regions (limbs swapped, merged, split)."""
+    parents = tuple(limb.parent for limb in skeleton.limbs)
+    return hash((np.asarray(skeleton.region).tobytes(), parents))
 
 
 def register_skeleton(mesh, skeleton: Skeleton, *, margin: float | None = None,
@@ -148,7 +168,7 @@ def register_skeleton(mesh, skeleton: Skeleton, *, margin: float | None = None,
         joints.append(jnp.asarray(joint, points.dtype))
         stops.append(jnp.asarray(stop, points.dtype))
     return SkeletonRegistration(tuple(registrations), tuple(rests), tuple(indices), tuple(joints),
-                                tuple(stops), points, margin, tuple(zones))
+                                tuple(stops), points, margin, tuple(zones), fingerprint(skeleton))
 
 
 def _edges(faces: np.ndarray) -> np.ndarray:
@@ -225,8 +245,13 @@ def as_registration(mesh_or_registration, skeleton: Skeleton) -> SkeletonRegistr
         return register_skeleton(mesh_or_registration, skeleton)
     if not isinstance(skeleton, Skeleton):
         raise TypeError(f"`skeleton` must be an fj.Skeleton, got {type(skeleton)}.")
-    if len(mesh_or_registration.registrations) != len(skeleton.limbs):
-        raise ValueError("`skeleton` is not the one `mesh_or_registration` was registered on.")
+    if (len(mesh_or_registration.registrations) != len(skeleton.limbs)
+            or (is_concrete(skeleton.region)
+                and fingerprint(skeleton) != mesh_or_registration.skeleton_id)):
+        raise ValueError(
+            "`skeleton` is not the one `mesh_or_registration` was registered on (its limbs or "
+            "their regions differ): register the mesh on this skeleton (fj.register_skeleton)."
+        )
     return mesh_or_registration
 
 
@@ -339,12 +364,43 @@ def limb_target(registration: SkeletonRegistration, k: int, pose) -> AbstractSpi
     """Limb `k`'s target: `pose` itself if it is a spine, else the limb's rest spine bent by
     the `LimbPose` in the zone past its joint that the angle needs (`joint_zone`)."""
     if isinstance(pose, AbstractSpine):
+        _check_limb_spine(registration, k, pose)
         return pose
     joint = registration.joints[k]
     zone = registration.zones[k].length(jnp.deg2rad(pose.bend).astype(joint.dtype))
     # (`minimum`: the whole room in single precision is at most the stop, not an ulp past it.)
     return pose.spine(registration.rests[k], joint, jnp.minimum(joint + zone,
                                                                 registration.stops[k]))
+
+
+def _check_limb_spine(registration: SkeletonRegistration, k: int, spine: AbstractSpine) -> None:
+    """`ValueError` (eagerly) for a target spine given for limb `k` that is not as long as its
+    rest spine or does not follow it up to the joint (points and tangents; its normals are
+    carried from the rest's start anyway): the region's border would tear from the parent."""
+    rest, joint = registration.rests[k], registration.joints[k]
+    if not is_concrete(spine, rest, joint):
+        return
+    length = float(rest.length)
+    tolerance = max(1e-6, 100 * float(jnp.finfo(registration.vertices.dtype).eps))
+    if not abs(float(spine.length) - length) <= tolerance * length:
+        raise ValueError(
+            f"`poses[{k}]`: a spine given for limb {k} must be as long as its rest spine "
+            f"({length:.6g}), got {float(spine.length):.6g}."
+        )
+    dtype = registration.vertices.dtype
+    at = jnp.linspace(0.0, float(joint), 5, dtype=dtype)
+    c0, t0, _ = jax.vmap(rest._prepare()._jet)(at)
+    c1, t1, _ = jax.vmap(cast_floats(spine, dtype)._prepare()._jet)(at)
+    apart = np.maximum(np.max(np.abs(np.asarray(c1 - c0)), axis=1) / length,
+                       np.max(np.abs(np.asarray(t1 - t0)), axis=1))
+    worst = int(np.argmax(apart))
+    if not apart[worst] <= 10 * tolerance:
+        raise ValueError(
+            f"`poses[{k}]`: a spine given for limb {k} must follow its rest spine up to the "
+            f"joint (arc length {float(joint):.6g}); it is {apart[worst]:.3g} away at "
+            f"{float(at[worst]):.6g}. Bend the rest spine from its joint (fj.BentSpine, or an "
+            "fj.LimbPose)."
+        )
 
 
 def limb_poser(registration: Registration, target: AbstractSpine, method: str,
