@@ -209,3 +209,18 @@ def test_shape_fit_bad_input(skeleton, registration):
         fj.fit_skeleton_pose(registration, skeleton, [0, 1], target=np.zeros((10, 3)))
     with pytest.raises(ValueError, match="at least 4 points"):
         fj.fit_skeleton_pose(registration, skeleton, target=np.zeros((3, 3)), limbs=[0])
+
+
+def test_a_small_limb_fitted_wrongly_is_not_explained():
+    # 1 % of the target nearest to limb 3, half of it far from the posed surface: the whole
+    # target is explained (99.5 % near), limb 3's part is not.
+    from fleshing_jax._skeleton.fit_shape import _unexplained
+
+    rest = np.stack([np.arange(100.0), np.zeros(100), np.zeros(100)], axis=1)  # spacing 1
+    owner = np.full(10_000, -1)
+    owner[:100] = 3
+    distances = np.zeros(10_000)
+    distances[:50] = 5.0
+    message = _unexplained(distances, 0.01, rest, owner, [3])
+    assert message.startswith("the posed surface does not explain limb 3's part of it: 50.0 %")
+    assert _unexplained(distances, 0.01, rest, owner, []) == ""

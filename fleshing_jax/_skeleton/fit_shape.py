@@ -224,7 +224,8 @@ def fit_to_shape(registration: SkeletonRegistration, skeleton: Skeleton, target,
     successful = bool(result == optx.RESULTS.successful)
     # No separate stall test (`fit_pose`'s): a solve that stopped short of a minimum leaves
     # the target unexplained, which is tested on every successful solve.
-    message = _unexplained(off, noise, rest) if successful else ""
+    owner = region[nearest]  # the limb (or body, -1) of each target point's nearest vertex
+    message = _unexplained(off, noise, rest, owner, moving_limbs) if successful else ""
     return SkeletonFit(
         poses=poses,
         rms=jnp.sqrt(jnp.asarray(loss, dtype)),
@@ -238,20 +239,29 @@ def fit_to_shape(registration: SkeletonRegistration, skeleton: Skeleton, target,
     )
 
 
-def _unexplained(distances: np.ndarray, noise: float, rest: np.ndarray) -> str:
+def _unexplained(distances: np.ndarray, noise: float, rest: np.ndarray, owner: np.ndarray,
+                 limbs: list[int]) -> str:
     """"" when at least `EXPLAINED` of the target lies within `3 σ̂ + h/4` of the posed
-    vertices' planes (`distances` (K,): from each target point along its normal to its nearest
-    vertex; `noise` σ̂, `h` the vertices' spacing: a quarter of it for the surface's curvature
-    between vertices), else what is left unexplained and what to try."""
+    vertices' planes, over the whole target and over the target points nearest to each moving
+    limb (`limbs`; `owner` (K,): the limb of each point's nearest vertex, -1 the body), else
+    what is left unexplained and what to try. `distances` (K,): from each target point along
+    its normal to its nearest vertex; `noise` σ̂, `h` the vertices' spacing (a quarter of it
+    for the surface's curvature between vertices). Per limb, because a small limb fitted
+    wrongly (a stubby leg, under 2 % of the surface) leaves the whole target explained."""
     spacing = float(np.median(cKDTree(rest).query(rest, 2)[0][:, 1]))
     reach = 3 * noise + spacing / 4
-    near = float(np.mean(distances <= reach))
-    if near >= EXPLAINED:
-        return ""
-    return (
-        f"the posed surface does not explain the target: {100 * (1 - near):.1f} % of its "
-        f"points lie farther than {reach:.3g} from it (3 × the target's noise {noise:.2g} + "
-        f"a quarter of the vertex spacing {spacing:.2g}; at most "
-        f"{100 * (1 - EXPLAINED):.0f} % may). "
-        + SHAPE_ADVICE
-    )
+    parts = [("the target", np.ones(len(distances), bool))]
+    parts += [(f"limb {k}'s part of it", owner == k) for k in limbs]
+    for name, part in parts:
+        if not part.any():
+            continue
+        near = float(np.mean(distances[part] <= reach))
+        if near < EXPLAINED:
+            return (
+                f"the posed surface does not explain {name}: {100 * (1 - near):.1f} % of its "
+                f"points lie farther than {reach:.3g} from it (3 × the target's noise "
+                f"{noise:.2g} + a quarter of the vertex spacing {spacing:.2g}; at most "
+                f"{100 * (1 - EXPLAINED):.0f} % may). "
+                + SHAPE_ADVICE
+            )
+    return ""
