@@ -23,6 +23,7 @@ and compiled programs are kept in the user's cache folder (`_cache`).
 from __future__ import annotations
 
 import argparse
+import re
 import sys
 import time
 
@@ -616,6 +617,8 @@ def _read_poses(path) -> list[dict]:
         raise ValueError(f"{path}: not a JSON poses file ({error})") from None
     if not isinstance(groups, list) or not all(isinstance(g, dict) for g in groups):
         raise ValueError(f"{path}: a poses file is a list of objects (see --help)")
+    if not groups:
+        raise ValueError(f"{path}: the poses file lists no pose (nothing to write)")
     for g in groups:
         unknown = set(g) - POSE_KEYS
         if unknown or ("limb" in g) == ("at" in g) or "bend" not in g:
@@ -753,11 +756,25 @@ COMMANDS = {
 }
 
 
+def _values_attached(argv: list[str]) -> list[str]:
+    """`argv` with the point after each `--at` attached to it (`--at=-2.9,0,0`): argparse
+    would take a point starting with a minus for an option."""
+    out, i = [], 0
+    while i < len(argv):
+        if argv[i] == "--at" and i + 1 < len(argv) and re.match(r"-[\d.]", argv[i + 1]):
+            out.append(f"--at={argv[i + 1]}")
+            i += 2
+        else:
+            out.append(argv[i])
+            i += 1
+    return out
+
+
 def main(argv: list[str] | None = None) -> int:
     """Runs the command line with `argv` (default: `sys.argv[1:]`); returns the exit status."""
     parser = _parser()
     try:
-        args = parser.parse_args(argv)
+        args = parser.parse_args(_values_attached(sys.argv[1:] if argv is None else argv))
     except SystemExit as exit_:  # argparse has printed its usage or version message
         return int(exit_.code or 0)
     try:

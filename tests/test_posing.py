@@ -339,3 +339,20 @@ def test_pose_command_refuses_bad_poses(tube, skeleton, tmp_path, capsys, option
     out = tmp_path / "out.obj"
     assert main(["pose", str(mesh), str(out), "--skeleton", str(saved), *options]) == 2
     assert message in capsys.readouterr().err and not out.exists()
+
+
+def test_pose_command_reads_a_negative_point_and_refuses_no_pose(tube, skeleton, tmp_path,
+                                                                 capsys):
+    from fleshing_jax._cli import _values_attached, main
+
+    # A point starting with a minus is the value of --at, not an option.
+    assert _values_attached(["pose", "a", "b", "--at", "-2.9,0,0", "--bend", "-10"]) == [
+        "pose", "a", "b", "--at=-2.9,0,0", "--bend", "-10"]
+    mesh, saved, poses = tmp_path / "tube.obj", tmp_path / "tube.json", tmp_path / "p.json"
+    tube.export(mesh)
+    fj.save_skeleton(skeleton, saved)
+    poses.write_text("[]")
+    out = tmp_path / "posed.obj"
+    assert main(["pose", str(mesh), str(out), "--skeleton", str(saved), "--poses",
+                 str(poses)]) == 2
+    assert "lists no pose" in capsys.readouterr().err and not out.exists()
