@@ -51,7 +51,7 @@ from ._mesh.volume import (
     volume as volume,
     volume_change as volume_change,
 )
-from ._skeleton.aim import aim as aim
+from ._skeleton.aim import aim as aim, nod as nod, turn as turn
 from ._skeleton.build import skeleton as skeleton
 from ._skeleton.files import load_skeleton as load_skeleton, save_skeleton as save_skeleton
 from ._skeleton.fit_pose import SkeletonFit as SkeletonFit, fit_skeleton_pose as fit_skeleton_pose

@@ -163,3 +163,23 @@ def test_aim_points_a_limb_at_a_point(tube, skeleton, registration):
         fj.aim(registration, skeleton, 7, point)
     with pytest.raises(ValueError, match="`point` must be finite"):
         fj.aim(registration, skeleton, 2, [np.nan, 0, 0])
+
+
+def test_turn_and_nod_in_the_world_s_terms(skeleton, registration):
+    # Limb 2 runs along -x; with z up, a nod raises its end, a turn swings it about z.
+    up = (0.0, 0.0, 1.0)
+    origin = np.asarray(registration.rests[2](registration.joints[2]))
+
+    def chord(pose):
+        end = limb_target(registration, 2, pose)(registration.stops[2])
+        return (np.asarray(end) - origin) / np.linalg.norm(np.asarray(end) - origin)
+
+    rest = chord(fj.LimbPose())
+    for degrees, moved in ((30.0, 2), (-30.0, 2)):
+        after = chord(fj.nod(registration, skeleton, 2, degrees, up=up))
+        assert np.sign(after[moved] - rest[moved]) == np.sign(degrees) and abs(after[1]) < 1e-9
+    after = chord(fj.turn(registration, skeleton, 2, 30.0, up=up))
+    # Counter-clockwise seen from above: -x turns towards -y.
+    assert after[1] < -0.1 and abs(after[2]) < 1e-9
+    with pytest.raises(ValueError, match="runs along `up`"):
+        fj.turn(registration, skeleton, 2, 30.0, up=(1.0, 0.0, 0.0))

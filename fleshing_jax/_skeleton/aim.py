@@ -61,3 +61,39 @@ def aim(registration: SkeletonRegistration, skeleton, limb: int, point) -> LimbP
         past = float(turned(jnp.asarray(middle + _STEP[np.dtype(dtype)], dtype)))
         lo, hi = (middle, hi) if past < here else (lo, middle)
     return LimbPose(0.5 * (lo + hi), towards=towards)
+
+
+def nod(registration: SkeletonRegistration, skeleton, limb: int, degrees, *, up) -> LimbPose:
+    """A limb (a head) bent `degrees` at its joint towards the world's `up` (3,) (negative:
+    down): a nod, about the limb's side. **Returns** the `LimbPose`; `ValueError` for a limb
+    along `up` (no side to nod about)."""
+    return LimbPose(abs(float(degrees)), towards=_sign(degrees) * _across(
+        registration, skeleton, limb, up, lambda tangent, up: up))
+
+
+def turn(registration: SkeletonRegistration, skeleton, limb: int, degrees, *, up) -> LimbPose:
+    """A limb (a head) turned `degrees` about the world's `up` (3,) at its joint, by the
+    right-hand rule (positive: counter-clockwise seen from above): bent towards `up × t`, `t`
+    its tangent there. **Returns** the `LimbPose`; `ValueError` for a limb along `up`."""
+    return LimbPose(abs(float(degrees)), towards=_sign(degrees) * _across(
+        registration, skeleton, limb, up, lambda tangent, up: np.cross(up, tangent)))
+
+
+def _sign(degrees) -> float:
+    return -1.0 if float(degrees) < 0 else 1.0
+
+
+def _across(registration, skeleton, limb, up, direction) -> np.ndarray:
+    """`direction(t, up)` (3,) for limb `limb`'s tangent `t` at its joint and the unit `up`,
+    checked to lie across the limb (else `ValueError`: the limb runs along `up`)."""
+    k = check_limb_index(limb, skeleton, "limb")
+    up = np.asarray(as_float_array(up, "up", (3,)), float)
+    if not (np.all(np.isfinite(up)) and np.any(up)):
+        raise ValueError(f"`up` must be a finite non-zero direction (3,), got {up.tolist()}.")
+    up = up / np.linalg.norm(up)
+    tangent = np.asarray(registration.rests[k]._prepare()._jet(registration.joints[k])[1], float)
+    towards = direction(tangent, up)
+    if np.linalg.norm(towards - np.dot(towards, tangent) * tangent) < 1e-6:
+        raise ValueError(f"limb {k} runs along `up` at its joint: it has no side to turn or nod "
+                         "about; use fj.LimbPose(bend, towards=...).")
+    return towards
