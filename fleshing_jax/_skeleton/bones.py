@@ -25,7 +25,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from .._checks import check_finite_points
-from .given import chain_limb, outside_mesh
+from .given import add_limb, chain_limb, outside_mesh
 from .skeleton import Limb
 
 # A bone continues its parent's chain when its head lies within this fraction of the mesh's
@@ -70,15 +70,10 @@ def bone_limbs(bones, vertices, faces, adjacency, margin):
         if i == 0:
             parent = _holding(heads[b], b, parents, index, region, tree)
         limb = chain_limb(points, i, parent, tree, region, vertices, adjacency, margin)
-        if limb is None:
-            raise ValueError(
-                f"`bones`: {labels[b]} gets no part of the surface to move (no vertex past "
-                "its head within reach of its spine, or less than a radius to bend): move its "
-                "head towards its parent, or merge it into its parent."
-            )
-        index[b] = len(limbs)
-        region[limb[1]] = len(limbs)
-        limbs.append(limb[0])
+        index[b] = add_limb(limbs, region, limb, (
+            f"`bones`: {labels[b]} gets no part of the surface to move (no vertex past its "
+            "head within reach of its spine, or less than a radius to bend): move its head "
+            "towards its parent, or merge it into its parent."))
     return limbs, region, [labels[b] for b in order]
 
 

@@ -71,16 +71,21 @@ def given_limbs(chains, vertices, faces, adjacency, margin):
         parent = int(region[tree.query(points[0])[1]])
         for i in range(len(points) - 1):
             limb = chain_limb(points, i, parent, tree, region, vertices, adjacency, margin)
-            if limb is None:
-                raise ValueError(
-                    f"`chains[{c}]`: the limb from point {i} to its tip gets no part of the "
-                    "surface to move (no vertex past the point within the spine's reach, or "
-                    "less than a radius to bend): move the point towards the body or drop it."
-                )
-            region[limb[1]] = len(limbs)
-            limbs.append(limb[0])
-            parent = len(limbs) - 1
+            parent = add_limb(limbs, region, limb, (
+                f"`chains[{c}]`: the limb from point {i} to its tip gets no part of the "
+                "surface to move (no vertex past the point within the spine's reach, or "
+                "less than a radius to bend): move the point towards the body or drop it."))
     return limbs, region
+
+
+def add_limb(limbs: list, region: np.ndarray, limb, refusal: str) -> int:
+    """`limb` (`chain_limb`'s `(Limb, vertex indices)`) appended to `limbs` and its vertices
+    given to it in `region` (in place); its index. `ValueError(refusal)` where it is `None`."""
+    if limb is None:
+        raise ValueError(refusal)
+    region[limb[1]] = len(limbs)
+    limbs.append(limb[0])
+    return len(limbs) - 1
 
 
 def chain_limb(points, i, parent, tree, region, vertices, adjacency, margin):
