@@ -90,8 +90,8 @@ def test_a_sweep_of_the_angle_moves_every_vertex_continuously(tube, skeleton, re
     # Through the exact range, in 1/4° steps, the frames batched in one program (without the
     # global projection check: the vertices are what is compared); then angles a traced pose
     # cannot refuse, in the same batch.
-    # Past the range (129°), the vertices outside the map's conditions are placed by its
-    # formulas continued: flagged, but the mesh stays whole.
+    # Past the range (129°), the vertices outside the map's conditions are placed by the
+    # whole map (`Poser`'s `fallback`): flagged, but the mesh stays whole.
     largest = np.degrees(float(registration.zones[2].range))
     angles = np.linspace(0.0, 180.0, 721)
     absurd = np.array([np.nan, np.inf, -np.inf, 1e9, 361.0])
@@ -104,6 +104,13 @@ def test_a_sweep_of_the_angle_moves_every_vertex_continuously(tube, skeleton, re
     steps = np.linalg.norm(np.diff(vertices[: len(angles)], axis=0), axis=-1)
     # The tip turns 1/4° a step at 2 units from the joint: 0.009; no vertex jumps an edge.
     assert steps.max() < 0.3 * shortest
+    # Whole at every angle: no edge stretched 4×, none crushed (past the range the concave
+    # side is compressed towards the centre of curvature, `maps.radial_bend_whole`; the exact
+    # map's continuation folded it across: edges down to 2 % of their length at 160°).
+    lengths = [np.linalg.norm(v[edges[:, 0]] - v[edges[:, 1]], axis=-1)
+               for v in (rest, *vertices[: len(angles)])]
+    stretch = np.stack(lengths[1:]) / lengths[0]
+    assert stretch.max() < 4 and stretch.min() > 0.1
     np.testing.assert_allclose(vertices[0], rest, atol=1e-12)  # (traced: to round-off)
     assert valid[: len(angles)][angles <= largest].all() and not valid[len(angles) - 1].all()
     # A NaN, infinite or past-a-full-turn angle flags the whole limb, and nothing else.

@@ -5,6 +5,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 from conftest import central_difference
+from jax.test_util import check_grads
 
 import fleshing_jax as fj
 from fleshing_jax._fleshing.maps import _halley_root
@@ -71,3 +72,35 @@ def test_radial_map_gradient_through_the_branch_switch():
         jac = jax.jacfwd(mapped)(radius)
         assert np.all(np.isfinite(np.asarray(jac)))
         np.testing.assert_allclose(jac, central_difference(mapped, radius), rtol=1e-5, atol=1e-7)
+
+
+def test_whole_radial_bend_is_exact_then_compresses_without_crossing_the_centre():
+    # Past k·d* = WHOLE_FROM a pose that keeps every point (a limb past its joint's range)
+    # compresses the concave side towards the centre of curvature: monotone, never across it
+    # (the exact map's continuation sent points past the centre: a fold), C¹ at the switch.
+    from fleshing_jax._fleshing.maps import WHOLE_FROM, radial_bend, radial_bend_whole
+
+    k = jnp.asarray([2.0, 0.0])
+    p = np.linspace(-1.0, 1.5, 1001)
+    d = jnp.stack([jnp.asarray(p) / 2.0, jnp.full(p.shape, 0.1)], axis=1)
+    whole, ok = jax.vmap(radial_bend_whole, in_axes=(0, None))(d, k)
+    exact, exact_ok = jax.vmap(radial_bend, in_axes=(0, None))(d, k)
+    below = p <= WHOLE_FROM
+    np.testing.assert_array_equal(whole[below], exact[below])
+    np.testing.assert_array_equal(ok, exact_ok & below)  # flagged past the switch
+    p1 = np.asarray(whole @ k)
+    assert np.all(np.diff(p1) > 0) and np.all(p1 < 1)  # monotone, short of the centre
+    assert np.asarray(exact @ k)[-1] > 1  # (where the continued exact map had crossed it)
+
+    def p1_of(q):
+        return radial_bend_whole(jnp.stack([q / 2.0, 0.1]), k)[0] @ k
+
+    slope = jax.grad(p1_of)
+    for q in (WHOLE_FROM - 1e-7, WHOLE_FROM + 1e-7, 3.0):
+        assert np.isfinite(float(slope(q)))
+    np.testing.assert_allclose(slope(WHOLE_FROM - 1e-7), slope(WHOLE_FROM + 1e-7), rtol=1e-5)
+    check_grads(lambda x: radial_bend_whole(x, k)[0], (d[900],), order=2)
+    check_grads(lambda x: radial_bend_whole(x, k)[0], (d[100],), order=2)
+    # Single precision stays single.
+    assert radial_bend_whole(d[0].astype(jnp.float32), k.astype(jnp.float32))[0].dtype == (
+        jnp.float32)

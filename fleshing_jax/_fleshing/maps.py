@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array
 
 from .._numerics import dot, safe_divide, safe_sqrt
@@ -118,6 +119,44 @@ def radial_bend(d: Array, k: Array) -> tuple[Array, Array]:
     return d / mu, alpha > -_A
 
 
+# Where `radial_bend_whole` leaves the exact map: above the `k·d* ≤ 0.45` that a posed limb's
+# joint zone keeps (`_skeleton.joint_zone`), below the map's limit `1/√3 ≈ 0.577`, near which
+# the concave side is crushed onto the centre of curvature (at 0.55 the compression starts
+# with a slope 3.6 and creases the mesh).
+WHOLE_FROM = 0.5
+
+
+def _whole_constants() -> tuple[float, float]:
+    """The exact radial map at `p = WHOLE_FROM`: `(p₁, dp₁/dp)`, with `p₁ = k·d₁ = p/μ`."""
+    p = WHOLE_FROM
+    mu = 2 / 3**0.5 * np.cos((np.arccos(-(2 / 3) * p / _A) + 2 * np.pi) / 3 - 2 * np.pi / 3)
+    # μ³ − μ = −(2/3)p, so dμ/dp = −(2/3)/(3μ² − 1).
+    slope = 1 / mu + (2 * p / 3) / (mu**2 * (3 * mu**2 - 1))
+    return float(p / mu), float(slope)
+
+
+_P1, _SLOPE = _whole_constants()
+
+
+def radial_bend_whole(d: Array, k: Array) -> tuple[Array, Array]:
+    """`radial_bend` up to `p = k·d = WHOLE_FROM`, continued past it by an image that tends to
+    the centre of curvature without reaching it: `p₁ = 1 − (1 − p₁⁰) exp(−s (p − p⁰)/(1 −
+    p₁⁰))`, matching the exact map's value `p₁⁰` and slope `s` there, `d₁ = d p₁/p`.
+
+    Continuous with its derivative, and monotone in `p`, so the concave side of a bend too
+    tight for the exact map is compressed towards the centre, never folded across it (the
+    exact map's continuation, its root held at the branch point, sends those points past the
+    centre: a flap). Valid (`ok`) only up to `WHOLE_FROM`: past it, volume is lost.
+    """
+    p = dot(k, d)
+    exact, ok = radial_bend(d, k)
+    past = p > WHOLE_FROM
+    excess = jnp.where(past, p - WHOLE_FROM, 0)
+    p1 = 1 - (1 - _P1) * jnp.exp(-_SLOPE * excess / (1 - _P1))
+    held = d * (p1 / jnp.where(past, p, 1))[..., None]
+    return jnp.where(past[..., None], held, exact), ok & ~past
+
+
 def normal_unbend(d: Array, k: Array) -> tuple[Array, Array]:
     """Normal unbending (eq. 11): `x* = x − (κ/2) x²`, i.e. `d* = d − (p/2) x N`."""
     p, xn = _normal_part(d, k)
@@ -155,3 +194,5 @@ def skinning(d: Array, k: Array) -> tuple[Array, Array]:
 UNBEND = {"radial": radial_unbend, "normal": normal_unbend, "binormal": binormal_unbend}
 BEND = {"radial": radial_bend, "normal": normal_bend, "binormal": binormal_bend}
 UNBEND["skinning"] = BEND["skinning"] = skinning
+# The bends a pose that keeps every point (`Poser`'s `fallback`) uses: whole past the limit.
+WHOLE = {**BEND, "radial": radial_bend_whole}

@@ -30,7 +30,7 @@ from .._spines.spine import AbstractSpine
 from .._spines.table import SpineTable, fast_evaluator, runs_whole, tabulates
 from .eager import pose_eagerly, register_eagerly
 from .ends import EndFrames, aligned_twist, check_beyond, rigid_beyond, target_ends
-from .maps import BEND, UNBEND
+from .maps import BEND, UNBEND, WHOLE
 from .methods import check_method
 from .projection import Registrar, Registration, invalid_past, register_point
 from .reach import search_range
@@ -39,21 +39,22 @@ from .target import TargetFrames
 
 
 def bend_point(
-    registration: Registration, frames: TargetFrames, method: str
+    registration: Registration, frames: TargetFrames, method: str, whole: bool = False
 ) -> tuple[Array, Array, Array, Array]:
     """Unbends, transfers and bends one registered point onto the target whose (twisted)
     `frames` are given, without the projection check: `(image (3,), valid, s₁, |d₁|)`
     (the image lies at offset `d₁` from `C₁(s₁)`, in its normal plane). Valid requires `s₁`
     inside the target's search range (its ends continued a quarter turn at most), as the
-    registration requires on the source."""
+    registration requires on the source. `whole`: the bend continued past its conditions
+    without a fold (`maps.WHOLE`), for the points a pose keeps anyway (`Poser`'s `fallback`)."""
     image, (registered, within_limit, inside_target), s1, distance = bend_checks(
-        registration, frames, method
+        registration, frames, method, whole
     )
     return image, registered & within_limit & inside_target, s1, distance
 
 
 def bend_checks(
-    registration: Registration, frames: TargetFrames, method: str
+    registration: Registration, frames: TargetFrames, method: str, whole: bool = False
 ) -> tuple[Array, tuple[Array, Array, Array], Array, Array]:
     """`bend_point` with its validity split by cause: `(image, (registered, within_limit,
     inside_target), s₁, |d₁|)` — the point's registration on the source is valid; the method's
@@ -61,7 +62,7 @@ def bend_checks(
     search range. (What `diagnose` counts.)"""
     s1 = target_arc_length(registration, frames)
     frame = frames(s1)  # evaluated once (exact spines' frames cost a search each)
-    d1, causes = bent_offset(registration, frames, s1, frame[3], method)
+    d1, causes = bent_offset(registration, frames, s1, frame[3], method, whole)
     return in_frame(frame, d1), causes, s1, norm(d1)
 
 
@@ -71,7 +72,8 @@ def target_arc_length(registration: Registration, frames: TargetFrames) -> Array
 
 
 def bent_offset(
-    registration: Registration, frames: TargetFrames, s1: Array, k1: Array, method: str
+    registration: Registration, frames: TargetFrames, s1: Array, k1: Array, method: str,
+    whole: bool = False,
 ) -> tuple[Array, tuple[Array, Array, Array]]:
     """The offset `d₁` (2,) of a registered point from the target at `s₁`, in its twisted
     normals, where the target's curvature vector is `k1` (2,) in them; and the causes of
@@ -80,7 +82,7 @@ def bent_offset(
     straight, unbent = UNBEND[method](reg.offset, reg.curvature)
     if method != "skinning":  # skinning is the uncorrected baseline: offsets carried rigidly
         straight = straight / jnp.sqrt(frames.length / reg.length)
-    d1, bent = BEND[method](straight, k1)
+    d1, bent = (WHOLE if whole else BEND)[method](straight, k1)
     inside = (s1 > frames.lo) & (s1 < frames.hi) & (1 - dot(k1, d1) > 0)
     return d1, (reg.valid, unbent & bent, inside)
 
@@ -173,8 +175,9 @@ class Poser(eqx.Module):
         themselves); `beyond`: `"continue"` or `"rigid"` (`ends`); `fallback`: the points
         registered on the source but not validly bent keep their image (still flagged): the
         map's formulas continued past their conditions, continuous in the point and the target
-        (the radial map's root stays at its branch point `1/√3` past it), where otherwise they
-        are left where they were."""
+        (the radial map compresses its concave side towards the centre past `k·d* =
+        WHOLE_FROM`, flagged from there, never across it: `maps.radial_bend_whole`), where
+        otherwise they are left where they were."""
         self.fallback = fallback
         target = target._prepare()  # once: each preparation is traced again
         if start is not None:
@@ -241,7 +244,7 @@ class Poser(eqx.Module):
         def offset(reg):
             s1 = target_arc_length(reg, self.frames)
             d1, (registered, within_limit, inside_target) = bent_offset(
-                reg, self.frames, s1, self.frames(s1)[3], self.method
+                reg, self.frames, s1, self.frames(s1)[3], self.method, self.fallback
             )
             return s1, d1[0], d1[1], registered & within_limit & inside_target, norm(d1)
 
@@ -269,7 +272,7 @@ class Poser(eqx.Module):
         by the reach bound or checked in closed form (or valid, without the check);
         pending: the valid points that the bound does not certify, for the sampled test."""
         image, valid, s1, distance = jax.vmap(
-            lambda reg: bend_point(reg, self.frames, self.method),
+            lambda reg: bend_point(reg, self.frames, self.method, self.fallback),
             in_axes=(batch_axes(registration),),
         )(registration)
         return image, valid, *self._certify(valid, s1, distance)
@@ -288,7 +291,7 @@ class Poser(eqx.Module):
 
     def _image(self, reg: Registration) -> tuple[Array, Array]:
         """One registered point's image, bent again, and its arc length `s₁` on the target."""
-        image, _, s1, _ = bend_point(reg, self.frames, self.method)
+        image, _, s1, _ = bend_point(reg, self.frames, self.method, self.fallback)
         return image, s1
 
     def pose_all(self, registration: Registration) -> tuple[Array, Array]:

@@ -26,7 +26,9 @@ import numpy as np
 from jaxtyping import Array
 
 # κ·ρ kept in a zone: below the radial map's limit 1/√3 ≈ 0.577, where its concave side would
-# be crushed flat; at 0.45 a vertex's principal stretch stays below about 2.5.
+# be crushed flat; at 0.45 a vertex's principal stretch stays below about 2.5. Below where a
+# pose's whole map leaves the exact one (`maps.WHOLE_FROM`), with room for the interpolated
+# zone's few per cent.
 JOINT_CURVATURE = 0.45
 ZONE_LENGTHS = 32  # the zone lengths tabulated, evenly spaced up to the room to bend
 _PLATEAU = 4.0 / 3.0  # the largest slope of `fj.BentSpine`'s ramp (`_spines.bent.ramp`)
