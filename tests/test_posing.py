@@ -188,7 +188,9 @@ def test_gradients_of_the_angles(skeleton, registration, posed_child):
         return fj.pose_skeleton(registration, skeleton, poses).vertices[tip, 2]
 
     angles = np.array([40.0, 90.0, 10.0, 20.0][: 4 if posed_child else 3])
-    value, gradient = jax.value_and_grad(tip_height)(jnp.asarray(angles))
+    # (Jitted: one program for the value and gradient; unjitted, value_and_grad compiled the
+    # pose's linearisation and transpose as programs of their own, 5 s more.)
+    value, gradient = jax.jit(jax.value_and_grad(tip_height))(jnp.asarray(angles))
     # Traced, each limb is posed at its own bucket size (limb 0's 192 of the 384 its
     # registration is padded to for the eager calls): the eager pose's value.
     from fleshing_jax._skeleton.posing import _limb_registration
