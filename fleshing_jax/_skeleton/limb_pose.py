@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike
@@ -40,9 +41,9 @@ class LimbPose(eqx.Module):
 
     def __init__(self, bend: ArrayLike = 0.0, direction: ArrayLike = 0.0, twist: ArrayLike = 0.0,
                  *, towards: ArrayLike | None = None):
-        self.bend = as_float_array(bend, "bend", ())
-        self.direction = as_float_array(direction, "direction", ())
-        self.twist = as_float_array(twist, "twist", ())
+        self.bend, self.direction, self.twist = (
+            _strong(as_float_array(v, name, ()))
+            for v, name in ((bend, "bend"), (direction, "direction"), (twist, "twist")))
         for name, value in (("bend", bend), ("direction", direction), ("twist", twist)):
             if isinstance(value, bool | np.bool_) or getattr(value, "dtype", None) == bool:
                 raise TypeError(f"`{name}` must be an angle in degrees, got {value!r}.")
@@ -69,6 +70,14 @@ class LimbPose(eqx.Module):
             direction = _direction_of(rest, joint, self.towards.astype(dtype))
         return BentSpine(rest, joint=joint, stop=stop, bend=bend, direction=direction,
                          twist=twist)
+
+
+def _strong(angle: Array) -> Array:
+    """`angle` not weakly typed: a jitted frame's program is keyed on its arguments' types,
+    and `jnp.asarray(60.0)` (weak) then `60.0` (strong) would compile it twice."""
+    if getattr(angle, "weak_type", False):
+        return jax.lax.convert_element_type(angle, angle.dtype)
+    return angle
 
 
 def _direction_of(rest: AbstractSpine, joint: Array, towards: Array) -> Array:

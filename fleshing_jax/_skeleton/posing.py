@@ -341,7 +341,13 @@ def posed_limbs(registration: SkeletonRegistration, poses: dict, method: str, ch
     pairs = {k: (_limb_registration(registration, k, own), target)
              for k, target in targets.items()}
     if not stacked or len(pairs) < 2:
-        return {k: _pose_limb(*pair, method, check) for k, pair in pairs.items()}
+        # Eagerly, each limb is posed by one compiled program, shared by every limb of a
+        # bucket and every angle: the sampled fallback of the projection check is in it
+        # (run only where the reach bound leaves points pending). Posed by the two-phase
+        # eager pipeline instead (`_fleshing.eager`), a new angle that left a point pending
+        # compiled that fallback on the spot: the tube bent 60° then 90°, 0.09 s then 30 s.
+        pose_limb = _pose_limb if not is_concrete(poses) else _pose_limb_program
+        return {k: pose_limb(*pair, method, check) for k, pair in pairs.items()}
     groups: dict = {}  # limbs by the structure and shapes of their (registration, target)
     for k, pair in pairs.items():
         leaves, structure = jax.tree.flatten(pair)
@@ -417,15 +423,17 @@ def limb_poser(registration: Registration, target: AbstractSpine, method: str,
 
 
 def _pose_limb(registration, target, method, check=True):
-    """One limb's region posed onto `target`: `(images, valid, end motion)`. Called eagerly,
-    the fleshing runs in two phases (its sampled fallback compiled only if needed:
-    `_fleshing.eager`) with programs shared by every limb of a bucket; traced, in one
-    program."""
+    """One limb's region posed onto `target`: `(images, valid, end motion)`, traced: in a
+    caller's program, or in `_pose_limb_program` (an eager pose's, shared by every limb of
+    a bucket and every angle)."""
     poser = limb_poser(registration, target, method, check)
     images, ok = pose_prepared(registration, poser)
     # The children move as the region's points past the end do (`beyond="rigid"`): with the
     # target's end frame the preparation made, not a second preparation of the target.
     return images, ok, motion_between(registration.ends, poser.ends)
+
+
+_pose_limb_program = eqx.filter_jit(_pose_limb)
 
 
 # In single precision a limb's bent spines read its rest spine from a table made once here

@@ -1,0 +1,55 @@
+"""Posing frame after frame (issue 46 item 5): a new angle never compiles a program again, on
+the eager path nor in a jitted frame. (The speed itself is measured in benchmarks/posing.py.)"""
+
+import logging
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import fleshing_jax as fj
+
+
+@pytest.fixture
+def compiles(caplog):
+    """A function that runs `f()` and returns the number of programs JAX traced or compiled for
+    it (`jax.log_compiles`' records), with `f`'s result."""
+
+    def count(f):
+        caplog.clear()
+        with caplog.at_level(logging.WARNING, logger="jax"), jax.log_compiles():
+            out = jax.block_until_ready(f())
+        records = [r.getMessage() for r in caplog.records]
+        return sum(m.startswith(("Compiling", "Finished tracing")) for m in records), out
+
+    return count
+
+
+def test_an_eager_pose_at_a_new_angle_compiles_nothing(skeleton, registration, compiles):
+    # 90° leaves the tube's limb points that the reach bound does not certify, 60° none: the
+    # two-phase eager pose compiled the sampled check at 90° (30 s on its own).
+    def pose(angle):
+        return fj.pose_skeleton(registration, skeleton, {0: fj.LimbPose(angle, 20.0, 5.0)})
+
+    first = pose(60.0)
+    assert compiles(lambda: pose(60.0))[0] == 0  # (the first call may compile)
+    for angle in (90.0, 37.5, 120.0):
+        count, posed = compiles(lambda angle=angle: pose(angle))
+        assert count == 0, f"a pose at {angle}° compiled {count} programs"
+        # A real new pose: the limb moved, and the 90° and 120° bends flag some vertices.
+        assert not np.array_equal(np.asarray(posed.vertices), np.asarray(first.vertices))
+    assert int(np.sum(~np.asarray(posed.valid))) > 0
+
+
+def test_a_jitted_frame_is_traced_once_for_every_angle(skeleton, registration, compiles):
+    frame = jax.jit(lambda poses: fj.pose_skeleton(registration, skeleton, poses).vertices)
+    # Lowered only (compiling the frame takes a minute): a new program needs a new trace.
+    first, _ = compiles(lambda: frame.lower({2: fj.LimbPose(60.0, 10.0, 5.0)}))
+    assert first > 0
+    # New values of every kind a user may give: a jnp scalar is weakly typed (it had its own
+    # program), an int, a NumPy float.
+    for bend in (90.0, jnp.asarray(30.0), 45, np.float64(10.0)):
+        pose = fj.LimbPose(bend, jnp.asarray(170.0), 0)
+        count, _ = compiles(lambda pose=pose: frame.lower({2: pose}))
+        assert count == 0, f"a frame at {bend!r}° was traced again"
