@@ -303,3 +303,26 @@ def test_spot_on_wavy_spines_is_never_torn_and_keeps_its_volume():
             assert valid.all()
             change = fj.volume(np.asarray(bent, np.float64), faces) / volume - 1
             assert abs(change) < 1e-3
+
+
+@pytest.mark.parametrize("method", ["radial", "binormal"])
+def test_rigid_beyond_joins_the_fleshed_part_continuously_where_end_curvatures_differ(method):
+    # A line bent onto an arc: the arc's curvature at both ends is not the line's. Points just
+    # before and just past each end plane land together (the fleshed points near it give up
+    # the cross-section's departure from the rigid one); before the fix they were 0.03 apart.
+    source = fj.Line(3.0, origin=(1.0, 0.0, 0.0))
+    target = fj.Arc(1.2, 3.0, origin=(1.0, 0.0, 0.0))
+    offsets = np.array([[0.0, 0.3, 0.0], [0.0, -0.25, 0.1], [0.0, 0.05, -0.3]])
+    eps = 1e-7
+    for plane in (1.0, 4.0):
+        before = offsets + [plane - eps, 0, 0]
+        after = offsets + [plane + eps, 0, 0]
+        images, valid = fj.flesh(np.concatenate([before, after]), source, target,
+                                 beyond="rigid", method=method)
+        images = np.asarray(images)
+        assert np.asarray(valid).all()
+        np.testing.assert_allclose(images[:3], images[3:], atol=1e-5)
+    # Far from the ends the map is the exact one: det J = 1 in the middle.
+    jac = jax.jacfwd(fj.Fleshing(source, target, beyond="rigid", method=method))(
+        jnp.asarray([2.5, 0.2, 0.1]))
+    np.testing.assert_allclose(np.linalg.det(np.asarray(jac)), 1.0, atol=1e-9)

@@ -13,10 +13,13 @@ the end) is fleshed against the spines continued along their osculating circles 
 (`_spines.spine`): a bend that starts at `s = 0` with another curvature then moves everything
 behind the start. With `"rigid"`, such points move rigidly with the start frame (or the end
 frame): the body behind a bent tail stays where it is — exactly, bit for bit, when the two
-start frames agree (to round-off) — and a hoof follows its leg. The rigid part joins the
-fleshed part continuously where the two spines' curvature vectors agree at that end (a bend
-that ramps up from the end); elsewhere the offsets of points on the end's normal plane jump
-by the difference of the unbend and bend there.
+start frames agree (to round-off) — and a hoof follows its leg. Where the two spines'
+curvature vectors (or their lengths) differ at that end, the fleshed part's cross-section
+there is not the rigid one: its offsets are unbent and bent (`end_section`). The fleshed
+points near that end then give up that difference, fully at the end plane and less over a
+band as deep as each point's offset (`end_band`), so that the two parts join continuously
+and the rigid part stays rigid (the body still, a hoof's children carried); the band is not
+volume-exact. (Left as they were, the two parts were torn apart at the end plane.)
 
 The source's end frames are carried by the `Registration` (`EndFrames`), so that `pose` needs
 only the target.
@@ -29,8 +32,9 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array
 
-from .._numerics import dot
+from .._numerics import dot, norm, safe_divide
 from .._spines.frames import twist_normals
+from .maps import BEND, UNBEND
 
 BEYOND = ("continue", "rigid")
 
@@ -43,9 +47,9 @@ def check_beyond(beyond: str) -> str:
 
 
 class EndFrames(eqx.Module):
-    """A spine's frames `(C, T, I, J)` at `s = 0` and at its length, as 24 scalars: scalars,
-    so that the batching helpers share them across points as they share a registration's
-    `length` (`_batching.chunks.per_point`)."""
+    """A spine's frames `(C, T, I, J)` and curvature vectors `K` at `s = 0` and at its length,
+    as 30 scalars: scalars, so that the batching helpers share them across points as they
+    share a registration's `length` (`_batching.chunks.per_point`)."""
 
     values: tuple[Array, ...]
 
@@ -57,8 +61,15 @@ class EndFrames(eqx.Module):
 
     def frame(self, end: int) -> tuple[Array, Array, Array, Array]:
         """`(C, T, I, J)`, each (3,), at the start (`end = 0`) or the end (`end = 1`)."""
-        v = self.values[12 * end : 12 * end + 12]
-        return tuple(jnp.stack(v[3 * i : 3 * i + 3]) for i in range(4))
+        return self._vectors(end)[:4]
+
+    def curvature(self, end: int) -> Array:
+        """The curvature vector `K` (3,) at the start (`end = 0`) or the end (`end = 1`)."""
+        return self._vectors(end)[4]
+
+    def _vectors(self, end):
+        v = self.values[15 * end : 15 * end + 15]
+        return tuple(jnp.stack(v[3 * i : 3 * i + 3]) for i in range(5))
 
 
 @eqx.filter_jit
@@ -68,12 +79,12 @@ def end_frames(spine) -> EndFrames:
     return EndFrames(spine)
 
 
-def _frames(spine) -> list[tuple[Array, Array, Array, Array]]:
-    """`(C, T, I, J)` of `spine` at 0 and at its length, evaluated together (`_anchors`:
+def _frames(spine) -> list[tuple[Array, Array, Array, Array, Array]]:
+    """`(C, T, I, J, K)` of `spine` at 0 and at its length, evaluated together (`_anchors`:
     spines share their work between the two ends; no continuation past them is traced)."""
     spine = spine._prepare()
     _, start, end = spine._anchors(jnp.zeros_like(spine.length))
-    return [(c, t, i, j) for (c, t, _), (i, j) in (start, end)]
+    return [(c, t, i, j, k) for (c, t, k), (i, j) in (start, end)]
 
 
 def aligned_twist(start: EndFrames, target, twist: Array) -> Array:
@@ -102,7 +113,7 @@ def _same(a: tuple[Array, ...], b: tuple[Array, ...], scale: Array = 1.0) -> Arr
 
 def target_ends(target, twist: Array) -> EndFrames:
     """The target's `EndFrames` with its normals turned by `twist` (a prepared spine)."""
-    frames = [(c, t, *twist_normals((i, j), twist)) for c, t, i, j in _frames(target)]
+    frames = [(c, t, *twist_normals((i, j), twist), k) for c, t, i, j, k in _frames(target)]
     return EndFrames(values=[v for frame in frames for vector in frame for v in vector])
 
 
@@ -113,14 +124,56 @@ def rigid_beyond(
     where `beyond` (`s ≤ 0` or `s ≥ length`), `x` moved rigidly from the source's frame at that
     end to the target's; `x` itself where the two frames agree to round-off."""
     end = (s >= length).astype(jnp.int32)
-    c0, t0, i0, j0 = _pick(source, end)
-    c1, t1, i1, j1 = _pick(target, end)
+    c0, t0, i0, j0 = _pick(source.frame(0), source.frame(1), end)
+    c1, t1, i1, j1 = _pick(target.frame(0), target.frame(1), end)
     d = x - c0
     image = c1 + dot(d, t0) * t1 + dot(d, i0) * i1 + dot(d, j0) * j1
     same = _same((c0,), (c1,), 1 + jnp.max(jnp.abs(c0))) & _same((t0, i0, j0), (t1, i1, j1))
     return jnp.where(same, x, image), (s <= 0) | (s >= length)
 
 
-def _pick(frames: EndFrames, end: Array):
-    start, last = frames.frame(0), frames.frame(1)
-    return tuple(jnp.where(end == 1, b, a) for a, b in zip(start, last))
+def end_band(source: EndFrames, target: EndFrames, d: Array, s: Array, length: Array,
+             target_length: Array, method: str) -> Array:
+    """The correction (2,) of a fleshed point's bent offset, at offset `d` (2,) and arc
+    length `s` on a source of `length`, so that it joins the rigid part beyond the nearer end
+    continuously (`beyond="rigid"`): minus the departure of that end's fleshed cross-section
+    from the rigid one (`end_section`), weighted `(1 − a/|d|)²` at a distance `a < |d|` from
+    the end plane, 1 on it; none where the departure is round-off (a bend that ramps up from
+    the end, as a limb's pose: its points stay exact). Inside the band the map is continuous
+    but not volume-exact: on a tube bent from a line onto an arc that starts and ends with
+    curvature 1/1.2, the whole volume changed by 2e-5 (the end planes' jump, 1.5× the edges
+    across them, is gone)."""
+    end = (2 * s >= length).astype(jnp.int32)
+    i0, j0 = _pick(source.frame(0), source.frame(1), end)[2:]
+    i1, j1 = _pick(target.frame(0), target.frame(1), end)[2:]
+    k0 = _pick(source.curvature(0), source.curvature(1), end)
+    k1 = _pick(target.curvature(0), target.curvature(1), end)
+    section, ok = end_section(d, jnp.stack([dot(k0, i0), dot(k0, j0)]),
+                              jnp.stack([dot(k1, i1), dot(k1, j1)]), target_length / length,
+                              method)
+    # Where the section's map has no solution, the point is flagged by its own map already.
+    departure = jnp.where(ok, section - d, 0)
+    depth = safe_divide(jnp.where(end == 1, length - s, s), norm(d))
+    fade = jnp.where(depth < 1, (1 - jnp.clip(depth, 0, 1)) ** 2, 0)
+    scale = 1 + norm(d)
+    negligible = jnp.max(jnp.abs(departure)) <= 64 * jnp.finfo(d.dtype).eps * scale
+    return -jnp.where(negligible, 0, fade) * departure
+
+
+def end_section(e: Array, k0: Array, k1: Array, ratio: Array, method: str
+                ) -> tuple[Array, Array]:
+    """`(image (2,), ok)`: the fleshed part's image of an offset `e` (2,) on an end's normal
+    plane, and whether the map has its solution there: unbent
+    with the source's curvature there `k0`, scaled for the lengths' `ratio` (target over
+    source), bent with the target's `k1` (all in the end frames' normals), as
+    `pipeline.bent_offset` does at that end."""
+    straight, unbent = UNBEND[method](e, k0)
+    if method != "skinning":
+        straight = straight / jnp.sqrt(ratio)
+    image, bent = BEND[method](straight, k1)
+    return image, unbent & bent
+
+
+def _pick(start, last, end: Array):
+    """`last` where `end == 1`, else `start` (arrays or tuples of arrays)."""
+    return jax.tree.map(lambda a, b: jnp.where(end == 1, b, a), start, last)

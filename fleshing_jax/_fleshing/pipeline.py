@@ -29,7 +29,7 @@ from .._numerics import cast_floats, dot, norm, per_component
 from .._spines.spine import AbstractSpine
 from .._spines.table import SpineTable, fast_evaluator, runs_whole, tabulates
 from .eager import pose_eagerly, register_eagerly
-from .ends import EndFrames, aligned_twist, check_beyond, rigid_beyond, target_ends
+from .ends import EndFrames, aligned_twist, check_beyond, end_band, rigid_beyond, target_ends
 from .maps import BEND, UNBEND, WHOLE
 from .methods import check_method
 from .projection import Registrar, Registration, invalid_past, register_point
@@ -39,22 +39,26 @@ from .target import TargetFrames
 
 
 def bend_point(
-    registration: Registration, frames: TargetFrames, method: str, whole: bool = False
+    registration: Registration, frames: TargetFrames, method: str, whole: bool = False,
+    ends: EndFrames | None = None,
 ) -> tuple[Array, Array, Array, Array]:
     """Unbends, transfers and bends one registered point onto the target whose (twisted)
     `frames` are given, without the projection check: `(image (3,), valid, s₁, |d₁|)`
     (the image lies at offset `d₁` from `C₁(s₁)`, in its normal plane). Valid requires `s₁`
     inside the target's search range (its ends continued a quarter turn at most), as the
     registration requires on the source. `whole`: the bend continued past its conditions
-    without a fold (`maps.WHOLE`), for the points a pose keeps anyway (`Poser`'s `fallback`)."""
+    without a fold (`maps.WHOLE`), for the points a pose keeps anyway (`Poser`'s `fallback`).
+    `ends`: the target's `EndFrames` where the points beyond its ends move rigidly
+    (`beyond="rigid"`): the points near an end join them (`ends.end_band`)."""
     image, (registered, within_limit, inside_target), s1, distance = bend_checks(
-        registration, frames, method, whole
+        registration, frames, method, whole, ends
     )
     return image, registered & within_limit & inside_target, s1, distance
 
 
 def bend_checks(
-    registration: Registration, frames: TargetFrames, method: str, whole: bool = False
+    registration: Registration, frames: TargetFrames, method: str, whole: bool = False,
+    ends: EndFrames | None = None,
 ) -> tuple[Array, tuple[Array, Array, Array], Array, Array]:
     """`bend_point` with its validity split by cause: `(image, (registered, within_limit,
     inside_target), s₁, |d₁|)` — the point's registration on the source is valid; the method's
@@ -62,7 +66,7 @@ def bend_checks(
     search range. (What `diagnose` counts.)"""
     s1 = target_arc_length(registration, frames)
     frame = frames(s1)  # evaluated once (exact spines' frames cost a search each)
-    d1, causes = bent_offset(registration, frames, s1, frame[3], method, whole)
+    d1, causes = bent_offset(registration, frames, s1, frame[3], method, whole, ends)
     return in_frame(frame, d1), causes, s1, norm(d1)
 
 
@@ -73,7 +77,7 @@ def target_arc_length(registration: Registration, frames: TargetFrames) -> Array
 
 def bent_offset(
     registration: Registration, frames: TargetFrames, s1: Array, k1: Array, method: str,
-    whole: bool = False,
+    whole: bool = False, ends: EndFrames | None = None,
 ) -> tuple[Array, tuple[Array, Array, Array]]:
     """The offset `d₁` (2,) of a registered point from the target at `s₁`, in its twisted
     normals, where the target's curvature vector is `k1` (2,) in them; and the causes of
@@ -83,6 +87,9 @@ def bent_offset(
     if method != "skinning":  # skinning is the uncorrected baseline: offsets carried rigidly
         straight = straight / jnp.sqrt(frames.length / reg.length)
     d1, bent = (WHOLE if whole else BEND)[method](straight, k1)
+    if ends is not None:  # joined to the rigid parts beyond the ends
+        d1 = d1 + end_band(reg.ends, ends, reg.offset, reg.arc_length, reg.length,
+                           frames.length, method)
     inside = (s1 > frames.lo) & (s1 < frames.hi) & (1 - dot(k1, d1) > 0)
     return d1, (reg.valid, unbent & bent, inside)
 
@@ -128,14 +135,16 @@ def pose_point(
     """
     target = target._prepare()
     twist = aligned_twist(registration.ends, target, twist)
-    image, valid, s1, _ = bend_point(registration, TargetFrames(target, twist), method)
+    ends = target_ends(target, twist) if beyond == "rigid" else None
+    image, valid, s1, _ = bend_point(registration, TargetFrames(target, twist), method,
+                                     ends=ends)
     if check_projection:
         valid = valid & projects_back(target, image, s1, margin)
     image = jnp.where(valid, image, registration.points)
     if beyond == "rigid":
         reg = registration
         moved, outside = rigid_beyond(
-            reg.ends, target_ends(target, twist), reg.points, reg.arc_length, reg.length
+            reg.ends, ends, reg.points, reg.arc_length, reg.length
         )
         finite = jnp.all(jnp.isfinite(reg.points))
         image, valid = jnp.where(outside, moved, image), jnp.where(outside, finite, valid)
@@ -244,7 +253,8 @@ class Poser(eqx.Module):
         def offset(reg):
             s1 = target_arc_length(reg, self.frames)
             d1, (registered, within_limit, inside_target) = bent_offset(
-                reg, self.frames, s1, self.frames(s1)[3], self.method, self.fallback
+                reg, self.frames, s1, self.frames(s1)[3], self.method, self.fallback,
+                self.ends,
             )
             return s1, d1[0], d1[1], registered & within_limit & inside_target, norm(d1)
 
@@ -272,7 +282,7 @@ class Poser(eqx.Module):
         by the reach bound or checked in closed form (or valid, without the check);
         pending: the valid points that the bound does not certify, for the sampled test."""
         image, valid, s1, distance = jax.vmap(
-            lambda reg: bend_point(reg, self.frames, self.method, self.fallback),
+            lambda reg: bend_point(reg, self.frames, self.method, self.fallback, self.ends),
             in_axes=(batch_axes(registration),),
         )(registration)
         return image, valid, *self._certify(valid, s1, distance)
@@ -291,7 +301,7 @@ class Poser(eqx.Module):
 
     def _image(self, reg: Registration) -> tuple[Array, Array]:
         """One registered point's image, bent again, and its arc length `s₁` on the target."""
-        image, _, s1, _ = bend_point(reg, self.frames, self.method, self.fallback)
+        image, _, s1, _ = bend_point(reg, self.frames, self.method, self.fallback, self.ends)
         return image, s1
 
     def pose_all(self, registration: Registration) -> tuple[Array, Array]:

@@ -102,7 +102,7 @@ def registered_stretch(source: AbstractSpine, registration: Registration,
     def image(x, s):
         s = polish_root(_foot_residual, s, (source, x))
         local = eqx.tree_at(lambda r: r.ends, _local_coordinates(source, x, s, True), reg.ends)
-        bent = bend_point(local, poser.frames, poser.method)[0]
+        bent = bend_point(local, poser.frames, poser.method, poser.fallback, poser.ends)[0]
         if poser.ends is None:
             return bent
         moved, outside = rigid_beyond(reg.ends, poser.ends, x, s, reg.length)
