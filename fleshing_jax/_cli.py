@@ -2,8 +2,8 @@
 
     fleshing-jax deform IN OUT [--from A.json | --ends X,Y,Z X,Y,Z] [--medial IN.ma]
                                (--to B.json | --bend-angle DEG) [--method M] [--twist RAD]
-                               [--beyond MODE] [--allow-invalid] [--save-spine FILE]
-                               [--cap-holes]
+                               [--beyond MODE] [--max-stretch X] [--allow-invalid]
+                               [--save-spine FILE] [--cap-holes]
     fleshing-jax medial IN OUT.ma [--spheres N] [--envelope ENV.obj] [--list]
     fleshing-jax medial-deform IN OUT --medial IN.ma --handles H.json [--method M]
                                       [--no-implicit]
@@ -177,6 +177,7 @@ def _parser() -> argparse.ArgumentParser:
         "along the spines' continuations (default), or moved rigidly with the end frames "
         "(rigid: the rest of a body stays where it is when only a tail or a limb is bent)",
     )
+    _max_stretch_argument(deform, "bend")
     deform.add_argument(
         "--allow-invalid",
         action="store_true",
@@ -261,13 +262,7 @@ def _parser() -> argparse.ArgumentParser:
     pose.add_argument("--poses", metavar="P.json", help="the limbs' poses in a file (below)")
     pose.add_argument("--method", choices=METHODS[:3], default="radial",
                       help="fleshing method (default: radial)")
-    pose.add_argument(
-        "--max-stretch", type=_factor, default=MAX_STRETCH, metavar="X",
-        help="the largest factor by which an edge may change length, and the posing map "
-        f"stretch or squeeze a direction at a vertex (default {MAX_STRETCH:g}: a valid pose near "
-        "the edge of a limb's range keeps volume but can draw a part out into a spike or press "
-        "it into a blade); beyond it the pose is not written and the status is 3",
-    )
+    _max_stretch_argument(pose, "pose")
     pose.add_argument(
         "--allow-inexact",
         "--allow-invalid",
@@ -303,6 +298,30 @@ class _Progress:
         end = "\n" if done == total else ""
         self.stream.write(f"\r{self.label} [{bar}] {done}/{total}{end}")
         self.stream.flush()
+
+
+def _max_stretch_argument(parser, what: str) -> None:
+    """`--max-stretch`, one rule for `deform` and `pose` (`_refused_stretch`)."""
+    parser.add_argument(
+        "--max-stretch", type=_factor, default=MAX_STRETCH, metavar="X",
+        help="the largest factor by which an edge between valid vertices may change length, "
+        f"and the map stretch or squeeze a direction at a vertex (default {MAX_STRETCH:g}: a "
+        f"valid {what} near the edge of its range keeps volume but can draw a part out into a "
+        "spike or press it into a blade); beyond it the result is not written and the status "
+        "is 3",
+    )
+
+
+def _refused_stretch(args, factors) -> bool:
+    """Whether one of `factors` (`(what, factor)` pairs) is beyond `--max-stretch`; then
+    says so on stderr."""
+    for what, factor in factors:
+        if factor > args.max_stretch:
+            print(f"not written: {what} {factor:.3g}× (more than --max-stretch "
+                  f"{args.max_stretch:g}): it distorts the mesh there; bend less, or pass "
+                  "a larger --max-stretch", file=sys.stderr)
+            return True
+    return False
 
 
 def _load_input(path, cap: bool):
@@ -398,9 +417,37 @@ def _deform(args) -> int:
             file=sys.stderr,
         )
         return 3
+    if is_mesh and _refused_stretch(args, _bend_stretch(mesh, bent, valid, source, target,
+                                                        args, margin)):
+        return 3
     write_mesh_atomic(bent, args.output)
     print(f"wrote {args.output} ({args.method}, {time.perf_counter() - started:.1f} s)")
     return 0
+
+
+def _bend_stretch(mesh, bent, valid, source, target, args, margin) -> list:
+    """Prints and returns (`_refused_stretch`'s pairs) the largest change of length of an edge
+    between two valid vertices of `bent`, and the largest principal stretch of the map at a
+    valid vertex: the same rule as `pose`'s."""
+    import jax.numpy as jnp
+    import numpy as np
+
+    from ._fleshing.pipeline import prepare_target, register
+    from ._fleshing.verify import registered_stretch
+    from ._mesh.stretch import edge_stretch
+
+    edges = np.asarray(edge_stretch(mesh, np.asarray(bent.vertices), valid=valid))
+    registration = register(jnp.asarray(np.asarray(mesh.vertices)), source, margin=margin)
+    poser = prepare_target(target, registration.points.dtype, method=args.method,
+                           twist=args.twist, start=registration.ends, beyond=args.beyond)
+    principal = np.asarray(registered_stretch(source, registration, poser))
+    principal = np.where(valid & np.isfinite(principal), principal, 1.0)
+    worst_edge, worst_map = int(edges.argmax()), int(principal.argmax())
+    print(f"largest edge stretch between valid vertices: {edges[worst_edge]:.3g}× (vertex "
+          f"{worst_edge}); largest principal stretch of the map: {principal[worst_map]:.3g}× "
+          f"(vertex {worst_map})")
+    return [("an edge between valid vertices changes length", edges[worst_edge]),
+            ("the bend stretches or squeezes the shape", principal[worst_map])]
 
 
 def _found_rest_spine(mesh, args):
@@ -715,13 +762,10 @@ def _pose(args) -> int:
                   "their joint's range: placed continuously, the volume not kept there); bend "
                   "less, or pass --allow-inexact to write it anyway", file=sys.stderr)
             return 3
-    for what, factor in (("the pose stretches or squeezes the shape", principal[squeezed]),
-                         ("an edge changes length", stretch[worst])):
-        if factor > args.max_stretch:
-            print(f"not written: {what} {factor:.3g}× (more than --max-stretch "
-                  f"{args.max_stretch:g}): the pose distorts the mesh there; bend less, or pass "
-                  "a larger --max-stretch", file=sys.stderr)
-            return 3
+    if _refused_stretch(args, (("the pose stretches or squeezes the shape",
+                                principal[squeezed]),
+                               ("an edge changes length", stretch[worst]))):
+        return 3
     write_mesh_atomic(bent, args.output)
     print(f"wrote {args.output} ({args.method}, {time.perf_counter() - started:.1f} s)")
     return 0

@@ -62,6 +62,27 @@ def test_deform(files, capsys):
     assert sorted(p.name for p in tmp.iterdir()) == ["a.json", "b.json", "in.obj", "out.ply"]
 
 
+def test_deform_measures_and_refuses_stretch_as_pose_does(files, capsys):
+    # One rule for every entry point (issue 47 item 4): the largest change of an edge between
+    # valid vertices and the map's principal stretch are printed, and a bend beyond
+    # --max-stretch is not written (status 3).
+    tmp, mesh = files
+    out_path = tmp / "out.ply"
+    args = ["deform", tmp / "in.obj", out_path, "--from", tmp / "a.json", "--to",
+            tmp / "b.json"]
+    code, out, err = _run(capsys, *args)
+    assert code == 0, err
+    line = next(x for x in out.splitlines() if x.startswith("largest edge stretch"))
+    edge = float(line.split(": ")[1].split("×")[0])
+    principal = float(line.split("principal stretch of the map: ")[1].split("×")[0])
+    bent = np.asarray(trimesh.load(str(out_path), process=False).vertices)
+    np.testing.assert_allclose(edge, float(np.max(fj.edge_stretch(mesh, bent))), rtol=2e-3)
+    assert 1 < edge < principal * 1.5 and principal > 1
+    out_path.unlink()
+    code, _, err = _run(capsys, *args, "--max-stretch", 0.5 * (1 + min(edge, principal)))
+    assert code == 3 and "--max-stretch" in err and not out_path.exists()
+
+
 def test_missing_input(files, capsys):
     tmp, _ = files
     out_path = tmp / "out.obj"

@@ -65,3 +65,21 @@ def test_bad_input_names_the_argument(deformed, error, words):
     assert words in str(info.value)
     with pytest.raises(TypeError, match="mesh"):
         fj.edge_stretch(VERTICES, VERTICES)
+
+
+def test_edge_stretch_counts_only_edges_between_valid_vertices():
+    # A square of two triangles; vertex 3 flagged and torn away: with `valid`, its edges do
+    # not count (the flags report it), the others' factors are as without it.
+    vertices = np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0]])
+    faces = np.array([[0, 1, 2], [1, 3, 2]])
+    moved = vertices.copy()
+    moved[1] = [2.0, 0, 0]  # edge 0-1 doubles
+    moved[3] = [10.0, 10, 0]
+    valid = np.array([True, True, True, False])
+    every = np.asarray(fj.edge_stretch((vertices, faces), moved))
+    counted = np.asarray(fj.edge_stretch((vertices, faces), moved, valid=valid))
+    assert every[3] > 5 and counted[3] == 1
+    assert counted[0] == counted[1] == 2.0
+    assert counted[2] == pytest.approx(np.linalg.norm([2, -1]) / np.sqrt(2))
+    with pytest.raises(ValueError, match="`valid`"):
+        fj.edge_stretch((vertices, faces), moved, valid=valid[:3])

@@ -27,7 +27,8 @@ def mesh_edges(faces: np.ndarray) -> np.ndarray:
     return np.unique(np.sort(pairs, axis=1), axis=0)
 
 
-def edge_stretch(mesh, deformed: ArrayLike) -> Float[Array, " n"]:
+def edge_stretch(mesh, deformed: ArrayLike, valid: ArrayLike | None = None
+                 ) -> Float[Array, " n"]:
     """Per vertex, the largest factor by which one of its edges changed length.
 
     **Arguments:**
@@ -35,6 +36,8 @@ def edge_stretch(mesh, deformed: ArrayLike) -> Float[Array, " n"]:
     - `mesh`: the mesh at rest, a `trimesh.Trimesh` or `(vertices (n, 3), faces (F, k))`.
     - `deformed`: (n, 3) its vertices after a deformation (`fj.pose_skeleton`'s, `fj.flesh`'s,
       `fj.deform_medial`'s…), in the same order.
+    - `valid`: optional (n,) bool, the deformation's flags: only the edges between two valid
+      vertices count (those to a flagged vertex are the flags' to report).
 
     **Returns:** (n,) `max(l′/l, l/l′)` over the vertex's edges (`l`, `l′` its length before
     and after): 1 where the edges kept their lengths (a rigid motion), 2 where one doubled or
@@ -57,6 +60,12 @@ def edge_stretch(mesh, deformed: ArrayLike) -> Float[Array, " n"]:
     if not isinstance(deformed, jax.core.Tracer) and not bool(jnp.all(jnp.isfinite(deformed))):
         raise ValueError("`deformed` has NaN or infinite coordinates.")
     edges = mesh_edges(faces)
+    if valid is not None:
+        valid = np.asarray(valid)
+        if valid.shape != (len(vertices),) or valid.dtype != bool:
+            raise ValueError(f"`valid` must be ({len(vertices)},) bool, got {valid.dtype} "
+                             f"{valid.shape}.")
+        edges = edges[valid[edges].all(axis=1)]
     rest = np.linalg.norm(vertices[edges[:, 0]] - vertices[edges[:, 1]], axis=1)
     edges, rest = edges[rest > 0], rest[rest > 0]
     return _stretch(deformed, jnp.asarray(edges), jnp.asarray(rest, deformed.dtype))
