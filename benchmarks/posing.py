@@ -2,7 +2,8 @@
 
     python benchmarks/posing.py                   # all three tables and the figure
     python benchmarks/posing.py --skip-skeleton   # spot's saved skeleton, not built again
-    python benchmarks/posing.py --only-frames     # the per-frame table only (2 below)
+    python benchmarks/posing.py --only-frames     # the per-frame tables only (2, 2b below)
+    python benchmarks/posing.py --skip-skeleton --spot-frames   # spot's own frames only (2b)
     python benchmarks/posing.py --skip-skeleton --only-volumes  # the volume table only (3)
     python benchmarks/posing.py --skip-skeleton --only-fit      # the fit table only (4)
     python benchmarks/posing.py --quadruped --figure F.png     # the quadruped's table (5)
@@ -13,6 +14,10 @@ Prints Markdown tables:
 2. A new pose of spot subdivided to about 100k vertices (trimesh's `subdivide` keeps the old
    vertices first; a new vertex takes the region of its nearest old one), registered once in
    float32; `jax.jit(lambda poses: fj.pose_skeleton(...).vertices)` per frame, medians.
+   2b. (`--spot-frames`: this one only) spot itself (2,930 vertices) registered in float32
+   (1, 3 and all 9 limbs posed) and float64 (`--float64-limbs`, default 1 and 3), a new bend
+   every frame: per-frame medians and the programs compiled after the first frame
+   (`frame_table`).
 3. A hind leg and the head posed together on spot in float64, the bends' directions turned by
    0, 90, 180 and 270°: whole-mesh volume change of ours
    against medial deformation, LBS and DQS given the same intent (every sphere of the medial
@@ -101,6 +106,37 @@ def pose_speed(spot, skeleton, frames=50):
         first = time.perf_counter() - start
         rows.append((name, first, _median_ms(frame, poses, frames)))
     return len(big.vertices), registered, rows
+
+
+SPOT_LIMBS = (LEG, HEAD, 5, 6, 7, 1, 2, 3, 4)  # posed in this order: 1, 3 or all 9 of them
+
+
+def frame_table(mesh, skeleton, dtype, counts=(1, 3, 9), frames=50, order=SPOT_LIMBS):
+    """Rows `(dtype, limbs posed, first call (s), per frame (ms, median), recompilations)`:
+    `mesh` registered once in `dtype`, then `jax.jit(lambda poses: fj.pose_skeleton(...))`
+    a frame, each frame a new bend (10° + 0.2° a frame, the direction and twist fixed) of the
+    first `count` limbs of `order`; recompilations: the programs the jitted frame gained
+    after its first call (0: one program for every angle)."""
+    registration = fj.register_skeleton(mesh, skeleton, dtype=dtype)
+    frame = jax.jit(lambda poses: fj.pose_skeleton(registration, skeleton, poses).vertices)
+    rows = []
+    for count in counts:
+        limbs = order[:count]
+
+        def poses(i):
+            return {k: fj.LimbPose(10.0 + 0.2 * i, 30.0, 5.0) for k in limbs}
+
+        start = time.perf_counter()
+        frame(poses(0)).block_until_ready()
+        first, programs = time.perf_counter() - start, frame._cache_size()
+        times = []
+        for i in range(1, frames + 1):
+            start = time.perf_counter()
+            frame(poses(i)).block_until_ready()
+            times.append(time.perf_counter() - start)
+        rows.append((np.dtype(dtype).name, count, first, 1e3 * float(np.median(times)),
+                     frame._cache_size() - programs))
+    return rows
 
 
 def fit_time(spot, skeleton):
@@ -282,7 +318,12 @@ def main():
     parser.add_argument("--skip-skeleton", action="store_true")
     parser.add_argument("--figure", type=Path, default=None)
     parser.add_argument("--frames", type=int, default=50)
-    parser.add_argument("--only-frames", action="store_true", help="the per-frame table only")
+    parser.add_argument("--only-frames", action="store_true", help="the per-frame tables only")
+    parser.add_argument("--spot-frames", action="store_true",
+                        help="the per-frame table of spot itself only (2b)")
+    parser.add_argument("--float64-limbs", type=lambda v: tuple(int(c) for c in v.split(",")),
+                        default=(1, 3), help="limb counts of the float64 rows (default 1,3: "
+                        "all 9 compile for minutes)")
     parser.add_argument("--only-volumes", action="store_true", help="the volume table only")
     parser.add_argument("--only-fit", action="store_true", help="the fit table only")
     parser.add_argument("--quadruped", action="store_true", help="the quadruped's table only")
@@ -312,13 +353,20 @@ def main():
         for names, dtype, k, first, second, rms, steps in fit_time(spot, skeleton):
             print(f"| {names} | {dtype} | {k} | {first:.1f} | {second:.2f} | {rms:.1e} | {steps} |")
         return
-    if not args.only_volumes:
+    if not (args.only_volumes or args.spot_frames):
         n, registered, rows = pose_speed(spot, skeleton, args.frames)
         print(f"{n} vertices, float32, registered once in {registered:.1f} s\n")
         print("| posed | first frame (s) | per frame (ms, median) |\n|---|---:|---:|")
         for name, first, ms in rows:
             print(f"| {name} | {first:.1f} | {ms:.2f} |")
-    if args.only_frames:
+    if args.only_frames or args.spot_frames:
+        print(f"\nspot, {len(spot.vertices):,} vertices, jitted frames\n")
+        print("| dtype | limbs posed | first call (s) | per frame (ms, median) | "
+              "recompilations |\n|---|---:|---:|---:|---:|")
+        for dtype, counts in ((np.float32, (1, 3, 9)), (np.float64, args.float64_limbs)):
+            for name, count, first, ms, again in frame_table(spot, skeleton, dtype, counts,
+                                                             args.frames):
+                print(f"| {name} | {count} | {first:.1f} | {ms:.2f} | {again} |", flush=True)
         return
     medial = fj.medial_mesh(spot, 200, progress=False)
     turns = (0.0, 90.0, 180.0, 270.0)  # the bends' directions turned: the same angles

@@ -12,7 +12,6 @@ from .._checks import as_float_array, is_concrete
 from .._spines.bent import BentSpine
 from .._spines.spine import AbstractSpine
 
-
 FULL_TURN = 360.0  # degrees: the largest bend or twist a pose takes
 
 
