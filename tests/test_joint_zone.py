@@ -87,13 +87,13 @@ def test_the_limb_past_its_zone_moves_rigidly(tube, skeleton, registration):
 
 
 def test_a_sweep_of_the_angle_moves_every_vertex_continuously(tube, skeleton, registration):
-    # Through the exact range, in 1/4° steps, the frames batched in one program (without the
+    # Through the exact range, in 1/2° steps, the frames batched in one program (without the
     # global projection check: the vertices are what is compared); then angles a traced pose
     # cannot refuse, in the same batch.
     # Past the range (129°), the vertices outside the map's conditions are placed by the
     # whole map (`Poser`'s `fallback`): flagged, but the mesh stays whole.
     largest = np.degrees(float(registration.zones[2].range))
-    angles = np.linspace(0.0, 180.0, 721)
+    angles = np.linspace(0.0, 180.0, 361)
     absurd = np.array([np.nan, np.inf, -np.inf, 1e9, 361.0])
     sweep = jax.jit(jax.vmap(lambda bend: posed(registration, skeleton, {2: fj.LimbPose(bend)},
                                                 "radial", check=False)))
@@ -102,7 +102,7 @@ def test_a_sweep_of_the_angle_moves_every_vertex_continuously(tube, skeleton, re
     edges = tube.edges_unique
     shortest = np.min(np.linalg.norm(rest[edges[:, 0]] - rest[edges[:, 1]], axis=1))
     steps = np.linalg.norm(np.diff(vertices[: len(angles)], axis=0), axis=-1)
-    # The tip turns 1/4° a step at 2 units from the joint: 0.009; no vertex jumps an edge.
+    # The tip turns 1/2° a step at 2.3 units from the joint: 0.02; no vertex jumps an edge.
     assert steps.max() < 0.3 * shortest
     # Whole at every angle: no edge stretched 4×, none crushed (past the range the concave
     # side is compressed towards the centre of curvature, `maps.radial_bend_whole`; the exact
@@ -170,6 +170,9 @@ def test_aim_points_a_limb_at_a_point(tube, skeleton, registration):
         fj.aim(registration, skeleton, 7, point)
     with pytest.raises(ValueError, match="`point` must be finite"):
         fj.aim(registration, skeleton, 2, [np.nan, 0, 0])
+    # Straight back past the joint: no bend's chord reaches it; said, not a pose 30° off.
+    with pytest.raises(ValueError, match="cannot point at .* comes within"):
+        fj.aim(registration, skeleton, 2, [3.0, 0.0, 0.3])
 
 
 def test_turn_and_nod_in_the_world_s_terms(skeleton, registration):
@@ -189,4 +192,29 @@ def test_turn_and_nod_in_the_world_s_terms(skeleton, registration):
     # Counter-clockwise seen from above: -x turns towards -y.
     assert after[1] < -0.1 and abs(after[2]) < 1e-9
     with pytest.raises(ValueError, match="runs along `up`"):
-        fj.turn(registration, skeleton, 2, 30.0, up=(1.0, 0.0, 0.0))
+        fj.nod(registration, skeleton, 2, 30.0, up=(1.0, 0.0, 0.0))
+
+
+def test_turn_rotates_the_limb_past_its_zone_about_the_world_s_up(tube, skeleton, registration):
+    # A turn is the rotation about `up` split into a swing and a twist about the limb's
+    # tangent: the part past the zone turns by exactly that rotation, whether `up` is across
+    # the limb (a quadruped's head: a swing), along it (a biped's: a twist, looking aside) or
+    # between.
+    rest = np.asarray(tube.vertices)
+    past = rest[:, 0] < 0.3  # limb 2's end, past any zone of these angles
+    # A nod about a given side: the same, for a limb along `up` (a biped's head).
+    turns = [(up, lambda d, up=up: fj.turn(registration, skeleton, 2, d, up=up))
+             for up in ((0.0, 0.0, 1.0), (-1.0, 0.0, 0.0), (-1.0, 0.0, 1.0))]
+    turns.append(((0.0, 1.0, 1.0), lambda d: fj.nod(registration, skeleton, 2, d,
+                                                    up=(-1.0, 0.0, 0.0), side=(0, 1, 1))))
+    for up, posing in turns:
+        up = np.asarray(up) / np.linalg.norm(up)
+        for degrees in (40.0, -25.0):
+            pose = posing(degrees)
+            after = np.asarray(fj.pose_skeleton(registration, skeleton, {2: pose}).vertices)
+            phi = np.radians(degrees)
+            cross = np.array([[0, -up[2], up[1]], [up[2], 0, -up[0]], [-up[1], up[0], 0]])
+            rotation = np.eye(3) + np.sin(phi) * cross + (1 - np.cos(phi)) * cross @ cross
+            before = rest[past] - rest[past].mean(axis=0)
+            moved = after[past] - after[past].mean(axis=0)
+            np.testing.assert_allclose(moved, before @ rotation.T, atol=1e-6)
