@@ -232,7 +232,10 @@ def test_bend_angle_reports_the_largest_valid_bend(files, capsys):
     # 300° of a 4-unit line is far too tight for the creature: invalid vertices, by cause,
     # and the torn mesh is not written unless asked for.
     assert code == 3 and "--allow-invalid" in err and not out_path.exists()
-    code, out, err = _run(capsys, *args, "--allow-invalid")
+    # Allowed, it is still refused past --max-stretch (one rule with `pose`), then written.
+    code, out, err = _run(capsys, *args, "--allow-invalid", "--max-stretch", 1.5)
+    assert code == 3 and "--max-stretch" in err and not out_path.exists()
+    code, out, err = _run(capsys, *args, "--allow-invalid", "--max-stretch", 1e3)
     assert code == 0, err
     invalid = int(out.split("invalid vertices: ")[1].split()[0])
     causes = [int(ln.rsplit(":", 1)[1]) for ln in out.splitlines() if ln.startswith("  ")]
