@@ -12,12 +12,14 @@ import fleshing_jax as fj
 from fleshing_jax._medial_axis.characters import (
     BIPED_ARM,
     BIPED_LEG,
+    INSECT_ANTENNA,
     INSECT_LEGS,
     QUADRUPED_FRONT_LEG,
     QUADRUPED_HIND_LEG,
     biped,
     insect,
     insect_leg,
+    insect_medial,
     jointed_quadruped,
 )
 
@@ -108,3 +110,23 @@ def test_insect_has_six_legs_on_its_thorax():
     chains = _check_tips(skeleton, feet, jointed=())
     assert all(skeleton.limbs[c[0]].parent == -1 for c in chains)
     assert skeleton.limb_at([0.6, 0.0, 0.3]) == -1  # the thorax is the root
+
+
+def test_insect_with_a_head_thicker_than_its_thorax_is_rooted_at_the_thorax():
+    """The thickest part is the head (as on real insects measured in issue 45): the root is
+    still the thorax, where the limbs meet (`limbs.hub`), not the head with the thorax,
+    abdomen and legs hung from it as one limb. The head is one limb, its two antennae each
+    a chain of their own hanging from it (not the head split lengthwise by antenna)."""
+    mesh = insect_medial(head=0.13, thorax=0.09).envelope(42)
+    skeleton, _ = _rig(mesh, 120)
+    feet = [foot for leg in INSECT_LEGS for foot in _mirrored(insect_leg(*leg)[-1])]
+    chains = _check_tips(skeleton, feet, jointed=())
+    assert skeleton.limb_at([0.6, 0.0, 0.3]) == -1  # the thorax is the root
+    assert all(skeleton.limbs[c[0]].parent == -1 for c in chains)
+    head = skeleton.limb_at([0.8, 0.0, 0.34])
+    assert head >= 0 and skeleton.limbs[head].parent == -1
+    assert head not in {k for c in chains for k in c}
+    # Each antenna tip in a chain of its own below the head (the limb after the head).
+    below = [skeleton.chain(skeleton.limb_at(tip)) for tip in _mirrored(INSECT_ANTENNA[-1])]
+    assert all(len(c) >= 2 and c[0] == head for c in below)
+    assert below[0][1] != below[1][1]

@@ -173,23 +173,27 @@ def insect_leg(coxa_x, knee_x, foot_x):
     )
 
 
-def insect_medial() -> MedialMesh:
+def insect_medial(head: float = 0.07, thorax: float = 0.11, abdomen: float = 0.095) -> MedialMesh:
     """A six-legged insect along x, 1.17 long: an abdomen from x = −0.02 to 0.45 (radius up
     to 0.095), a thorax at x = 0.6 (0.11, the thickest part), a head at x = 0.8 (0.07) on a
     narrower neck; six legs from inside the thorax's sides (`insect_leg`, `INSECT_LEGS`),
     radius 0.036 at the femur, 0.026 at the knee (z = 0.44, y = ±0.3), 0.032 at the tibia,
     0.024 at the ankle, their tarsi ending at y = ±0.47 on the ground; two antennae from the
     head tapering from 0.027 to 0.022 at x = 1.13 (1.8 grid cells thick at resolution
-    48)."""
+    48). `head`, `thorax`, `abdomen`: the radii of the head, thorax and abdomen's thickest
+    spheres (the neck scaled with the thinner of head and thorax): a head thicker than the
+    thorax (0.13 and 0.09) is what real insects have."""
     b = _Builder()
-    thorax = b.add((0.6, 0, 0.3), 0.11)
-    b.chain(thorax, [(0.45, 0, 0.31, 0.08), (0.3, 0, 0.33, 0.095), (0.13, 0, 0.34, 0.08),
-                     (0.02, 0, 0.33, 0.04)])
-    head = b.add((0.8, 0, 0.34), 0.07, b.add((0.72, 0, 0.32), 0.055, thorax))
+    a = abdomen / 0.095
+    middle = b.add((0.6, 0, 0.3), thorax)
+    b.chain(middle, [(0.45, 0, 0.31, 0.08 * a), (0.3, 0, 0.33, 0.095 * a),
+                     (0.13, 0, 0.34, 0.08 * a), (0.02, 0, 0.33, 0.04 * a)])
+    neck = 0.055 * min(head / 0.07, thorax / 0.11)  # narrower than either
+    front = b.add((0.8, 0, 0.34), head, b.add((0.72, 0, 0.32), neck, middle))
     for side in (-1, 1):
-        b.chain(head, [(x, y * side, z, r) for x, y, z, r in INSECT_ANTENNA])
+        b.chain(front, [(x, y * side, z, r) for x, y, z, r in INSECT_ANTENNA])
         for leg in INSECT_LEGS:
-            b.chain(thorax, [(x, y * side, z, r) for x, y, z, r in insect_leg(*leg)])
+            b.chain(middle, [(x, y * side, z, r) for x, y, z, r in insect_leg(*leg)])
     return b.medial()
 
 

@@ -3,13 +3,14 @@
 Our own construction (neither paper gives one). On each level (the body, then each limb for
 its child limbs):
 
-1. The shortest-path tree of the medial graph from the level's root (the thickest sphere for
-   the body; where the limb leaves its parent for a limb), and its branches by *reach*
+1. The shortest-path tree of the medial graph from the level's root (for the body its hub,
+   where the limbs meet: the thickest sphere unless that is an end such as an insect's head,
+   `hub`; where the limb leaves its parent for a limb), and its branches by *reach*
    (geodesic distance plus radius: how far the surface lies along the tree), each branch
    running from a tip (the sphere reaching farthest in its subtree) towards the root.
 2. Along the path from the root to a tip, the *core*: its spheres up to the end of their
-   first run at least `CORE` times as thick as the level's thickest (the torso; a limb's
-   thick part). A sphere whose centre lies inside a core sphere is *covered*: it is inside
+   first run at least `CORE` times as thick as the level's (the hub's; a limb's thickest)
+   and as any sphere further out (the torso; a limb's thick part; never past a neck). A sphere whose centre lies inside a core sphere is *covered*: it is inside
    the parent. The tip's path: its spheres from the tip inwards up to the first covered one
    (excluded). It is a limb when it protrudes: beyond the last covered sphere's surface by
    at least `ELONGATION` times its thickest radius (and, a child limb, when it is at most
@@ -67,24 +68,60 @@ def find_limbs(centers: np.ndarray, radii: np.ndarray, edges: np.ndarray) -> lis
     graph = medial_graph(centers, edges)
     _, labels = csgraph.connected_components(graph, directed=False)
     largest = np.flatnonzero(labels == np.argmax(np.bincount(labels)))
-    root = int(largest[np.argmax(radii[largest])])
+    thickest = int(largest[np.argmax(radii[largest])])
     limbs: list[LimbPath] = []
-    _split(graph, centers, radii, largest, root, -1, limbs, depth=1)
+    _split(graph, centers, radii, largest, thickest, -1, limbs, depth=1)
+    root = hub(graph, centers, radii, largest, thickest, limbs)
+    if root != thickest:
+        limbs = []
+        _split(graph, centers, radii, largest, root, -1, limbs, depth=1)
     if not limbs:
         limbs = tube(graph, centers, radii, largest)
     return limbs
 
 
+def hub(graph, centers, radii, nodes, thickest: int, limbs: list[LimbPath]) -> int:
+    """The body's root sphere: where the limbs meet (a torso, a thorax), not merely the
+    thickest part (an insect's head or abdomen, from which the thorax and its six legs would
+    hang as one limb).
+
+    The sphere of `nodes` nearest in total, along the medial graph, to the tips of the limbs
+    found from `thickest` (`limbs`) that leave the body, and of the children of any one of
+    them that more limbs leave than leave the body (their geodesic median: six legs pull it
+    to the thorax; a head's ears and horns, fewer than the body's limbs, do not), then the
+    thickest sphere that holds its centre. `thickest` stays the root where the two belong to
+    one thick part (joined by spheres at least `CORE` times as thick as it, as its core is
+    defined): on a torso that is thickest itself, nothing changes."""
+    top = [k for k, limb in enumerate(limbs) if limb.parent == -1]
+    tips = [int(limbs[k].path[-1]) for k in top]
+    for k in top:  # a limb more limbs leave than leave the body (a thorax hung from an
+        children = [limb for limb in limbs if limb.parent == k]  # abdomen): its children
+        if len(children) > len(top):
+            tips += [int(limb.path[-1]) for limb in children]
+    tips = np.unique(tips)
+    if len(tips) < 2:
+        return thickest
+    distance = csgraph.dijkstra(graph, directed=False, indices=tips)[:, nodes]
+    median = int(nodes[np.argmin(distance.sum(axis=0))])
+    holding = nodes[np.linalg.norm(centers[nodes] - centers[median], axis=1) <= radii[nodes]]
+    root = int(holding[np.argmax(radii[holding])])  # (the median holds itself)
+    _, predecessors = csgraph.dijkstra(graph, directed=False, indices=thickest,
+                                       return_predecessors=True)  # fmt: skip
+    between = _ancestors(root, predecessors)
+    return thickest if np.all(radii[between] >= CORE * radii[thickest]) else root
+
+
 def _split(graph, centers, radii, nodes, root, parent, limbs, depth):
     """Appends to `limbs` the limbs among `nodes` (the level's spheres) that leave the level's
-    core around `root`, then recursively their children."""
+    core around `root`, then recursively their children. The level's thickness: the root's
+    radius for the body (its hub, `hub`), a limb's thickest sphere for its children."""
     inside = np.zeros(len(centers), bool)
     inside[nodes] = True
     sub = graph.multiply(inside[:, None]).multiply(inside[None, :]).tocsr()
     distance, predecessors = csgraph.dijkstra(sub, directed=False, indices=root,
                                               return_predecessors=True)  # fmt: skip
     reach = np.where(np.isfinite(distance), distance + radii, -np.inf)
-    level = radii[nodes].max()
+    level = radii[root] if depth == 1 else radii[nodes].max()
     groups = []  # per limb: its paths (the first one the main), last sphere inside, core
     hangs = []  # per limb: (n,) bool, the spheres below its first one in the tree
     for tip in _tips(nodes, reach, predecessors, distance):
@@ -104,9 +141,11 @@ def _split(graph, centers, radii, nodes, root, parent, limbs, depth):
             # Below a limb found already: a child (an ear on a head), left to that limb's
             # level, unless it is as thick as that limb (a leg hanging from the top of the
             # leg beside it in the tree): then a limb of its own.
-            k = below[0]
-            own = np.setdiff1d(path, group_spheres[k])
-            if len(own) == 0 or radii[own].max() <= THINNER * radii[group_spheres[k]].max():
+            # Its own part: the spheres whose centres lie outside that limb's (a head is
+            # often two near-equal spheres, and a path through the other one is the head's).
+            k, spheres = below[0], group_spheres[below[0]]
+            own = path[sphere_gaps(centers[path], centers[spheres], radii[spheres]) >= 0]
+            if len(own) == 0 or radii[own].max() <= THINNER * radii[spheres].max():
                 continue
         # How far the limb reaches beyond the last sphere inside the parent.
         length = distance[tip] - distance[last_inside] + radii[tip] - radii[last_inside]
@@ -193,10 +232,13 @@ def tube(graph, centers, radii, nodes) -> list[LimbPath]:
 def _covered(centers, radii, chain, thickness) -> tuple[np.ndarray, np.ndarray]:
     """(len(chain),) bool: the spheres of `chain` (tip … root) whose centres lie inside the
     core part of the chain: its spheres from the root outwards up to the end of their first
-    run at least `CORE × thickness` thick (the level's thickest radius: the torso's, a
-    limb's own); and the core part's sphere indices."""
+    run at least `CORE` times as thick as `thickness` (the level's: the hub's, a limb's
+    thickest) and as every sphere further out; and the core part's sphere indices."""
     outwards = chain[::-1]
-    thick = radii[outwards] >= CORE * thickness
+    # Thin: thinner than the level's thickest, or than a part further out (a neck before a
+    # head thicker than the body's hub): a limb starts at a waist.
+    beyond = np.maximum.accumulate(radii[outwards][::-1])[::-1]
+    thick = radii[outwards] >= CORE * np.maximum(thickness, beyond)
     # Up to the end of the first thick run: a limb's first spheres may be thinner than its
     # thickest (a neck before a head), and belong to it all the same.
     first = int(np.argmax(thick)) if thick.any() else len(chain)
