@@ -14,8 +14,9 @@ pose's vertices, samples of a mesh), from the rest pose:
   or a posed point the scan does not see (a partial scan), pulls ever less the farther it is.
 - **Continuation in σ.** From the rest pose a limb may lie a fifth of the diagonal from its
   target, where a small σ would see only outliers. The solve runs at σ = 10 %, 3 % and 1 % of
-  the target's diagonal in turn, each stage from the last (one compiled program: the stage is
-  a leaf, `STAGES`), point to point first, then point to plane along the target's normals.
+  the target's diagonal in turn, each stage from the last (one compiled program: the stage
+  and its step budget are leaves, `STAGES`), point to point first, then point to plane along
+  the target's normals.
 - **Twist.** The surface of a round limb barely changes when it turns about its own axis: the
   twists are held at `init`'s unless `fit_twist=True`.
 - **Honest convergence.** The fit explains the target when nearly every target point
@@ -42,6 +43,7 @@ import trimesh
 from jaxtyping import Array
 from scipy.spatial import cKDTree
 
+from .._fit.budget import budgeted
 from .._fit.chamfer import _nearest
 from .._fit.problem import check_cloud
 from .fit_pose import SkeletonFit, _solve, parameters_of, pose_of, restricted
@@ -208,8 +210,10 @@ def fit_to_shape(registration: SkeletonRegistration, skeleton: Skeleton, target,
         stage = jnp.asarray([sigma * diagonal, forward, tangential], dtype)
         problem = eqx.tree_at(lambda p: p.stage, problem, stage)
         last = i == len(STAGES) - 1
-        y, _, result, stats = _solve(problem, solver, y, max_steps if last else
-                                     min(max_steps, COARSE_STEPS), throw and last)
+        # Each stage's step budget is a value (`_fit.budget`): the stages share one compiled
+        # solve (two, with `throw`: the last stage's own).
+        budget = budgeted(solver, max_steps if last else min(max_steps, COARSE_STEPS))
+        y, _, result, stats = _solve(problem, budget, y, max_steps, throw and last)
         steps += int(stats["num_steps"])
     poses = dict(sorted(problem.poses(y).items()))
     whole = pose_skeleton(registration, skeleton, poses, method=method)
