@@ -239,10 +239,34 @@ def test_map_chunks_equals_one_batch_with_gradients():
     jax.tree.map(np.testing.assert_allclose, grad, jax.grad(lambda i: function(i)[0].sum())(inputs))
 
 
+_LAX_MAP = jax.lax.map
+
+
+def _chunked(monkeypatch, size: int, call):
+    """`call()` with `chunks.CHUNK_POINTS = size`, asserting that `map_chunks` looped over
+    chunks of `size` points. The chunk size is read when tracing: where a program of the same
+    inputs was traced before with another (no loop of `size` seen), the caches are cleared and
+    it is traced again. (Not cleared otherwise, nor after: clearing them made every later
+    test of the worker trace its programs again, ~9 s a tube pose; the programs traced here
+    serve only calls on these inputs, and return their values, as this test checks.)"""
+    monkeypatch.setattr(chunks, "CHUNK_POINTS", size)
+    seen = []
+
+    def recording(f, xs, *args, **kwargs):
+        seen.append(jax.tree.leaves(xs)[0].shape[1])
+        return _LAX_MAP(f, xs, *args, **kwargs)
+
+    monkeypatch.setattr(jax.lax, "map", recording)
+    out = call()
+    if size not in seen:
+        jax.clear_caches()
+        out = call()
+    assert size in seen
+    return out
+
+
 def test_flesh_in_chunks_equals_one_point_path(monkeypatch):
     # Chunks of 64 points: 397 points make 7 chunks, the last one padded.
-    monkeypatch.setattr(chunks, "CHUNK_POINTS", 64)
-    jax.clear_caches()  # the chunk size is read when tracing
     target = fj.BSpline(U_TURN, degree=3)
     source = fj.Line(float(target.length))
     rng = np.random.default_rng(5)
@@ -254,16 +278,15 @@ def test_flesh_in_chunks_equals_one_point_path(monkeypatch):
     points = jnp.asarray(points)
     fleshing = fj.Fleshing(source, target, method="normal", twist=0.2)
     expected = jax.jit(jax.vmap(fleshing.apply))(points)
-    registration = fj.register(points, source)
     for out, valid in (
-        fj.flesh(points, source, target, method="normal", twist=0.2),
-        fj.pose(registration, target, method="normal", twist=0.2),
+        _chunked(monkeypatch, 64,
+                 lambda: fj.flesh(points, source, target, method="normal", twist=0.2)),
+        _chunked(monkeypatch, 64, lambda: fj.pose(fj.register(points, source), target,
+                                                  method="normal", twist=0.2)),
     ):
         np.testing.assert_array_equal(np.asarray(valid), np.asarray(expected[1]))
         np.testing.assert_allclose(np.asarray(out), np.asarray(expected[0]), atol=1e-10)
     assert 0.3 < float(jnp.mean(expected[1])) < 0.99
-    monkeypatch.undo()
-    jax.clear_caches()
 
 
 # In the slow set (25 s a dtype): the eager paths' results are checked point for point against
