@@ -68,7 +68,6 @@ def test_inflection_values_and_gradients_are_finite():
     (c, _, _), (i, j) = target.jet_and_normals(mid)
     points = jnp.stack([c + 0.2 * i, c - 0.1 * j, c + 0.05 * (i + j)])
 
-    @jax.jit
     def loss(control_points, points):
         spine = fj.BSpline(control_points)
         out = []
@@ -78,7 +77,9 @@ def test_inflection_values_and_gradients_are_finite():
             out.append(jnp.sum(image**2))
         return sum(out)
 
-    value, (g_control, g_points) = jax.value_and_grad(loss, argnums=(0, 1))(
+    # (The value and gradient jitted as one program: `value_and_grad` of a jitted `loss`
+    # compiled its linearisation and its transpose as two.)
+    value, (g_control, g_points) = jax.jit(jax.value_and_grad(loss, argnums=(0, 1)))(
         jnp.asarray(INFLECTION), points
     )
     assert np.isfinite(float(value))
