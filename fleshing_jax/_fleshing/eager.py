@@ -23,6 +23,7 @@ import numpy as np
 from jaxtyping import Array
 
 from .._batching.chunks import map_chunks
+from .._batching.quick import QUICK_BATCH, Program
 from .projection import Registrar, Registration
 
 MINIMUM_BATCH = 64  # the smallest batch of pending points (then 128, 256, …)
@@ -43,16 +44,21 @@ def register_eagerly(registrar: Registrar, points: Array) -> tuple:
     does (`pose_eagerly`): the search's start, then Newton's polish and the local
     coordinates. In one, XLA fused the two into kernels that recompute the start's values
     (a B-spline's registration of a million points 147 → 97 ms; benchmarks/README.md)."""
+    quick = points.shape[0] <= QUICK_BATCH  # (compiled quickly: compiling is most of it)
     if registrar.fused:
-        start = _register_start(registrar, points)
-        registration, pending, unclear, any_pending = _register_finish(registrar, points, *start)
+        start = _register_start(registrar, points, quick=quick)
+        registration, pending, unclear, any_pending = _register_finish(
+            registrar, points, *start, quick=quick)
     else:
-        registration, pending, unclear, any_pending = _register_certified(registrar, points)
+        registration, pending, unclear, any_pending = _register_certified(
+            registrar, points, quick=quick)
     search, sampled = (bool(a) for a in np.asarray(any_pending))
     if sampled:  # before the search: its points are cleared with it
-        registration = _register_clear(registrar, registration, pending_index(unclear))
+        registration = _register_clear(registrar, registration, pending_index(unclear),
+                                       quick=quick)
     if search:
-        registration = _register_pending(registrar, points, registration, pending_index(pending))
+        registration = _register_pending(registrar, points, registration,
+                                         pending_index(pending), quick=quick)
     r = registration
     return r.arc_length, r.offset, r.curvature, r.valid, r.discontinuous, r.length, r.ends
 
@@ -85,18 +91,18 @@ def _rigid(poser, registration, images, valid):
     return poser.rigid(registration, images, valid)
 
 
-@eqx.filter_jit
+@Program
 def _register_certified(registrar, points):
     fields = map_chunks(registrar.register_certified, points, whole=registrar.fused)
     return _shared_and_pending(registrar, *fields)
 
 
-@eqx.filter_jit
+@Program
 def _register_start(registrar, points):
     return registrar.begin(points)
 
 
-@eqx.filter_jit
+@Program
 def _register_finish(registrar, points, s, certified):
     return _shared_and_pending(registrar, *registrar.finish(points, s, certified))
 
@@ -108,12 +114,12 @@ def _shared_and_pending(registrar, registration, pending, unclear):
     return registrar.shared(registration), pending, unclear, any_pending
 
 
-@eqx.filter_jit
+@Program
 def _register_clear(registrar, registration, index):
     return registrar.clear_pending(registration, index)
 
 
-@eqx.filter_jit
+@Program
 def _register_pending(registrar, points, registration, index):
     part = registrar.register(points[index], closest=registrar.closest_global)
     fields = ("arc_length", "offset", "curvature", "valid", "discontinuous")

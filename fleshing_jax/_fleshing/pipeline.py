@@ -24,6 +24,7 @@ from jaxtyping import Array, ArrayLike, Bool, Float
 from .._batching import chunks as _chunks
 from .._batching.buckets import bucket, pad_batch, unpad_batch
 from .._batching.chunks import batch_axes, map_chunks
+from .._batching.quick import Program
 from .._checks import as_margin, as_points, as_twist, is_concrete
 from .._numerics import cast_floats, dot, norm, per_component
 from .._spines.spine import AbstractSpine
@@ -513,7 +514,8 @@ def register(
 
 # The prepared spine (tables, search samples, reach bounds) is built by a compiled call of its
 # own: compiled with the points, XLA fuses parts of it into every point's kernel (2× slower).
-@eqx.filter_jit
+# It runs once per registration, on the spine alone: compiled quickly (`_batching.quick`).
+@Program
 def _registrar(source, samples, margin=0.0):
     return Registrar(source, samples, margin)
 

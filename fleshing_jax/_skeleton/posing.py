@@ -36,6 +36,7 @@ import numpy as np
 from jaxtyping import Array, Bool, Float
 
 from .._batching.buckets import bucket, pad_batch, unpad_batch
+from .._batching.quick import Program
 from .._checks import as_margin, is_concrete
 from .._fleshing.ends import EndFrames, aligned_twist, target_ends
 from .._fleshing.methods import check_method
@@ -162,11 +163,14 @@ def register_skeleton(mesh, skeleton: Skeleton, *, margin: float | None = None,
             )
         zones.append(joint_zone(arc[ids], *(np.asarray(f)[: len(ids)] for f in (
             reg.offset, reg.curvature, reg.valid)), joint, stop, points.dtype))
+        rest = _looked_up(spine) if tabulates(spine) else spine
         registrations.append(reg)
-        rests.append(_looked_up(spine) if tabulates(spine) else spine)
+        rests.append(rest)
         indices.append(jnp.asarray(ids, jnp.int32))
         joints.append(jnp.asarray(joint, points.dtype))
-        stops.append(jnp.asarray(stop, points.dtype))
+        # (Rounded to the dtype, the stop may fall an ulp past the rest spine's own length,
+        # which a bent spine refuses: its table's length, in float32, rounds its own way.)
+        stops.append(jnp.minimum(jnp.asarray(stop, points.dtype), rest.length))
     return SkeletonRegistration(tuple(registrations), tuple(rests), tuple(indices), tuple(joints),
                                 tuple(stops), points, margin, tuple(zones), fingerprint(skeleton))
 
@@ -438,7 +442,7 @@ _pose_limb_program = eqx.filter_jit(_pose_limb)
 
 # In single precision a limb's bent spines read its rest spine from a table made once here
 # (`_spines.looked_up`): preparing a frame's target 3× faster on spot.
-_looked_up = eqx.filter_jit(LookedUpSpine)
+_looked_up = Program(LookedUpSpine)  # (once per registration: compiled quickly)
 
 
 def limb_causes(registration: SkeletonRegistration, skeleton: Skeleton, poses: dict,

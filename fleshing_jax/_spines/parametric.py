@@ -28,6 +28,7 @@ import numpy as np
 from jaxtyping import Array
 
 from .._batching.buckets import bucket
+from .._batching.quick import Program
 from .._numerics import dot, safe_divide
 from . import arclength
 from .double_reflection import double_reflection, propagate
@@ -161,7 +162,7 @@ def length_of(tab: Tables):
 EVALUATORS = Evaluators(length_of, jet_at, jets_at, evaluate_at, torsion_at)
 
 
-@eqx.filter_jit
+@Program  # (a spine's tables: small work, compiled quickly when called on its own)
 def _tables(spine):
     return tables(spine)
 

@@ -1,0 +1,50 @@
+"""Programs compiled quickly where their compile time dominates their run.
+
+A skeleton's registration compiles a dozen programs (the rest spines' tables, the search's
+samples, the projection's phases) that each run once, on a few thousand points, in
+milliseconds: XLA's optimising compile of them was 13 of the 16 s of spot's first
+`register_skeleton`. Compiled with XLA's cheap options instead (no backend optimisation, no
+expensive LLVM passes, XLA CPU's older loop emitters, machine code in one piece), they compile
+about 3× faster and run a little slower, which on such sizes nobody sees. Large batches
+(`fj.register` of a million points) and the per-frame programs keep the optimised compile.
+
+JAX takes compiler options only for a program called at the top level: called inside a
+caller's program (a fit, a user's `jit`), the function is compiled with that program, as any
+nested function.
+"""
+
+from __future__ import annotations
+
+import equinox as eqx
+
+QUICK_COMPILE = {
+    "xla_backend_optimization_level": 0,
+    "xla_llvm_disable_expensive_passes": True,
+    "xla_cpu_use_fusion_emitters": False,
+    "xla_cpu_parallel_codegen_split_count": 1,
+}
+# Batches up to this many points are registered by quickly compiled programs: at spot's
+# 3k vertices a registration runs in about a millisecond either way.
+QUICK_BATCH = 1 << 14
+
+
+def top_level() -> bool:
+    """Whether JAX is tracing nothing now: compiler options may be given."""
+    try:
+        from jax._src.core import trace_state_clean
+    except ImportError:  # (a JAX without it: every program compiled the optimised way)
+        return False
+    return trace_state_clean()
+
+
+class Program:
+    """`fun` under `eqx.filter_jit`, compiled either the optimised way or quickly
+    (`QUICK_COMPILE`): `program(*args, quick=True)` picks the quick one when called at the
+    top level."""
+
+    def __init__(self, fun):
+        self.optimised = eqx.filter_jit(fun)
+        self.quick = eqx.filter_jit(fun, compiler_options=QUICK_COMPILE)
+
+    def __call__(self, *args, quick: bool = True):
+        return (self.quick if quick and top_level() else self.optimised)(*args)
