@@ -236,3 +236,28 @@ def test_fits_of_one_bucket_share_their_solve(traces):
     weights = np.r_[np.ones(70), np.zeros(26)]
     padded = fj.fit_spine(source, guess, points, target, weights=weights)
     np.testing.assert_allclose(padded.spine.radius, fits[70].spine.radius, rtol=0, atol=1e-12)
+
+
+def test_quick_programs_compile_with_cheap_options_at_top_level_only():
+    """`Program` compiles with XLA's cheap options when called on its own, and nested in a
+    caller's program (where JAX refuses compiler options) compiles with it: same values."""
+    from fleshing_jax._batching.quick import QUICK_COMPILE, Program, top_level
+
+    seen = []
+
+    def double(x):
+        seen.append(top_level())
+        return 2 * x
+
+    program = Program(double)
+    x = jnp.arange(3.0)
+    np.testing.assert_array_equal(program(x), 2 * x)
+    assert seen == [False]  # traced once, by the quick program at the top level
+    assert program.quick._cached._cache_size() == 1
+    assert program.optimised._cached._cache_size() == 0
+    np.testing.assert_array_equal(jax.jit(lambda y: program(y) + 1)(x), 2 * x + 1)
+    assert program.optimised._cached._cache_size() == 0  # nested: traced into the caller
+    np.testing.assert_array_equal(program(x, quick=False), 2 * x)
+    assert program.optimised._cached._cache_size() == 1
+    # The options are XLA's own: a compile with them succeeds.
+    jax.jit(double).lower(x).compile(compiler_options=QUICK_COMPILE)
