@@ -130,3 +130,20 @@ def test_insect_with_a_head_thicker_than_its_thorax_is_rooted_at_the_thorax():
     below = [skeleton.chain(skeleton.limb_at(tip)) for tip in _mirrored(INSECT_ANTENNA[-1])]
     assert all(len(c) >= 2 and c[0] == head for c in below)
     assert below[0][1] != below[1][1]
+
+
+def test_spot_keeps_its_head_where_the_first_spine_leaves_it_no_region():
+    """Spot at seed 2: the head's spine to its farthest own sphere (the snout) reaches only
+    the snout's lower half, whose border with the body runs its whole length: no region, and
+    the head, ears and horns stayed in the body (4 limbs). The next routes through the head
+    (`LimbPath.alternatives`) give it its region: head, ears and horns, four legs."""
+    mesh = fj.data.spot()
+    skeleton = fj.skeleton(mesh, seed=2)
+    vertices = np.asarray(mesh.vertices)
+    head = skeleton.limb_at(vertices[np.argmin(vertices[:, 2])])  # the snout, towards −z
+    assert head >= 0 and skeleton.limbs[head].parent == -1
+    assert len(skeleton.children(head)) >= 2
+    feet = vertices[vertices[:, 1] < -0.65]  # y up: the hooves
+    quarters = {(bool(x > 0), bool(z > 0.4)): skeleton.limb_at(p) for p in feet
+                for x, _, z in [p]}
+    assert len(quarters) == 4 and len(set(quarters.values())) == 4 and min(quarters.values()) >= 0

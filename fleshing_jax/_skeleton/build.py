@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 from scipy.spatial import cKDTree
 
@@ -194,9 +196,13 @@ def _unit_limbs(vertices, centers, radii, edges, adjacency, margin):
         parent = index.get(found.parent, -1) if found.parent >= 0 else -1
         if found.parent >= 0 and found.parent not in index:
             continue  # its parent had no region: neither has it
-        spine, part = fit_limb(found, centers, radii, vertices, adjacency, region == parent,
-                               margin)
-        if part is None:
+        for path, inside in ((found.path, found.inside), *found.alternatives):
+            found = dataclasses.replace(found, path=path, inside=inside)
+            spine, part = fit_limb(found, centers, radii, vertices, adjacency,
+                                   region == parent, margin)
+            if part is not None:
+                break
+        else:
             continue
         index[number] = len(limbs)
         region[part.vertices] = len(limbs)

@@ -43,6 +43,7 @@ ELONGATION = 1.5  # a limb protrudes at least this many of its thickest radii
 # parent's thick part (a horn on a head), where a limb that tapers (a tail) has none.
 THINNER = 0.5
 MAX_DEPTH = 3  # body, limbs, their children, grandchildren
+ROUTES = 3  # routes to a limb's own farthest spheres tried for its spine (`LimbPath`)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -58,6 +59,9 @@ class LimbPath:
     core: np.ndarray
     spheres: np.ndarray
     parent: int
+    # Other routes through the limb, `(path, inside)` in order of preference, for when the
+    # spine along `path` leaves the limb no region (`_skeleton.build`).
+    alternatives: tuple = ()
 
 
 def find_limbs(centers: np.ndarray, radii: np.ndarray, edges: np.ndarray) -> list[LimbPath]:
@@ -161,7 +165,7 @@ def _split(graph, centers, radii, nodes, root, parent, limbs, depth):
             groups, _assign(centers, radii, [g[0] for g in groups], predecessors, distance, nodes)
         )
     ]
-    for path, last_inside, core, spheres in found:
+    for (path, last_inside, core, spheres), (routes, _, _) in zip(found, groups):
         index = len(limbs)
         limbs.append(LimbPath(path, last_inside, core, spheres, parent))
         if depth < MAX_DEPTH and len(spheres) > 2:
@@ -175,11 +179,20 @@ def _split(graph, centers, radii, nodes, root, parent, limbs, depth):
         if len(children):
             outside = sphere_gaps(centers[own], centers[children], radii[children]) >= 0
             own = own[outside] if outside.any() else own
-        if len(own):
-            tip = own[np.argmax(distance[own] + 2 * radii[own])]
+        # Where that spine leaves the limb no region (its reach covering only a thick head's
+        # snout, whose border with the body then runs its whole length: spot at seed 2),
+        # the next routes: to the next farthest own spheres off the routes before, then
+        # the routes the limb was found by (into a child: a spine through the head's top).
+        paths = []
+        for tip in own[np.argsort(-(distance[own] + 2 * radii[own]), kind="stable")]:
+            if len(paths) == ROUTES or any(tip in p for p in paths):
+                continue
             chain = _ancestors(int(tip), predecessors)[::-1]  # root … tip, through path[0]
-            path = chain[np.flatnonzero(chain == path[0])[0] :]
-            limbs[index] = LimbPath(path, last_inside, core, spheres, parent)
+            paths.append(chain[np.flatnonzero(chain == path[0])[0] :])
+        paths += [p for p in routes if not any(np.array_equal(p, q) for q in paths)]
+        first, *others = paths
+        alternatives = tuple((p, int(predecessors[p[0]])) for p in others)
+        limbs[index] = LimbPath(first, last_inside, core, spheres, parent, alternatives)
 
 
 def _same_limb(centers, radii, path, limbs) -> int | None:
