@@ -224,3 +224,28 @@ def test_a_small_limb_fitted_wrongly_is_not_explained():
     message = _unexplained(distances, 0.01, rest, owner, [3])
     assert message.startswith("the posed surface does not explain limb 3's part of it: 50.0 %")
     assert _unexplained(distances, 0.01, rest, owner, []) == ""
+
+
+def test_a_solve_traces_its_residuals_once():
+    # The solver evaluates and linearises the residuals where it starts and in its step: one
+    # trace of them serves both (`_residuals`), so that a fit's posing is traced once.
+    import equinox as eqx
+    import jax.numpy as jnp
+    import optimistix as optx
+
+    from fleshing_jax._skeleton.fit_pose import _solve
+
+    traced = []
+
+    class Toy(eqx.Module):
+        target: jnp.ndarray
+
+        def __call__(self, y, args=None):
+            traced.append(None)
+            return jnp.sin(y) - self.target
+
+    solver = optx.LevenbergMarquardt(1e-10, 1e-10)
+    y, _, result, _ = _solve(Toy(jnp.asarray([0.3, -0.2])), solver, jnp.zeros(2), 16, False)
+    assert result == optx.RESULTS.successful
+    np.testing.assert_allclose(np.sin(np.asarray(y)), [0.3, -0.2], atol=1e-9)
+    assert len(traced) == 1

@@ -183,8 +183,16 @@ def _solve(problem: PoseProblem, solver, y0: Array, max_steps: int, throw: bool)
     are read from eager poses outside, which share their programs with `pose_skeleton`. The
     residuals' Jacobian is materialised at each step for a least-squares solver
     (`_fit.jacobian`: the solve compiles in half the time)."""
-    solution = optx.least_squares(for_solver(problem, solver), solver, y0, max_steps=max_steps,
-                                  throw=throw)
+    # The residuals traced once, to a jaxpr that every later use evaluates: the solver's
+    # start and its step, and the Jacobian's forward passes (under `vmap`), each traced the
+    # posing's Python again (two traces of a fit's three limbs: 2 × 4 s).
+    traced = eqx.filter_closure_convert(lambda y: problem(y), y0)
+
+    def residuals(y, args=None):
+        return traced(y)
+
+    solution = optx.least_squares(for_solver(residuals, solver), solver, y0,
+                                  max_steps=max_steps, throw=throw)
     radius = trust_radius(solver, solution, y0.dtype)
     return solution.value, radius, solution.result, solution.stats
 
