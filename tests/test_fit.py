@@ -14,8 +14,9 @@ import pytest
 from conftest import cloud
 
 import fleshing_jax as fj
+from fleshing_jax._fit import start
 from fleshing_jax._fit.correspondences import Correspondence
-from fleshing_jax._fit.problem import straight_line
+from fleshing_jax._fit.problem import make_parameters, straight_line
 
 BSpline = getattr(fj, "BSpline", None)
 if BSpline is None:  # until the free-form spines are exported
@@ -404,3 +405,65 @@ def test_continuation_reaches_a_far_bend_from_straight():
     assert float(fit.rms) <= 1e-3 * diagonal, fit.message
     # Converged, or out of steps in the flat valley past the tolerance, and then told so.
     assert fit.converged or "within the tolerance" in fit.message, fit.message
+
+
+@needs_bspline
+def test_a_far_bend_from_the_rest_spine_starts_from_the_targets():
+    # A straight free cubic onto 120°, from the rest spine itself. The default ("auto")
+    # starts from the targets' own shape (`_fit.start`: each point says where the bent spine
+    # runs at its foot) and gets there in one stage; from the rest spine it took the 4
+    # stages of a continuation (4x the time).
+    rest = BSpline(_STRAIGHT, degree=3)
+    source = cloud(rest, radius=0.3)
+    bent = fj.Arc(4.0 / np.deg2rad(120), 4.0)
+    target, valid = fj.flesh(source, rest, bent)
+    assert bool(valid.all())
+    diagonal = np.linalg.norm(np.ptp(np.asarray(target), axis=0))
+    parameters = make_parameters(rest, None, None)
+    y = start.initial(parameters, fj.register(source, rest), rest, target,
+                      np.ones(len(source)), None)
+    s = np.linspace(0, 4, 9)
+    shaped = np.asarray(jax.vmap(parameters.spine(y))(s))
+    truth = np.asarray(jax.vmap(bent)(s))
+    assert np.abs(shaped - truth).max() < 0.02 * diagonal  # the rest spine: 0.6
+    fit = fj.fit_spine(rest, rest, source, target)
+    assert fit.converged, fit.message
+    assert fit.stages == 1 and int(fit.num_steps) < 256
+    assert float(fit.rms) <= 1e-3 * diagonal
+
+
+@needs_bspline
+def test_the_start_from_the_targets_holds_fixed_control_points_and_needs_a_bspline():
+    rest = BSpline(_STRAIGHT, degree=3)
+    source = cloud(rest, radius=0.3)
+    target, _ = fj.flesh(source, rest, fj.Arc(4.0 / np.deg2rad(120), 4.0))
+    registration = fj.register(source, rest)
+    weights = np.ones(len(source))
+    parameters = make_parameters(rest, None, np.array([True, True, False, False, False, False]))
+    y = start.initial(parameters, registration, rest, target, weights, None)
+    moved = np.asarray(parameters.spine(y).control_points)
+    np.testing.assert_array_equal(moved[:2], _STRAIGHT[:2])
+    assert np.abs(moved[2:] - _STRAIGHT[2:]).max() > 0.5
+    # Not a free-form spine's control points: no start from the targets.
+    arc = make_parameters(fj.Arc(10.0, 4.0), None, None)
+    assert start.initial(arc, registration, rest, target, weights, None) is None
+    # No point valid on the rest spine says anything: none either.
+    assert start.initial(parameters, registration, rest, target, 0 * weights, None) is None
+
+
+@needs_bspline
+@pytest.mark.slow  # (a quintic of 13 control points: its compile)
+def test_a_far_bend_that_stopped_at_a_local_minimum_now_converges():
+    # A straight quintic of 13 control points onto 90° from the rest spine: the plain fit
+    # and the continuation both stopped at 0.16 of the diagonal (a local minimum); from the
+    # targets' shape it converges, and stops once the data are explained (the solve
+    # creeping along the control points' slides along the curve would run out of steps).
+    k = 13
+    rest = BSpline(np.c_[np.linspace(0, 4, k), np.zeros(k), np.zeros(k)], degree=5)
+    source = cloud(rest, radius=0.3)
+    target, valid = fj.flesh(source, rest, fj.Arc(4.0 / (np.pi / 2), 4.0))
+    assert bool(valid.all())
+    fit = fj.fit_spine(rest, rest, source, target)
+    diagonal = np.linalg.norm(np.ptp(np.asarray(target), axis=0))
+    assert fit.converged, fit.message
+    assert float(fit.rms) <= 1e-3 * diagonal and int(fit.num_steps) < 128

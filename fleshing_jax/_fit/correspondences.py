@@ -21,9 +21,10 @@ from jaxtyping import Array, ArrayLike
 
 from .._batching.buckets import bucket, pad_batch, unpad_batch
 from .._fleshing.projection import Registration
-from . import verdict
+from . import start, verdict
 from .continuation import AUTO_STAGES, staged_targets
 from .problem import (
+    EXPLAINED,
     AbstractPoseProblem,
     FitResult,
     Parameters,
@@ -126,10 +127,16 @@ def fit_spine(
     targets' bounding-box diagonal; otherwise `message` says which failure it most likely is
     (stall, local minimum, unreachable target, invalid targets) and what to try.
 
-    A far target (a bend of 60–90° from the rest spine) is reached by continuation: the
-    target approached in stages, each fit started from the one before
-    (`_fit.continuation`). By default (`continuation="auto"`) a fit that does not converge
-    with its rms above the tolerance is retried so, in 4 stages.
+    A far target (a bend of 60–90° from the rest spine) is reached from the targets' own
+    shape: by default (`continuation="auto"`), a free-form `init` (a `BSpline` whose control
+    points are fitted) starts with its control points fitted by linear least squares to
+    where the targets say the bent spine runs (`_fit.start`), when that poses the source
+    closer to the targets than `init` does. A fit that still does not converge with its rms
+    above the tolerance is retried by continuation from `init`: the target approached in 4
+    stages, each fit started from the one before (`_fit.continuation`). The default solver
+    stops once it creeps (steps no longer halving the loss) with the rms at a hundredth of
+    the tolerance: a free-form spine's control points slide along the curve almost freely,
+    and its solve would otherwise creep on until `max_steps`.
 
     **Arguments:**
 
@@ -164,8 +171,9 @@ def fit_spine(
       diagonal (default 1e-3): about the targets' noise over the diagonal for noisy targets;
       `None` for no residual test (the solver's alone, e.g. a regularised fit that trades
       data for smoothness on purpose).
-    - `continuation`: `"auto"` (the default: a plain fit, retried in 4 stages when it does
-      not converge with its rms above the tolerance; the lower rms is kept, and when both
+    - `continuation`: `"auto"` (the default: a plain fit from the closer of `init` and the
+      start from the targets' shape, retried in 4 stages from `init` when it does not
+      converge with its rms above the tolerance; the lower rms is kept, and when both
       stop at the same rms at a minimum the target is reported unreachable), or the number
       of stages `n ≥ 1` (1: one plain fit). Stage `k` targets
       each point's rest position moved `k/n` of the way: the best rigid motion onto the
@@ -224,15 +232,16 @@ def fit_spine(
         weights=weights,
         **setup.problem_fields(invalid, check_projection),
     )
+    tolerance = check_tolerance(tolerance)
     if solver is None:
-        solver = default_solver("least_squares", dtype, rtol, atol)
+        explained = EXPLAINED * tolerance * verdict.diagonal(problem.data())
+        solver = default_solver("least_squares", dtype, rtol, atol, explained)
 
-    def staged(stages: int) -> FitResult:
+    def staged(stages: int, y) -> FitResult:
         # Each stage only moves the start: its solve alone, every point posed by the map's
         # formula (`followed_images`: no cliffs on the way). The target itself is solved so
         # too before the fit as asked: near it, points at the edge of the valid space would
         # otherwise stop the solve at their cliffs.
-        y = setup.y0
         for goal in staged_targets(source, target, weights, stages) if stages > 1 else ():
             staged_problem = dataclasses.replace(problem, target=jnp.asarray(goal),
                                                  invalid="follow")
@@ -241,11 +250,12 @@ def fit_spine(
         result = fit(problem, solver, y, max_steps, throw, tolerance, ADVICE)
         return dataclasses.replace(result, stages=stages)
 
-    tolerance = check_tolerance(tolerance)
     if continuation == "auto":
-        result = staged(1)
+        shaped = start.initial(setup.parameters, setup.registration, source_spine,
+                               target, weights, setup.y0[1])
+        result = staged(1, start.closer(problem, setup.y0, shaped))
         if not result.converged and not float(result.rms) <= float(result.tolerance):
-            retried = staged(AUTO_STAGES)
+            retried = staged(AUTO_STAGES, setup.y0)
             low, high = sorted((float(result.rms), float(retried.rms)))
             stopped = [r.result == optx.RESULTS.successful for r in (result, retried)]
             same = all(stopped) and high < verdict.SAME_RESIDUAL * low and not (
@@ -258,7 +268,7 @@ def fit_spine(
                 result = explain(problem, dataclasses.replace(result, stalled=""), tolerance,
                                  ADVICE, same_from_elsewhere=True)
     else:
-        result = staged(_check_stages(continuation))
+        result = staged(_check_stages(continuation), setup.y0)
     return eqx.tree_at(lambda r: r.valid, result, unpad_batch(result.valid, n))
 
 

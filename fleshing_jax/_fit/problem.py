@@ -42,6 +42,10 @@ SMOOTHNESS_SAMPLES = 16  # midpoint samples of the bending energy ∫|k|² ds
 # intact; one that reduced its loss a lot is left to optimistix's own test.
 COLLAPSED_TRUST_REGION = 1e-3
 MEANINGFUL_LOSS_RATIO = 0.25
+# A fit's default solver may stop once its rms is this fraction of its tolerance, the data
+# explained far within what they allow (`_LevenbergMarquardt`) …
+EXPLAINED = 1e-2
+MEANINGFUL_STEP = 0.5  # … once its accepted steps no longer halve the loss
 
 
 @dataclasses.dataclass(frozen=True)
@@ -205,14 +209,55 @@ class _TrustRegion(optx.ClassicalTrustRegion):
         return eqx.tree_at(lambda s: s.step_size, state, state.step_size.astype(dtype))
 
 
-def default_solver(kind: str, dtype, rtol: float | None, atol: float | None):
+class _LevenbergMarquardt(optx.LevenbergMarquardt):
+    """optimistix's Levenberg–Marquardt, which also stops once it creeps where the data are
+    explained: an accepted step that did not halve the residuals' sum of squares, with their
+    root at most `explained` (a fit's rms at `EXPLAINED` of its tolerance).
+
+    Its own test (Cauchy: a small change in `y` *and* in the residuals) may never pass on a
+    free-form spine: a control point slid along the curve changes it only to second order,
+    so `JᵀJ` has near-null directions, the damping holds them, and the solve creeps along
+    them (the loss down a few percent a step, far below what the data can tell) until it
+    runs out of steps. A solve converging as Gauss–Newton does (the loss down by orders a
+    step) is left to the Cauchy test, to full precision.
+    """
+
+    explained: Array
+
+    def __init__(self, rtol: float, atol: float, explained):
+        super().__init__(rtol=rtol, atol=atol)
+        self.explained = explained
+
+    def step(self, fn, y, args, options, state, tags):
+        y, new, aux = super().step(fn, y, args, options, state, tags)
+
+        def squares(info):
+            return sum(jnp.sum(r**2) for r in jax.tree.leaves(info.residual))
+
+        before, after = squares(state.f_info), squares(new.f_info)
+        # (Before its first step the state holds no residuals yet.)
+        accepted = jnp.logical_and(jnp.logical_not(state.first_step),
+                                   new.num_accepted_steps > state.num_accepted_steps)
+        creeping = jnp.logical_and(after > MEANINGFUL_STEP * before,
+                                   after <= self.explained**2)
+        stop = jnp.logical_or(new.terminate, jnp.logical_and(accepted, creeping))
+        return y, eqx.tree_at(lambda s: s.terminate, new, stop), aux
+
+
+def default_solver(kind: str, dtype, rtol: float | None, atol: float | None,
+                   explained: float | None = None):
     """`LevenbergMarquardt` (`kind="least_squares"`) or `BFGS` (`"minimise"`), with tolerances
-    from the dtype unless given."""
+    from the dtype unless given; with `explained` (a least-squares fit whose residuals' sum
+    of squares is its rms², e.g. `fit_spine`'s), a Levenberg–Marquardt that also stops once
+    it creeps with the rms at most `explained` (`_LevenbergMarquardt`)."""
     tol = default_tolerance(dtype)
     rtol, atol = (tol if rtol is None else rtol), (tol if atol is None else atol)
     if kind == "minimise":
         return optx.BFGS(rtol=rtol, atol=atol)
-    solver = optx.LevenbergMarquardt(rtol=rtol, atol=atol)
+    if explained is None or not np.isfinite(explained):
+        solver = optx.LevenbergMarquardt(rtol=rtol, atol=atol)
+    else:
+        solver = _LevenbergMarquardt(rtol, atol, jnp.asarray(explained, dtype))
     return eqx.tree_at(lambda s: s.search, solver, _TrustRegion())
 
 

@@ -1,0 +1,186 @@
+"""A start from the target's own shape: a free-form spine's control points fitted, by linear
+least squares, to where the targets say the bent spine runs.
+
+A fit from the rest spine onto a far bend (60–90°) starts far from its answer: on the way,
+points leave the valid space or the spine folds to meet the far end first, and the solve stops
+at a local minimum or runs out of steps. The targets themselves say where the bent spine runs.
+Every map bends one cross-section at a time (a point keeps its arc length `sᵢ`): its target is
+`yᵢ = C₁(sᵢ) + R₁(sᵢ) dᵢ′`, with `dᵢ′` its rest offset `dᵢ = xᵢ − C₀(sᵢ)` carried by the
+frames and changed by the bend only to second order (`O(κ |dᵢ|²)`). Around each of `M`
+stations along `C₀`, the weighted best rigid motion of the nearby points onto their targets
+(`continuation.rigid_motion`, Gaussian weights in arc length, about a control-point spacing
+wide) gives the rotation `Rⱼ`; each point then says where the bent spine runs at its foot,
+
+    ĉᵢ = yᵢ − Rⱼ₍ᵢ₎ dᵢ,
+
+to within `O(|dᵢ|)` of the rotation's error and the bend's change: points near the axis say it
+best, so each counts with weight `wᵢ / (|dᵢ|² + r₀²)` (`r₀`: `AXIS_SCALE` of the length). Legs
+or a tail off the axis still fix the rotations, so they do not bias it (a centroid would). A
+B-spline is linear in its control points, `C(t) = Σₖ Nₖ(t) Pₖ`: with `tᵢ` the parameter of
+`init` at the same fraction of its length, the free control points solve the linear least
+squares `min Σᵢ ωᵢ |Σₖ Nₖ(tᵢ) Pₖ − ĉᵢ|²`, fixed ones held, with a tiny ridge towards `init` moved
+by the global rigid motion (for control points no point sees).
+
+Host-side (NumPy, one evaluation of `C₀` at the feet): it runs once, and only starts the solve.
+"""
+
+from __future__ import annotations
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from .._fleshing.pipeline import pose
+from .._fleshing.projection import Registration
+from .._spines.bspline import BSpline, _de_boor
+from .continuation import rigid_motion
+from .problem import Fields, Parameters
+
+STATIONS_PER_CONTROL_POINT = 3  # rotations estimated along the rest spine
+AXIS_SCALE = 1e-2  # r₀ / length: below this distance from the axis, points count alike
+RIDGE = 1e-8  # relative weight of the pull towards `init` moved rigidly (unseen control points)
+PARAMETER_SAMPLES = 64  # per knot span, for the parameter at a given arc length
+
+
+def applies(parameters: Parameters) -> bool:
+    """Whether a fit of `parameters` can start from the targets: its initial spine a concrete
+    `BSpline` whose fitted leaves are exactly its control points."""
+    init = parameters.base
+    return (
+        isinstance(init, BSpline)
+        and isinstance(parameters.where, Fields)
+        and parameters.where.names == ("control_points",)
+        and not isinstance(init.control_points, jax.core.Tracer)
+    )
+
+
+def spine_points(arc_length, points, target, weights, feet, length: float, count: int) -> tuple:
+    """Where the targets say the bent spine runs at each point's foot (module docstring).
+
+    **Arguments:**
+
+    - `arc_length`: (N,) each source point's arc length `sᵢ` on the rest spine `C₀`.
+    - `points`, `target`: (N, 3) the source points and their targets.
+    - `weights`: (N,) non-negative (0: not counted, e.g. invalid or padding).
+    - `feet`: (N, 3) `C₀(sᵢ)`.
+    - `length`: the length of `C₀`; `count`: how many stations (rotations) along it.
+
+    **Returns:** `(ĉ, ω)`: (N, 3) the bent spine's estimated points at the feet, (N,) their
+    weights (0 where the point is not counted or no rotation could be estimated near it).
+    """
+    s = np.asarray(arc_length, np.float64)
+    w = np.asarray(weights, np.float64)
+    x, y = np.asarray(points, np.float64), np.asarray(target, np.float64)
+    stations = (np.arange(count) + 0.5) * (length / count)
+    width = STATIONS_PER_CONTROL_POINT * length / count
+    nearest = np.clip(np.floor(s / length * count).astype(int), 0, count - 1)
+    offsets = x - np.asarray(feet, np.float64)
+    centre = np.zeros_like(x)
+    seen = np.zeros(len(s), bool)
+    for j, station in enumerate(stations):
+        here = nearest == j
+        g = w * np.exp(-0.5 * ((s - station) / width) ** 2)
+        if not here.any() or np.count_nonzero(g > 1e-6 * g.max(initial=0.0)) < 3:
+            continue
+        rotation = rigid_motion(x, y, g)[2]
+        centre[here] = y[here] - offsets[here] @ rotation.T
+        seen |= here
+    r0 = AXIS_SCALE * length
+    omega = np.where(seen, w / (np.sum(offsets**2, axis=-1) + r0**2), 0.0)
+    return centre, omega
+
+
+def parameters_at(spline: BSpline, fractions) -> np.ndarray:
+    """The parameters `t` (M,) of a concrete `spline` at the given fractions (M,) of its
+    length (from its chords, `PARAMETER_SAMPLES` per knot span)."""
+    u = np.asarray(spline.knots, np.float64)
+    p = np.asarray(spline.control_points, np.float64)
+    lo, hi = u[spline.degree], u[len(p)]
+    grid = np.linspace(lo, hi, PARAMETER_SAMPLES * len(spline.spans) + 1)
+    chords = np.linalg.norm(np.diff(_de_boor(p, u, spline.degree, grid), axis=0), axis=-1)
+    along = np.concatenate([[0.0], np.cumsum(chords)])
+    return np.interp(np.asarray(fractions) * along[-1], along, grid)
+
+
+def control_points(init: BSpline, free, q, omega, fractions, prior) -> np.ndarray:
+    """The control points (n, 3) of `init`'s shape closest to points `q` (M, 3) with weights
+    `omega` (M,) at `fractions` (M,) of its length; the entries outside `free` (flat indices
+    into the (n, 3) array) held at `init`'s values; `prior` (n, 3): where the free ones are
+    pulled, weakly (`RIDGE`), so that the system is never singular."""
+    p0 = np.asarray(init.control_points, np.float64)
+    n = len(p0)
+    t = parameters_at(init, fractions)
+    basis = _de_boor(np.eye(n), np.asarray(init.knots, np.float64), init.degree, t)  # (M, n)
+    a = np.kron(basis, np.eye(3))  # rows (M·3) of the flattened points, columns (n·3)
+    root = np.sqrt(np.repeat(omega, 3))
+    free = np.asarray(free)
+    held = np.setdiff1d(np.arange(3 * n), free)
+    rhs = root * (q.reshape(-1) - a[:, held] @ p0.reshape(-1)[held])
+    lhs = root[:, None] * a[:, free]
+    ridge = RIDGE * max(float(np.sum(lhs**2)) / max(len(free), 1), 1e-300)
+    normal = lhs.T @ lhs + ridge * np.eye(len(free))
+    solution = np.linalg.solve(normal, lhs.T @ rhs + ridge * prior.reshape(-1)[free])
+    out = p0.reshape(-1).copy()
+    out[free] = solution
+    return out.reshape(n, 3)
+
+
+def from_targets(init: BSpline, free, arc_length, feet, length, points, target, weights):
+    """`init`'s control points (n, 3) moved onto where the targets say the bent spine runs
+    (module docstring), or `None` when too few points say it.
+
+    **Arguments:**
+
+    - `init`: a concrete `BSpline`, the fit's initial spine (its knots and degree are kept).
+    - `free`: flat indices of the free entries of its (n, 3) control points.
+    - `arc_length`: (N,) the source points' arc lengths on the rest spine `C₀` (their
+      registration); `feet`: (N, 3) `C₀` there; `length`: the length of `C₀`.
+    - `points`, `target`: (N, 3); `weights`: (N,) (0 for invalid points and padding).
+    """
+    n = init.control_points.shape[0]
+    centre, omega = spine_points(arc_length, points, target, weights, feet, float(length),
+                                 STATIONS_PER_CONTROL_POINT * n)
+    if np.count_nonzero(omega) < init.degree + 1:
+        return None
+    c, c_, r = rigid_motion(points, target, weights)
+    prior = c_ + (np.asarray(init.control_points, np.float64) - c) @ r.T
+    fractions = np.clip(np.asarray(arc_length, np.float64) / float(length), 0.0, 1.0)
+    return control_points(init, free, centre, omega, fractions, prior)
+
+
+def initial(parameters: Parameters, registration: Registration, source_spine, target, weights,
+            twist):
+    """The optimiser's start `y` (as `Parameters.initial`) with the control points of
+    `parameters.base` moved onto where the (N, 3) `target` says the bent spine runs, the
+    (N,) `weights` counted over the points valid on the rest spine `source_spine` and `twist`
+    (or `None`) kept; `None` when this does not apply (`applies`) or too few points say it."""
+    if not applies(parameters):
+        return None
+    init = parameters.base
+    arc_length = registration.arc_length
+    feet = jax.vmap(source_spine)(arc_length)
+    counted = np.where(np.asarray(registration.valid), np.asarray(weights, np.float64), 0.0)
+    points = from_targets(init, np.asarray(parameters.free[0]), arc_length, feet,
+                          source_spine.length, registration.points, target, counted)
+    if points is None or not np.isfinite(points).all():
+        return None
+    dtype = init.control_points.dtype
+    spine = eqx.tree_at(lambda s: s.control_points, init, jnp.asarray(points, dtype))
+    return parameters.of(spine, twist)
+
+
+def closer(problem, *starts):
+    """Of the optimiser's `starts` (`y`s of `problem`, an `AbstractPoseProblem`; `None`s
+    skipped), the one whose posed source is closest to the data (its `rms`, every point
+    checked as in the final report): the first on a tie."""
+    best, low = None, np.inf
+    for y in starts:
+        if y is None:
+            continue
+        spine, twist = problem.spine_and_twist(y)
+        images, valid = pose(problem.registration, spine, method=problem.method, twist=twist)
+        rms = float(problem.rms(images, valid))
+        if best is None or rms < low:
+            best, low = y, rms
+    return best
