@@ -53,3 +53,19 @@ def test_a_jitted_frame_is_traced_once_for_every_angle(skeleton, registration, c
         pose = fj.LimbPose(bend, jnp.asarray(170.0), 0)
         count, _ = compiles(lambda pose=pose: frame.lower({2: pose}))
         assert count == 0, f"a frame at {bend!r}° was traced again"
+
+
+def test_a_frame_without_the_projection_check_places_the_same_vertices(skeleton, registration):
+    """`check_projection=False` (a live preview's frame) skips only the global check: the
+    vertices are placed bit for bit alike, every vertex the checked pose calls valid is still
+    valid, and past the range (150° on the tube's limb) the global check flags 7 more."""
+    for angle in (60.0, 150.0):
+        poses = {0: fj.LimbPose(angle, 20.0, 5.0)}
+        checked = fj.pose_skeleton(registration, skeleton, poses)
+        quick = fj.pose_skeleton(registration, skeleton, poses, check_projection=False)
+        assert np.array_equal(np.asarray(quick.vertices), np.asarray(checked.vertices))
+        ok, fast = np.asarray(checked.valid), np.asarray(quick.valid)
+        assert np.all(fast[ok])
+    assert np.sum(~fast) < np.sum(~ok)
+    with pytest.raises(TypeError, match="check_projection"):
+        fj.pose_skeleton(registration, skeleton, poses, check_projection="no")
