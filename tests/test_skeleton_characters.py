@@ -132,13 +132,18 @@ def test_insect_with_a_head_thicker_than_its_thorax_is_rooted_at_the_thorax():
     assert below[0][1] != below[1][1]
 
 
-def test_spot_keeps_its_head_where_the_first_spine_leaves_it_no_region():
-    """Spot at seed 2: the head's spine to its farthest own sphere (the snout) reaches only
-    the snout's lower half, whose border with the body runs its whole length: no region, and
-    the head, ears and horns stayed in the body (4 limbs). The next routes through the head
-    (`LimbPath.alternatives`) give it its region: head, ears and horns, four legs."""
+@pytest.mark.parametrize("seed", [2, 8])
+def test_spot_keeps_its_head_ears_and_horns_on_other_medial_meshes(seed):
+    """Spot's head, ears and horns, and four legs, from other medial meshes. At seed 2 the
+    head's spine to its farthest own sphere (the snout) reaches only the snout's lower half,
+    whose border with the body runs its whole length: no region, and the head, ears and
+    horns stayed in the body (4 limbs); the next routes through the head
+    (`LimbPath.alternatives`) give it its region. At seed 8 the head's core was the one
+    sphere at the base of its neck, thick enough on its own: the ears and horns, thicker
+    than half the head past it, were no children (5 limbs); a limb's core is now the run of
+    its thickest sphere."""
     mesh = fj.data.spot()
-    skeleton = fj.skeleton(mesh, seed=2)
+    skeleton = fj.skeleton(mesh, seed=seed)
     vertices = np.asarray(mesh.vertices)
     head = skeleton.limb_at(vertices[np.argmin(vertices[:, 2])])  # the snout, towards −z
     assert head >= 0 and skeleton.limbs[head].parent == -1

@@ -130,7 +130,7 @@ def _split(graph, centers, radii, nodes, root, parent, limbs, depth):
     hangs = []  # per limb: (n,) bool, the spheres below its first one in the tree
     for tip in _tips(nodes, reach, predecessors, distance):
         chain = _ancestors(tip, predecessors)  # tip … root
-        covered, core = _covered(centers, radii, chain, level)
+        covered, core = _covered(centers, radii, chain, level, depth > 1)
         cut = np.flatnonzero(covered)
         if len(cut) == 0 or cut[0] == 0:
             continue
@@ -242,11 +242,14 @@ def tube(graph, centers, radii, nodes) -> list[LimbPath]:
     return [LimbPath(path, int(chain[out[0] - 1]), np.array([start]), spheres, -1)]
 
 
-def _covered(centers, radii, chain, thickness) -> tuple[np.ndarray, np.ndarray]:
+def _covered(centers, radii, chain, thickness, thickest_run=False):
     """(len(chain),) bool: the spheres of `chain` (tip … root) whose centres lie inside the
     core part of the chain: its spheres from the root outwards up to the end of their first
     run at least `CORE` times as thick as `thickness` (the level's: the hub's, a limb's
-    thickest) and as every sphere further out; and the core part's sphere indices."""
+    thickest) and as every sphere further out; and the core part's sphere indices. With
+    `thickest_run` (a limb's level), up to the end of the run holding the chain's thickest
+    sphere instead: a limb's thick part is its head, not the base of its neck, thick enough
+    on its own (spot at seed 8, whose ears and horns then hung from a core of one sphere)."""
     outwards = chain[::-1]
     # Thin: thinner than the level's thickest, or than a part further out (a neck before a
     # head thicker than the body's hub): a limb starts at a waist.
@@ -255,6 +258,8 @@ def _covered(centers, radii, chain, thickness) -> tuple[np.ndarray, np.ndarray]:
     # Up to the end of the first thick run: a limb's first spheres may be thinner than its
     # thickest (a neck before a head), and belong to it all the same.
     first = int(np.argmax(thick)) if thick.any() else len(chain)
+    if thickest_run and thick.any():
+        first = int(np.argmax(np.where(thick, radii[outwards], -np.inf)))
     thin = np.flatnonzero(~thick[first:])
     core = outwards[: first + thin[0] if len(thin) else len(chain)]
     return sphere_gaps(centers[chain], centers[core], radii[core]) < 0, core
