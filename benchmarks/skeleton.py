@@ -1,6 +1,7 @@
 """The rig `fj.skeleton` finds on characters (issue 45): limbs, chains, times, pictures.
 
     python benchmarks/skeleton.py [--figures benchmarks/figures]
+    python benchmarks/skeleton.py --seeds 12     # spot's rig over its medial meshes' seeds
 
 For each character (spot; the procedural quadruped, jointed quadruped, biped and insect):
 its vertices, the skeleton's limbs and how many of them are chains from the body (with their
@@ -9,7 +10,9 @@ first `register_skeleton` (float64, its compilation included), and a pose of eve
 each joint (the top 30°, each joint below 45°, float64): flagged vertices, volume change, the
 largest edge stretch, whether every vertex outside the chains stayed bit for bit. Prints one
 Markdown table; with `--figures`, writes `skeleton-NAME.png` (`fj.plot_skeleton`) and
-`skeleton-NAME-posed.png` (rest and posed side by side) into that folder.
+`skeleton-NAME-posed.png` (rest and posed side by side) into that folder. With `--seeds N`,
+spot's rig from the medial meshes of seeds 0 … N−1 instead: its limbs, whether the snout is in
+a limb with ears and horns as its children, and whether each hoof is in a leg of its own.
 """
 
 from __future__ import annotations
@@ -33,6 +36,8 @@ CHARACTERS = {
     "jointed_quadruped": characters.jointed_quadruped,
     "biped": characters.biped,
     "insect": characters.insect,
+    # The head thicker than the thorax, as on real insects: the root must stay the thorax.
+    "insect_thick_head": lambda: characters.insect_medial(head=0.13, thorax=0.09).envelope(42),
 }
 
 
@@ -90,11 +95,36 @@ def _moved(skeleton, points):
     return fj.Skeleton(skeleton.limbs, skeleton.region, points)
 
 
+def seeds_table(count):
+    """Spot's rig from the medial meshes of seeds 0 … count−1: one Markdown row each."""
+    mesh = fj.data.spot()
+    vertices = np.asarray(mesh.vertices)
+    snout = vertices[np.argmin(vertices[:, 2])]  # towards −z; y up: the hooves at the bottom
+    hooves = [vertices[(vertices[:, 1] < -0.6) & ((vertices[:, 0] > 0) == right)
+                       & ((vertices[:, 2] > 0.4) == back)].mean(axis=0)
+              for right in (False, True) for back in (False, True)]
+    print("| seed | limbs | head (children) | legs (of 4) | skeleton (s) |")
+    print("|---:|---:|---|---:|---:|")
+    for seed in range(count):
+        start = time.perf_counter()
+        skeleton = fj.skeleton(mesh, seed=seed)
+        elapsed = time.perf_counter() - start
+        head = skeleton.limb_at(snout)
+        legs = {skeleton.limb_at(h) for h in hooves} - {-1}
+        children = len(skeleton.children(head)) if head >= 0 else 0
+        print(f"| {seed} | {len(skeleton.limbs)} | {'yes' if head >= 0 else 'no'} ({children}) "
+              f"| {len(legs)} | {elapsed:.1f} |", flush=True)
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--figures", type=Path, default=None)
     parser.add_argument("--only", nargs="*", default=list(CHARACTERS))
+    parser.add_argument("--seeds", type=int, default=None)
     args = parser.parse_args()
+    if args.seeds is not None:
+        seeds_table(args.seeds)
+        return
     if args.figures is not None:
         args.figures.mkdir(parents=True, exist_ok=True)
     print("| character | vertices | limbs | chains from the body | limbs per chain | "
