@@ -70,8 +70,8 @@ def scenarios():
 def far_bends(points: int = 500, angles=(30, 60, 90), shape: str = ""):
     """`(name, thunk, diagonal)` triples: a free-form rest spine's shape fleshed onto an `Arc`
     of the same length, placed at the rest spine's start along its start tangent and bent
-    `angle` degrees, fitted by `fit_spine(C0, C0, source, target)` (every default: the
-    continuation when the plain fit stops short). Rest spines: a straight 13-control-point
+    `angle` degrees, fitted by `fit_spine(C0, C0, source, target)` (every default: the start
+    from the targets' shape, the continuation when that fit stops short). Rest spines: a straight 13-control-point
     quintic B-spline in a tube of radius 0.3 (length 4), and the insect's body
     (`characters.insect`, `rest_spine`: a curved quintic of 16 control points, length 1.70;
     `points` of its vertices valid on it, legs included); one case also twisted 0.5 rad
