@@ -192,14 +192,16 @@ def _unit_limbs(vertices, centers, radii, edges, adjacency, margin):
     region = np.full(len(vertices), -1)
     limbs, index = [], {}  # index: a found limb's number → its index in `limbs` (kept ones)
     founds = []  # the kept limbs' paths
-    for number, found in enumerate(find_limbs(centers, radii, edges)):
+    found_limbs = find_limbs(centers, radii, edges)
+    parents = {found.parent for found in found_limbs}  # the limbs other limbs leave
+    for number, found in enumerate(found_limbs):
         parent = index.get(found.parent, -1) if found.parent >= 0 else -1
         if found.parent >= 0 and found.parent not in index:
             continue  # its parent had no region: neither has it
         for path, inside in ((found.path, found.inside), *found.alternatives):
             found = dataclasses.replace(found, path=path, inside=inside)
             spine, part = fit_limb(found, centers, radii, vertices, adjacency,
-                                   region == parent, margin)
+                                   region == parent, margin, wide=number in parents)
             if part is not None:
                 break
         else:

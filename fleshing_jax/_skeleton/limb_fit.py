@@ -9,7 +9,7 @@ import numpy as np
 
 from .fit import extend_beyond, fit_bspline
 from .limbs import LimbPath
-from .regions import limb_region, spine_samples
+from .regions import REACH, limb_region, spine_samples
 
 # Every limb's spine has one static structure (count of control points, subdivisions per
 # span), so that one compiled program serves all (here and when posing them).
@@ -21,17 +21,25 @@ REFITS = 3  # straighter fits, at most, until the region lies within the spine's
 # head's spine, made straight for its ears at 0.6, let its region end 0.13 from its tip, and
 # the head with its ears and horns stayed in the body; at 0.75 of it every vertex is valid.
 STRAIGHTER = (1.0, 0.75, 0.5)
+WIDE = 2  # times `regions.REACH`: a thick part's region when the usual reach leaves it none
 
 
 def fit_limb(found: LimbPath, centers, radii, vertices, adjacency, allowed, margin,
-             cut_at=None):
+             cut_at=None, wide=False):
     """The limb's rest spine and its region among the `allowed` vertices (`None` if none);
     `margin`: the valid region's that posing will use; `cut_at`: (3,) the point where the
     limb leaves its parent (a chain's joint), default where its spine leaves the parent's
-    core spheres."""
+    core spheres; `wide`: a thick part other limbs leave (a head), whose region may reach
+    `WIDE` times as far from its spine when the usual reach leaves it none."""
     spine, cut, tip, arc, local = limb_spine(found, centers, radii, vertices, margin,
                                              cut_at=cut_at)
-    part = limb_region(spine, cut, tip, arc, local, vertices, adjacency, allowed)
+    for reach in (REACH, WIDE * REACH) if wide else (REACH,):
+        # A head wider than its spine's medial radii say (its crown beyond them): the region
+        # grown within them is its lower half, bordering the body its whole length (a knob:
+        # spot's head at seeds 1, 2, 6, 11 and scaled by 0.01).
+        part = limb_region(spine, cut, tip, arc, local, vertices, adjacency, allowed, reach)
+        if part is not None:
+            break
     for _ in range(REFITS):
         # The region's far vertices (the back of a head beyond its medial spheres, a haunch
         # beside a leg's start) may lie beyond the spine's reach: a straighter fit there.
@@ -40,7 +48,7 @@ def fit_limb(found: LimbPath, centers, radii, vertices, adjacency, allowed, marg
             break
         for share in STRAIGHTER:
             refit = limb_spine(found, centers, radii, vertices, margin, share * far, cut_at)
-            refit_part = limb_region(*refit, vertices, adjacency, allowed)
+            refit_part = limb_region(*refit, vertices, adjacency, allowed, reach)
             if refit_part is not None:
                 break
         if refit_part is None:

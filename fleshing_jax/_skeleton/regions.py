@@ -52,19 +52,21 @@ def mesh_adjacency(vertices: np.ndarray, faces: np.ndarray) -> sparse.csr_matrix
     return (graph + graph.T).tocsr()
 
 
-def limb_region(spine, cut: float, tip: np.ndarray, arc, radius, vertices, adjacency, allowed):
+def limb_region(spine, cut: float, tip: np.ndarray, arc, radius, vertices, adjacency, allowed,
+                reach_factor: float = REACH):
     """The region of one limb, or `None` when no vertex qualifies or it is a knob.
 
     **Arguments:** `spine`: the limb's rest spine; `cut`: the arc length where it leaves its
     parent; `tip`: (3,) the point its region grows from; `arc`, `radius`: (k,) the local medial
     radius at arc lengths `arc` along the spine; `vertices`: (n, 3) the mesh's;
-    `adjacency`: `mesh_adjacency`; `allowed`: (n,) bool, the parent's region.
+    `adjacency`: `mesh_adjacency`; `allowed`: (n,) bool, the parent's region;
+    `reach_factor`: how many local medial radii a vertex may lie from the spine (`REACH`).
     """
     s, points, curvature = map(np.asarray, spine_samples(spine))
     distance, nearest = cKDTree(points).query(vertices)
     along = s[nearest]
     local = np.interp(along, arc, radius)
-    reach = np.minimum(REACH * local, 1.0 / np.maximum(curvature[nearest], 1e-300))
+    reach = np.minimum(reach_factor * local, 1.0 / np.maximum(curvature[nearest], 1e-300))
     candidate = allowed & (along > cut) & (distance < reach)
     seed = int(np.argmin(np.where(candidate, np.linalg.norm(vertices - tip, axis=1), np.inf)))
     if not candidate[seed]:
