@@ -166,6 +166,12 @@ def test_aim_points_a_limb_at_a_point(tube, skeleton, registration):
     towards = point - origin
     np.testing.assert_allclose(chord / np.linalg.norm(chord),
                                towards / np.linalg.norm(towards), atol=1e-6)
+    # Another point: the chord's program is traced once per limb, not once per call.
+    from fleshing_jax._skeleton.aim import _chord
+
+    traced = _chord._cached._cache_size()
+    fj.aim(registration, skeleton, 2, [0.4, 0.3, 1.2])
+    assert _chord._cached._cache_size() == traced
     with pytest.raises(ValueError, match="`limb`: 7 is not a limb index"):
         fj.aim(registration, skeleton, 7, point)
     with pytest.raises(ValueError, match="`point` must be finite"):

@@ -18,6 +18,15 @@ _REACHED = 0.05  # degrees: the chord that far from the point at best still poin
 _DIRECTION_STEPS = 8  # corrections of the bend's direction (each a bisection of its angle)
 
 
+@eqx.filter_jit  # (one program for every call on a registration's limb: `limb` is static)
+def _chord(registration, limb: int, origin, stop, bend, across):
+    """The unit chord (3,) from limb `limb`'s joint at `origin` to its end (arc length `stop`),
+    the limb bent by `bend` degrees towards `across`."""
+    spine = limb_target(registration, limb, LimbPose(bend, towards=across))
+    c = spine(stop) - origin
+    return c / jnp.linalg.norm(c)
+
+
 def aim(registration: SkeletonRegistration, skeleton, limb: int, point) -> LimbPose:
     """The `LimbPose` that bends limb `limb` at its joint so that its end points at `point`.
 
@@ -49,11 +58,8 @@ def aim(registration: SkeletonRegistration, skeleton, limb: int, point) -> LimbP
     wanted = towards / np.linalg.norm(towards)
     tangent = _tangent(registration, k)
 
-    @eqx.filter_jit
     def chord(bend, across):  # the unit chord from the joint to the limb's end, bent
-        spine = limb_target(registration, k, LimbPose(bend, towards=across))
-        c = spine(stop) - jnp.asarray(origin, dtype)
-        return c / jnp.linalg.norm(c)
+        return _chord(registration, k, jnp.asarray(origin, dtype), stop, bend, across)
 
     def off(bend, across):  # the chord's angle to the point's direction
         c = np.asarray(chord(jnp.asarray(bend, dtype), jnp.asarray(across, dtype)), float)
