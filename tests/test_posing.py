@@ -358,3 +358,27 @@ def test_pose_command_reads_a_negative_point_and_refuses_no_pose(tube, skeleton,
     assert main(["pose", str(mesh), str(out), "--skeleton", str(saved), "--poses",
                  str(poses)]) == 2
     assert "lists no pose" in capsys.readouterr().err and not out.exists()
+
+
+def test_vertices_not_registered_past_the_bend_move_with_the_limb(tube, skeleton, registration):
+    """A vertex of a limb's region not validly registered on its rest spine (near a focal
+    point at rest, as under an insect's bent knee) but projecting past the bend moves with the
+    limb's rigid part, flagged: left at rest, it tore its edges (23.6× on the insect)."""
+    import equinox as eqx
+
+    k = 2
+    ids = np.asarray(registration.indices[k])
+    x = np.asarray(tube.vertices)[ids, 0]
+    far = np.flatnonzero(x < 0.5)[:3]  # limb 2 runs along −x from x = 2: far past a 30° zone
+    valid = np.asarray(registration.registrations[k].valid).copy()  # (padded past the region)
+    valid[far] = False
+    broken = eqx.tree_at(lambda r: r.registrations[k].valid, registration, jnp.asarray(valid))
+    pose = {k: fj.LimbPose(30.0, 20.0)}
+    exact = fj.pose_skeleton(registration, skeleton, pose)
+    moved = fj.pose_skeleton(broken, skeleton, pose)
+    assert not np.asarray(moved.valid)[ids[far]].any()  # flagged, not certified
+    # Placed as the exact pose places them (the rigid part's motion), not left at rest.
+    np.testing.assert_allclose(np.asarray(moved.vertices)[ids[far]],
+                               np.asarray(exact.vertices)[ids[far]], atol=1e-9)
+    assert np.linalg.norm(np.asarray(moved.vertices)[ids[far]] - np.asarray(tube.vertices)[ids[far]],
+                          axis=1).min() > 0.1
