@@ -84,7 +84,9 @@ class PosedSkeleton(NamedTuple):
     exact. A vertex of a posed region outside its limb's valid space (a bend past the joint's
     range, `fj.joint_range`) is placed by the map continued past its conditions: continuous in
     the vertex and the angle, so the mesh stays whole, but its volume is not kept there; one
-    not registered on its limb's rest spine, or with a non-finite image, is left where it was."""
+    not validly registered on its limb's rest spine moves with the limb's rigid part where it
+    projects past the bend (a `LimbPose`'s), and is left where it was elsewhere, as is one with
+    a non-finite image (all flagged)."""
 
     vertices: Float[Array, "n 3"]
     valid: Bool[Array, " n"]
