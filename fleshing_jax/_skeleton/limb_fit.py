@@ -36,7 +36,7 @@ def fit_limb(found: LimbPath, centers, radii, vertices, adjacency, allowed, marg
     for reach in (REACH, WIDE * REACH) if wide else (REACH,):
         # A head wider than its spine's medial radii say (its crown beyond them): the region
         # grown within them is its lower half, bordering the body its whole length (a knob:
-        # spot's head at seeds 1, 2, 6, 11 and scaled by 0.01).
+        # spot's head at seeds 6 and 11, and scaled by 0.01).
         part = limb_region(spine, cut, tip, arc, local, vertices, adjacency, allowed, reach)
         if part is not None:
             break
