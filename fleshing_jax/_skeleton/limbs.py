@@ -12,8 +12,9 @@ its child limbs):
    first run (a limb's: of the run of its thickest sphere) at least `CORE` times as thick as
    the level's (the hub's; a limb's thickest) and as any sphere further out (the torso; a
    limb's thick part; never past a neck). A sphere whose centre lies inside a core sphere is
-   *covered*: it is inside the parent. The tip's path: its spheres from the tip inwards up to the first covered one
-   (excluded). It is a limb when it protrudes: beyond the last covered sphere's surface by
+   *covered*: it is inside the parent. The tip's path: its spheres from the tip inwards up
+   to the first covered one (excluded). It is a limb when it protrudes: beyond the last
+   covered sphere's surface by
    at least `ELONGATION` times its thickest radius (and, a child limb, when it is at most
    `THINNER` times as thick as its parent). A path half inside a limb's path spheres (or
    whose tip is) is another route to that limb (the same head reached through two strips
