@@ -387,6 +387,7 @@ def _deform(args) -> int:
         progress=_Progress(f"{args.method}: vertices"),
         margin=margin,
         beyond=args.beyond,
+        stretch=is_mesh,  # measured as it is bent (`_bend_stretch`)
     )
     if isinstance(bent, trimesh.Trimesh):
         valid = np.asarray(bent.vertex_attributes["valid"], dtype=bool)
@@ -417,30 +418,23 @@ def _deform(args) -> int:
             file=sys.stderr,
         )
         return 3
-    if is_mesh and _refused_stretch(args, _bend_stretch(mesh, bent, valid, source, target,
-                                                        args, margin)):
+    if is_mesh and _refused_stretch(args, _bend_stretch(mesh, bent, valid)):
         return 3
     write_mesh_atomic(bent, args.output)
     print(f"wrote {args.output} ({args.method}, {time.perf_counter() - started:.1f} s)")
     return 0
 
 
-def _bend_stretch(mesh, bent, valid, source, target, args, margin) -> list:
+def _bend_stretch(mesh, bent, valid) -> list:
     """Prints and returns (`_refused_stretch`'s pairs) the largest change of length of an edge
     between two valid vertices of `bent`, and the largest principal stretch of the map at a
-    valid vertex: the same rule as `pose`'s."""
-    import jax.numpy as jnp
+    valid vertex (`deform_mesh`'s `stretch`): the same rule as `pose`'s."""
     import numpy as np
 
-    from ._fleshing.pipeline import prepare_target, register
-    from ._fleshing.verify import registered_stretch
     from ._mesh.stretch import edge_stretch
 
     edges = np.asarray(edge_stretch(mesh, np.asarray(bent.vertices), valid=valid))
-    registration = register(jnp.asarray(np.asarray(mesh.vertices)), source, margin=margin)
-    poser = prepare_target(target, registration.points.dtype, method=args.method,
-                           twist=args.twist, start=registration.ends, beyond=args.beyond)
-    principal = np.asarray(registered_stretch(source, registration, poser))
+    principal = np.asarray(bent.vertex_attributes["stretch"])
     principal = np.where(valid & np.isfinite(principal), principal, 1.0)
     worst_edge, worst_map = int(edges.argmax()), int(principal.argmax())
     print(f"largest edge stretch between valid vertices: {edges[worst_edge]:.3g}× (vertex "

@@ -16,6 +16,8 @@ from .._checks import as_margin, as_points, as_twist
 from .._fleshing.ends import check_beyond
 from .._fleshing.methods import check_method
 from .._fleshing.pipeline import pose_prepared, register
+from .._fleshing.verify import registered_stretch
+from .._numerics import cast_floats
 from .._spines.spine import AbstractSpine
 from .overlap import register_and_prepare
 
@@ -34,7 +36,8 @@ def flesh_chunked(
     progress: Callable[[int, int], None] | None = None,
     margin: float = 0.0,
     beyond: str = "continue",
-) -> tuple[np.ndarray, np.ndarray]:
+    stretch: bool = False,
+) -> tuple[np.ndarray, ...]:
     """`flesh` in chunks of at most `chunk_size` points (bounded memory, progress reports).
 
     Every chunk has the same shape (the last one is padded), so the work compiles once.
@@ -42,9 +45,11 @@ def flesh_chunked(
     **Arguments:** `points`: (N, 3) array; spines, `method`, `twist`, `margin` and `beyond` as
     for `flesh`;
     `progress(done, total)`: called after each chunk (default: a `tqdm` progress bar on
-    stderr from `PROGRESS_POINTS` points on, work of a few seconds or more).
+    stderr from `PROGRESS_POINTS` points on, work of a few seconds or more);
+    `stretch`: also measure the map's principal stretch at each point (see `deform_mesh`).
 
-    **Returns:** `(deformed (N, 3), valid (N,) bool)` as NumPy arrays, dtype of `points`.
+    **Returns:** `(deformed (N, 3), valid (N,) bool)` as NumPy arrays, dtype of `points`; with
+    `stretch`, `(deformed, valid, stretch (N,))`.
     """
     check_method(method)
     twist = float(as_twist(twist))
@@ -53,6 +58,8 @@ def flesh_chunked(
         raise TypeError(f"`chunk_size` must be a positive int, got {chunk_size!r}.")
     if chunk_size < 1:
         raise ValueError(f"`chunk_size` must be a positive int, got {chunk_size}.")
+    if not isinstance(stretch, bool | np.bool_):
+        raise TypeError(f"`stretch` must be a bool, got {type(stretch).__name__}.")
     if isinstance(points, np.ndarray) and points.dtype in (np.float32, np.float64):
         if points.ndim != 2 or points.shape[-1] != 3:  # (as below, without a copy)
             raise ValueError(f"`points` must have shape (N, 3), got shape {points.shape}.")
@@ -61,6 +68,7 @@ def flesh_chunked(
     n = len(points)
     size = max(1, min(int(chunk_size), n))
     deformed, valid = np.empty_like(points), np.zeros(n, dtype=bool)
+    stretches = np.full(n, np.nan, points.dtype) if stretch else None
     if progress is None and n >= PROGRESS_POINTS:
         progress = _progress_bar(n)
     poser = None  # the target, prepared once for all chunks
@@ -78,9 +86,15 @@ def flesh_chunked(
         out, ok = pose_prepared(registration, poser)
         deformed[start : start + m] = np.asarray(out)[:m]
         valid[start : start + m] = np.asarray(ok)[:m]
+        if stretch:
+            # The same map as the images' (registration and prepared target); NaN where the
+            # registration is not valid, and where the images are not (projection check).
+            measured = np.asarray(registered_stretch(cast_floats(source, chunk.dtype),
+                                                     registration, poser))[:m]
+            stretches[start : start + m] = np.where(valid[start : start + m], measured, np.nan)
         if progress is not None:
             progress(start + m, n)
-    return deformed, valid
+    return (deformed, valid) if not stretch else (deformed, valid, stretches)
 
 
 def deform_mesh(
@@ -94,6 +108,7 @@ def deform_mesh(
     progress: Callable[[int, int], None] | None = None,
     margin: float | None = None,
     beyond: str = "continue",
+    stretch: bool = False,
 ):
     """Bends a mesh or point cloud from around `source` to around `target`.
 
@@ -112,13 +127,20 @@ def deform_mesh(
       cloud or array (no edges).
     - `beyond`: `"continue"` or `"rigid"`: the points beyond the source's ends move rigidly
       with its end frames (a body behind a bent tail stays still); see `flesh`.
+    - `stretch`: also measure, at each vertex, the largest factor by which the map stretches
+      or squeezes a direction (`fj.principal_stretch`, by `jax.jacfwd`: about as much work
+      again as the bend). A valid bend keeps volume but near the edge of its range can draw
+      a part out into a spike (the command line refuses such a bend beyond `--max-stretch`);
+      `fj.edge_stretch(mesh, result.vertices, valid=...)` gives the edges' changes of length.
 
     **Returns:** for a `Trimesh`, a new `Trimesh` with the input's faces, vertex order and
     visuals, its vertices fleshed, and the per-vertex validity (N,) bool in
     `result.vertex_attributes["valid"]` (invalid vertices are left where they were). For a
     `(vertices, faces)` pair, `(deformed vertices (N, 3), faces (the same array), valid (N,))`
     (measure quad volumes with `fj.volume(deformed, faces)`). For a point cloud or array, a
-    `trimesh.PointCloud`, with the validity in `result.metadata["valid"]`.
+    `trimesh.PointCloud`, with the validity in `result.metadata["valid"]`. With `stretch`,
+    the principal stretch (N,) (NaN at invalid vertices) is in `vertex_attributes["stretch"]`,
+    `metadata["stretch"]`, or last in the tuple `(deformed, faces, valid, stretch)`.
     """
     faces = None
     if isinstance(mesh, trimesh.Trimesh):
@@ -136,7 +158,7 @@ def deform_mesh(
         )
     if margin is None:
         margin = 0.5 * longest_edge(points, faces) if faces is not None else 0.0
-    deformed, valid = flesh_chunked(
+    deformed, valid, *measured = flesh_chunked(
         points,
         source,
         target,
@@ -146,18 +168,20 @@ def deform_mesh(
         progress=progress,
         margin=margin,
         beyond=beyond,
+        stretch=stretch,
     )
+    attributes = {"valid": valid, **({"stretch": measured[0]} if stretch else {})}
     if isinstance(mesh, trimesh.Trimesh):
         result = mesh.copy()
         result.vertices = deformed
-        result.vertex_attributes["valid"] = valid
+        result.vertex_attributes.update(attributes)
         return result
     if isinstance(mesh, tuple):
-        return deformed, faces, valid
+        return deformed, faces, *attributes.values()
     cloud = trimesh.PointCloud(deformed)
     if isinstance(mesh, trimesh.PointCloud) and mesh.colors is not None and len(mesh.colors):
         cloud.colors = mesh.colors
-    cloud.metadata["valid"] = valid
+    cloud.metadata.update(attributes)
     return cloud
 
 
