@@ -190,6 +190,26 @@ def check_number(value, name: str, low: float, high: float, *, integer: bool = F
     return number
 
 
+def check_vertex_ids(vertex_ids, count: int, name: str = "vertex_ids") -> np.ndarray:
+    """`vertex_ids` as a non-empty (k,) int64 array of indices into `count` vertices: a
+    `TypeError` naming `name` for values that are not integers, a `ValueError` for none, another
+    shape or an index out of range (an empty list, read as floats, was said to be of the
+    wrong dtype)."""
+    ids = np.asarray(vertex_ids)
+    if ids.size == 0:
+        raise ValueError(f"`{name}` must name at least one vertex, got none.")
+    if ids.dtype == bool or not np.issubdtype(ids.dtype, np.integer):
+        raise TypeError(f"`{name}` must be integer vertex indices, got dtype {ids.dtype}.")
+    if ids.ndim != 1:
+        raise ValueError(f"`{name}` must be a (k,) array of vertex indices, got shape "
+                         f"{ids.shape}.")
+    out = ids[(ids < 0) | (ids >= count)]
+    if out.size:
+        raise ValueError(f"`{name}` must index the mesh's {count} vertices (0 to {count - 1}), "
+                         f"got {out[:10].tolist()}.")
+    return ids.astype(np.int64)
+
+
 def check_finite_points(points: ArrayLike, name: str) -> np.ndarray:
     """`points` as a float64 NumPy array of shape `(k, 3)` or `(3,)`, all finite.
 

@@ -348,7 +348,7 @@ def _deform(args) -> int:
     from ._fleshing.diagnose import diagnose, largest_valid_bend, planar_bend
     from ._fleshing.pipeline import register
     from ._mesh.deform import deform_mesh, longest_edge
-    from ._mesh.files import check_output_path, write_mesh_atomic
+    from ._mesh.files import MESH_WRITABLE, check_output_path, write_mesh_atomic
     from ._mesh.volume import volume
     from ._spines.files import load_spine, save_spine, spine_json
 
@@ -364,6 +364,8 @@ def _deform(args) -> int:
         raise ValueError("--medial finds the rest spine: it goes without --from")
     mesh = _load_input(args.input, args.cap_holes)
     is_mesh = isinstance(mesh, trimesh.Trimesh) and len(mesh.faces) > 0
+    if is_mesh:
+        check_output_path(args.output, extensions=MESH_WRITABLE)  # (before the work)
     started = time.perf_counter()
     if args.source is not None:
         source = load_spine(args.source)
@@ -496,13 +498,13 @@ def _medial(args) -> int:
     from ._medial_axis.construct import medial_mesh
     from ._medial_axis.distance import medial_distance
     from ._medial_axis.files import check_medial_path, save_medial
-    from ._mesh.files import check_output_path, write_mesh_atomic
+    from ._mesh.files import MESH_WRITABLE, check_output_path, write_mesh_atomic
 
     if not str(args.output).lower().endswith(".ma"):
         raise ValueError(f"{args.output}: the medial mesh is written in .ma format (OUT.ma)")
     check_medial_path(args.output)
     if args.envelope is not None:
-        check_output_path(args.envelope)
+        check_output_path(args.envelope, extensions=MESH_WRITABLE)
     if args.spheres < 2:
         raise ValueError(f"--spheres must be an integer >= 2, got {args.spheres}")
     if args.seed < 0:
@@ -561,10 +563,10 @@ def _medial_deform(args) -> int:
     from ._medial_axis.files import load_medial
     from ._medial_deform.deform import deform_medial
     from ._medial_deform.handle_files import load_handles
-    from ._mesh.files import check_output_path, write_mesh_atomic
+    from ._mesh.files import MESH_WRITABLE, check_output_path, write_mesh_atomic
     from ._mesh.volume import volume
 
-    check_output_path(args.output)
+    check_output_path(args.output, extensions=MESH_WRITABLE)
     medial = load_medial(args.medial)
     handles, targets, rotations = load_handles(args.handles, medial)
     mesh = _load_input(args.input, False)
@@ -701,14 +703,14 @@ def _pose(args) -> int:
     import numpy as np
     import trimesh
 
-    from ._mesh.files import check_output_path, write_mesh_atomic
+    from ._mesh.files import MESH_WRITABLE, check_output_path, write_mesh_atomic
     from ._mesh.stretch import edge_stretch
     from ._mesh.volume import volume
     from ._skeleton.joint_zone import joint_range
     from ._skeleton.posing import limb_causes, pose_skeleton, register_skeleton
     from ._skeleton.stretch import pose_stretch
 
-    check_output_path(args.output)
+    check_output_path(args.output, extensions=MESH_WRITABLE)
     groups = getattr(args, "limbs", None) or []
     if bool(groups) == (args.poses is not None):
         raise ValueError("give the limbs' poses with --limb/--at groups or with --poses (one)")

@@ -2,11 +2,14 @@
 point's result (item 4), mismatched meshes and skeletons (item 7), and its messages (item 9).
 Small shapes only: the creature of `test_cli`, the posing tube (`_posing_shapes`)."""
 
+import json
+import time
+
 import numpy as np
 import pytest
-import trimesh
 
 import fleshing_jax as fj
+from fleshing_jax._cli import main
 from fleshing_jax._mesh.deform import longest_edge
 
 SOURCE, TARGET = fj.Line(4.0), fj.Arc(1.6, 4.0, normal=(0.0, 0.0, -1.0))
@@ -47,3 +50,64 @@ def test_deform_mesh_stretch_is_nan_where_invalid():
     valid, stretch = np.asarray(cloud.metadata["valid"]), np.asarray(cloud.metadata["stretch"])
     assert valid[0] and not valid[1]
     assert np.isfinite(stretch[0]) and np.isnan(stretch[1])
+
+
+# Item 9: messages. (`tube`, `skeleton`, `registration`: the posing tube of `conftest.py`.)
+
+
+def test_a_skeleton_file_with_a_region_entry_past_int64_names_the_file(tmp_path, skeleton):
+    path = tmp_path / "sk.json"
+    fj.save_skeleton(skeleton, path)
+    data = json.loads(path.read_text())
+    data["region"][3] = 2**70
+    path.write_text(json.dumps(data))
+    with pytest.raises(ValueError, match=r"sk\.json: field 'region' .* got 1180591620717411303424"):
+        fj.load_skeleton(path)
+
+
+def test_a_skeleton_with_non_finite_vertices_is_refused_at_construction(skeleton):
+    vertices = np.array(skeleton.vertices)
+    vertices[5, 1] = np.nan
+    with pytest.raises(ValueError, match="`vertices` must be finite"):
+        fj.Skeleton(skeleton.limbs, skeleton.region, vertices)
+
+
+def test_faces_with_a_repeated_vertex_are_named_degenerate(tube):
+    faces = np.array(tube.faces)
+    faces[[4, 9], 1] = faces[[4, 9], 0]
+    for call in (fj.skeleton, fj.medial_mesh):
+        with pytest.raises(ValueError, match=r"2 degenerate faces .* faces \[4, 9\]"):
+            call((np.asarray(tube.vertices), faces))
+
+
+def test_a_mesh_output_in_a_format_of_points_is_refused_before_the_work(tmp_path, tube,
+                                                                        skeleton, capsys):
+    tube.export(str(tmp_path / "in.obj"))
+    fj.save_skeleton(skeleton, tmp_path / "sk.json")
+    fj.save_spine(SOURCE, tmp_path / "a.json")
+    out = tmp_path / "out.xyz"
+    for argv in (["pose", tmp_path / "in.obj", out, "--skeleton", tmp_path / "sk.json",
+                  "--limb", "0", "--bend", "10"],
+                 ["deform", tmp_path / "in.obj", out, "--from", tmp_path / "a.json",
+                  "--bend-angle", "10"]):
+        started = time.perf_counter()
+        assert main([str(a) for a in argv]) == 2
+        err = capsys.readouterr().err
+        assert "out.xyz" in err and "the output is a mesh" in err and ".ply" in err
+        assert time.perf_counter() - started < 2 and not out.exists()  # before any posing
+
+
+@pytest.mark.parametrize("options, error, name", [
+    (dict(vertex_ids=[], targets=np.zeros((0, 3))), ValueError, "vertex_ids"),
+    (dict(max_steps="a"), TypeError, "max_steps"),
+    (dict(max_steps=1.7), TypeError, "max_steps"),
+    (dict(max_steps=0), ValueError, "max_steps"),
+    (dict(rtol=float("nan")), ValueError, "rtol"),
+    (dict(atol=-1.0), ValueError, "atol"),
+])
+def test_fit_skeleton_pose_names_a_bad_option(registration, skeleton, options, error, name):
+    ids = np.flatnonzero(np.asarray(skeleton.region) == 0)[:3]
+    args = dict(vertex_ids=ids, targets=np.asarray(registration.vertices)[ids]) | options
+    with pytest.raises(error, match=f"`{name}`"):
+        fj.fit_skeleton_pose(registration, skeleton, args.pop("vertex_ids"), args.pop("targets"),
+                             **args)

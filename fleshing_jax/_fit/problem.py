@@ -21,7 +21,7 @@ import numpy as np
 import optimistix as optx
 from jaxtyping import Array, ArrayLike, Bool, Float
 
-from .._checks import as_float_array, as_points, as_twist, is_concrete
+from .._checks import as_float_array, as_points, as_twist, check_number, is_concrete
 from .._fleshing.methods import check_method
 from .._fleshing.pipeline import Poser, pose, pose_points, register
 from .._fleshing.projection import Registration
@@ -562,6 +562,20 @@ def stall_message(losses, radius, steps, advice: str = SPINE_ADVICE) -> str:
         f"{float(radius):.1e} with the loss only down from {start:.3e} to {end:.3e}, so this is "
         f"no minimum: {advice}"
     )
+
+
+MAXIMUM_STEPS = 100_000  # a solve's `max_steps`: more is a typo, not a budget
+
+
+def check_solve_options(max_steps, rtol, atol) -> tuple[int, float | None, float | None]:
+    """A fit's `max_steps` (an integer in [1, `MAXIMUM_STEPS`]) and its solver's `rtol` and
+    `atol` (None: from the dtype; else a number in (0, 1]), checked before any work: a
+    `TypeError`/`ValueError` naming the argument (`max_steps=1.7` was truncated, `"a"` raised
+    int's own error, and `rtol=nan` stopped no solve)."""
+    max_steps = check_number(max_steps, "max_steps", 1, MAXIMUM_STEPS, integer=True)
+    rtol, atol = (None if t is None else check_number(t, name, 0, 1, above=True)
+                  for t, name in ((rtol, "rtol"), (atol, "atol")))
+    return max_steps, rtol, atol
 
 
 def check_tolerance(tolerance) -> float:

@@ -59,10 +59,10 @@ def closed_mesh_arrays(mesh) -> tuple[np.ndarray, np.ndarray]:
     `shells.orient_shells`).
 
     **Raises:** `ValueError` naming the problem: non-finite or badly shaped vertices, face
-    indices out of range, boundary edges (open mesh: close it with `fj.cap_holes`; an
-    unwelded mesh, closed once its coincident vertices are one, is welded with a warning),
-    non-manifold edges, inconsistent orientation, shells that cross each other (a
-    self-intersecting mesh), no enclosed volume (a flat sheet).
+    indices out of range, degenerate faces (a vertex repeated), boundary edges (open mesh:
+    close it with `fj.cap_holes`; an unwelded mesh, closed once its coincident vertices are
+    one, is welded with a warning), non-manifold edges, inconsistent orientation, shells that
+    cross each other (a self-intersecting mesh), no enclosed volume (a flat sheet).
     """
     if isinstance(mesh, trimesh.Trimesh):
         vertices, faces = mesh.vertices, mesh.faces
@@ -84,6 +84,17 @@ def closed_mesh_arrays(mesh) -> tuple[np.ndarray, np.ndarray]:
     if faces.min() < 0 or faces.max() >= len(vertices):
         raise ValueError(f"mesh face indices must lie in [0, {len(vertices)}), got "
                          f"[{faces.min()}, {faces.max()}]")
+    repeated = np.flatnonzero((faces[:, 0] == faces[:, 1]) | (faces[:, 1] == faces[:, 2])
+                              | (faces[:, 0] == faces[:, 2]))
+    if repeated.size:
+        # Named here: their edges would otherwise be counted as a hole that capping does
+        # not close.
+        raise ValueError(
+            f"mesh has {repeated.size} degenerate faces (a vertex repeated in a face: faces "
+            f"{repeated[:10].tolist()}{' …' if repeated.size > 10 else ''}); remove them (e.g. "
+            "trimesh's mesh.update_faces(mesh.nondegenerate_faces())) and close any hole left "
+            "(fj.cap_holes)"
+        )
     used = np.zeros(len(vertices), bool)
     used[faces.reshape(-1)] = True
     if not used.all():

@@ -17,9 +17,14 @@ import numpy as np
 import optimistix as optx
 from jaxtyping import Array, ArrayLike, Float
 
-from .._checks import check_number
+from .._checks import check_vertex_ids
 from .._fit.correspondences import weighted_rms
-from .._fit.problem import AbstractFitOutcome, check_cloud, default_solver
+from .._fit.problem import (
+    AbstractFitOutcome,
+    check_cloud,
+    check_solve_options,
+    default_solver,
+)
 from .._medial_axis.medial_mesh import MedialMesh
 from .arap import (
     ITERATIONS,
@@ -33,8 +38,6 @@ from .arap import (
 from .cells import ArapCells
 from .pose import MedialPose
 from .rig import MedialRig, check_method
-
-MAXIMUM_STEPS = 100_000
 
 
 class HandleFitResult(AbstractFitOutcome):
@@ -108,18 +111,6 @@ def _rig_medial(rig: MedialRig) -> MedialMesh:
     cones = np.asarray(rig.cones)
     return MedialMesh(np.asarray(rig.rest_centers), np.asarray(rig.radii),
                       cones[cones[:, 0] != cones[:, 1]], np.asarray(rig.medial_faces))
-
-
-def _check_ids(vertex_ids, n: int) -> np.ndarray:
-    ids = np.asarray(vertex_ids)
-    if ids.ndim != 1 or ids.size == 0 or not np.issubdtype(ids.dtype, np.integer):
-        raise ValueError(f"`vertex_ids` must be a non-empty 1-D array of vertex indices, got "
-                         f"{ids.dtype} of shape {ids.shape}.")
-    out = ids[(ids < 0) | (ids >= n)]
-    if out.size:
-        raise ValueError(f"`vertex_ids` must index vertices in [0, {n}), got "
-                         f"{out.tolist()[:10]}.")
-    return ids.astype(np.int64)
 
 
 def _check_weights(weights, k: int, dtype):
@@ -196,11 +187,9 @@ def fit_handles(
         raise ValueError(f"`medial` must be the rig's MedialMesh ({rig.n_spheres} spheres); "
                          "it is another one (other spheres or topology).")
     iterations, smoothness = _check_options(iterations, solver, smoothness)
-    max_steps = check_number(max_steps, "max_steps", 1, MAXIMUM_STEPS, integer=True)
-    rtol, atol = (None if t is None else check_number(t, name, 0, 1, above=True)
-                  for t, name in ((rtol, "rtol"), (atol, "atol")))
+    max_steps, rtol, atol = check_solve_options(max_steps, rtol, atol)
     handles = check_handles(handles, rig.n_spheres)
-    ids = _check_ids(vertex_ids, rig.rest_vertices.shape[0])
+    ids = check_vertex_ids(vertex_ids, rig.rest_vertices.shape[0])
     invalid = ids[~np.asarray(rig.valid)[ids]]
     if invalid.size:
         raise ValueError(f"`vertex_ids` must be validly bound vertices of the rig; "

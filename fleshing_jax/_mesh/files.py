@@ -64,16 +64,20 @@ def _obj_in_file_order(path: Path, loaded: trimesh.Trimesh) -> trimesh.Trimesh:
 
 
 WRITABLE = ("obj", "ply", "stl", "off", "glb", "xyz")  # single-file formats trimesh exports
+POINTS_ONLY = ("xyz",)  # formats of points, no faces: a mesh is not written there
+MESH_WRITABLE = tuple(w for w in WRITABLE if w not in POINTS_ONLY)
 
 
 def check_output_path(path: str | os.PathLike, extensions: tuple[str, ...] = WRITABLE) -> Path:
     """Checks, before any work, that a mesh can be written at `path`: an extension of
-    `extensions` (default `WRITABLE`; `("json",)` for a spine) and an existing, writable
-    folder. Raises `ValueError` naming the problem."""
+    `extensions` (default `WRITABLE`; `MESH_WRITABLE` for an output that is a mesh, `("json",)`
+    for a spine) and an existing, writable folder. Raises `ValueError` naming the problem."""
     path = Path(path)
     file_type = path.suffix.lower().lstrip(".")
     if file_type not in extensions:
         found = f"'.{file_type}'" if file_type else "no extension"
+        if file_type in POINTS_ONLY and file_type in WRITABLE:
+            found += ": a format of points, and the output is a mesh"
         raise ValueError(
             f"{path}: the output format is chosen by the extension, one of "
             f"{', '.join('.' + w for w in extensions)} (got {found})"

@@ -86,6 +86,11 @@ def load_skeleton(path: str | os.PathLike) -> Skeleton:
                          "limb indices.")  # fmt: skip
     if not all(isinstance(i, int) and not isinstance(i, bool) for i in region):
         raise ValueError(f"{path}: field 'region' must hold integers.")
+    # (Checked as Python integers: one past int64, 2**70, overflowed NumPy's conversion.)
+    out = next((i for i in region if not -1 <= i < len(limbs)), None)
+    if out is not None:
+        raise ValueError(f"{path}: field 'region' must hold limb indices in [-1, {len(limbs)}) "
+                         f"(-1: the body), got {out}.")
     if not isinstance(vertices, list) or len(vertices) != len(region):
         raise ValueError(f"{path}: field 'vertices' must be a list of {len(region)} points, "
                          "one per region entry.")  # fmt: skip

@@ -27,10 +27,12 @@ import optimistix as optx
 from jaxtyping import Array, ArrayLike, Bool, Float
 
 from .._batching.buckets import bucket
+from .._checks import check_vertex_ids
 from .._fit.jacobian import for_solver
 from .._fit.problem import (
     AbstractFitOutcome,
     check_cloud,
+    check_solve_options,
     default_solver,
     default_tolerance,
     stall_message,
@@ -197,20 +199,6 @@ def _solve(problem: PoseProblem, solver, y0: Array, max_steps: int, throw: bool)
     return solution.value, radius, solution.result, solution.stats
 
 
-def _check_ids(vertex_ids, count: int) -> np.ndarray:
-    ids = np.asarray(vertex_ids)
-    if ids.dtype == bool or not np.issubdtype(ids.dtype, np.integer):
-        raise TypeError(f"`vertex_ids` must be integer vertex indices, got dtype {ids.dtype}.")
-    if ids.ndim != 1 or ids.shape[0] == 0:
-        raise ValueError(f"`vertex_ids` must be a non-empty (k,) array, got shape {ids.shape}.")
-    if ids.min() < 0 or ids.max() >= count:
-        raise ValueError(
-            f"`vertex_ids` must index the mesh's {count} vertices, got values from "
-            f"{ids.min()} to {ids.max()}."
-        )
-    return ids.astype(np.int64)
-
-
 def _default_limbs(skeleton: Skeleton, ids: np.ndarray) -> tuple[int, ...]:
     """The limbs whose regions hold vertices of `ids`, and their ancestors."""
     region = np.asarray(skeleton.region)
@@ -273,7 +261,8 @@ def fit_skeleton_pose(
     - `solver`: any optimistix least-squares solver or minimiser; default
       `LevenbergMarquardt(rtol, atol)` with tolerances from the dtype (1e-10 in float64,
       1e-5 in float32; 1e-6 for a `target`, whose nearest neighbours change with the pose).
-    - `max_steps`, `throw`: passed to `optimistix.least_squares`.
+    - `max_steps` (an integer in [1, 100000]), `throw`: passed to `optimistix.least_squares`;
+      `rtol`, `atol`: in (0, 1].
 
     **Returns:** a `SkeletonFit` (its `poses` ready for `pose_skeleton`). Float32 works (the
     registration's dtype); its `rms` then stops near 1e-6 of the limbs' size. With `target=`,
@@ -282,10 +271,11 @@ def fit_skeleton_pose(
     the stages' steps.
 
     **Raises:** `TypeError`/`ValueError` naming the argument: `vertex_ids` empty, not integer
-    or out of range; `targets` not (k, 3) or not finite; `limbs` or `init` naming a limb the
-    skeleton does not have; nothing to fit.
+    or out of range; `max_steps`, `rtol` or `atol` out of their bounds; `targets` not (k, 3)
+    or not finite; `limbs` or `init` naming a limb the skeleton does not have; nothing to fit.
     """
     registration = as_registration(mesh_or_registration, skeleton)
+    max_steps, rtol, atol = check_solve_options(max_steps, rtol, atol)
     if target is None and vertex_ids is None:
         raise ValueError("nothing to fit to: give `target=` (a shape), or `vertex_ids` and "
                          "`targets` (markers), or both.")
@@ -293,7 +283,7 @@ def fit_skeleton_pose(
         raise ValueError("`vertex_ids` and `targets` go together: give both, or neither.")
     ids = None
     if vertex_ids is not None:
-        ids = _check_ids(vertex_ids, registration.vertices.shape[0])
+        ids = check_vertex_ids(vertex_ids, registration.vertices.shape[0])
         targets = check_cloud(targets, "targets")
         if targets.shape != (ids.shape[0], 3):
             raise ValueError(
@@ -317,9 +307,6 @@ def fit_skeleton_pose(
     for k in limbs:
         if not isinstance(init.get(k, LimbPose()), LimbPose):
             raise TypeError(f"`init[{k}]` must be a LimbPose: limb {k} is fitted.")
-    max_steps = int(max_steps)
-    if max_steps < 1:
-        raise ValueError(f"`max_steps` must be a positive integer, got {max_steps}.")
     dtype = registration.vertices.dtype
     if target is not None:
         # Here to avoid an import cycle: the shape's fit builds on this module's pieces.

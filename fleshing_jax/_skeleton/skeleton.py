@@ -126,6 +126,9 @@ class Skeleton(eqx.Module):
             raise ValueError(f"`region` must have shape (n,), got {self.region.shape}.")
         if self.vertices.shape != (n, 3):
             raise ValueError(f"`vertices` must have shape ({n}, 3), got {self.vertices.shape}.")
+        if is_concrete(self.vertices) and not bool(jnp.all(jnp.isfinite(self.vertices))):
+            # (Else saved, it is a file `load_skeleton` refuses, and no mesh matches it.)
+            raise ValueError("`vertices` must be finite (found NaN or inf).")
         if is_concrete(self.region) and n:
             low, high = int(jnp.min(self.region)), int(jnp.max(self.region))
             if low < -1 or high >= len(self.limbs):
