@@ -7,6 +7,7 @@ import time
 
 import numpy as np
 import pytest
+import trimesh
 
 import fleshing_jax as fj
 from fleshing_jax._cli import main
@@ -111,3 +112,60 @@ def test_fit_skeleton_pose_names_a_bad_option(registration, skeleton, options, e
     with pytest.raises(error, match=f"`{name}`"):
         fj.fit_skeleton_pose(registration, skeleton, args.pop("vertex_ids"), args.pop("targets"),
                              **args)
+
+
+# Item 7: mismatches.
+
+
+def _sphere(radius, centre, inward=False):
+    sphere = trimesh.creation.icosphere(2, radius)
+    faces = sphere.faces[:, ::-1] if inward else sphere.faces
+    return sphere.vertices + centre, faces
+
+
+def _joined(*parts):
+    vertices, faces, offset = [], [], 0
+    for v, f in parts:
+        vertices.append(v)
+        faces.append(f + offset)
+        offset += len(v)
+    return np.concatenate(vertices), np.concatenate(faces)
+
+
+def test_two_characters_side_by_side_are_refused_by_skeleton(tube):
+    # Two tubes side by side (one mesh): the second was made a limb of the first.
+    other = np.asarray(tube.vertices) + [0.0, 2.0, 0.0]
+    two = _joined((np.asarray(tube.vertices), tube.faces), (other, tube.faces))
+    started = time.perf_counter()
+    with pytest.raises(ValueError, match="`mesh` holds 2 separate bodies .* its own mesh"):
+        fj.skeleton(two)
+    assert time.perf_counter() - started < 5  # before any medial mesh is computed
+
+
+def test_bodies_are_shells_not_inside_others():
+    from fleshing_jax._medial_axis.shells import bodies
+
+    def volumes(mesh):
+        return [volume for _, volume in bodies(*mesh)]
+
+    def ball(radius):
+        return pytest.approx(trimesh.creation.icosphere(2, radius).volume, rel=1e-9)
+
+    hollow = _joined(_sphere(1.0, 0.0), _sphere(0.5, 0.0, inward=True))  # one body, a cavity
+    assert volumes(hollow) == [ball(1.0)]
+    assert volumes(_joined(_sphere(0.5, [3.0, 0, 0]), _sphere(1.0, 0.0))) == [ball(1.0),
+                                                                             ball(0.5)]
+    # A ball inside the cavity is a body of its own.
+    assert volumes(_joined(hollow, _sphere(0.2, 0.0))) == [ball(1.0), ball(0.2)]
+
+
+def test_a_loose_piece_of_a_coarse_envelope_is_no_second_character():
+    from fleshing_jax._medial_axis.surface import closed_mesh_arrays
+    from fleshing_jax._skeleton.build import _one_body
+
+    # Two balls, one 1.6 % of the other's volume (a tail's tip come loose): one character;
+    # 6.4 %: two.
+    big = _sphere(1.0, 0.0)
+    _one_body(*closed_mesh_arrays(_joined(big, _sphere(0.25, [3.0, 0, 0]))))
+    with pytest.raises(ValueError, match="2 separate bodies"):
+        _one_body(*closed_mesh_arrays(_joined(big, _sphere(0.4, [3.0, 0, 0]))))

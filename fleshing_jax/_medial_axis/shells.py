@@ -58,13 +58,34 @@ def orient_shells(vertices, faces) -> tuple[np.ndarray, list[int]]:
     count, label = shells(faces)
     if count == 1:
         return faces, []
-    # About the box's centre: a small shell's signed volume is a sum of triple products that
-    # cancel, and far from the origin their rounding outgrew it (a 26-vertex shell of a
-    # mesh moved 1e6 diagonals away was flipped).
+    vertices, volume = _volumes(vertices, faces, count, label)
+    depth = nesting(vertices, faces, count, label)
+    # A body's shell (nested in an even number of others) encloses positive volume.
+    flip = np.flatnonzero((volume > 0) != (depth % 2 == 0))
+    faces = faces.copy()
+    wrong = np.isin(label, flip)
+    faces[wrong] = faces[wrong][:, ::-1]
+    return faces, flip.tolist()
+
+
+def _volumes(vertices, faces, count: int, label) -> tuple[np.ndarray, np.ndarray]:
+    """`(vertices about their box's centre, the signed volume each shell encloses (count,))`.
+    About the centre: a small shell's volume is a sum of triple products that cancel, and far
+    from the origin their rounding outgrew it (a 26-vertex shell of a mesh moved 1e6
+    diagonals away was flipped)."""
     vertices = vertices - 0.5 * (vertices.min(axis=0) + vertices.max(axis=0))
     corners = [vertices[faces[:, k]] for k in range(3)]
-    signed = np.einsum("ij,ij->i", corners[0], np.cross(corners[1], corners[2]))
-    volume = np.bincount(label, weights=signed, minlength=count)
+    signed = np.einsum("ij,ij->i", corners[0], np.cross(corners[1], corners[2])) / 6
+    return vertices, np.bincount(label, weights=signed, minlength=count)
+
+
+def nesting(vertices, faces, count: int, label) -> np.ndarray:
+    """`(count,)` int: in how many other shells each shell lies (`shells`' `count` and face
+    `label`s): 0 for a body, 1 for a cavity in it, 2 for a body inside that cavity…
+
+    **Raises:** `ValueError` naming two shells that cross each other.
+    """
+    corners = [vertices[faces[:, k]] for k in range(3)]
     members = [np.flatnonzero(label == s) for s in range(count)]
     points = [np.unique(faces[m]) for m in members]
     lo = np.array([vertices[p].min(axis=0) for p in points])
@@ -88,9 +109,16 @@ def orient_shells(vertices, faces) -> tuple[np.ndarray, list[int]]:
                                  f"{len(p)} vertices of shell {s} lie inside shell {t}. A "
                                  "self-intersecting mesh bounds no single volume: merge them "
                                  "into one closed surface first (e.g. a mesh boolean union)")
-    # A body's shell (nested in an even number of others) encloses positive volume.
-    flip = np.flatnonzero((volume > 0) != (depth % 2 == 0))
-    faces = faces.copy()
-    wrong = np.isin(label, flip)
-    faces[wrong] = faces[wrong][:, ::-1]
-    return faces, flip.tolist()
+    return depth
+
+
+def bodies(vertices, faces) -> list[tuple[np.ndarray, float]]:
+    """The separate bodies of a closed mesh (faces oriented outwards): for each shell nested
+    in an even number of others (a body, not a cavity), `(its face indices, the volume it
+    encloses)`, the largest volume first."""
+    count, label = shells(faces)
+    vertices, volume = _volumes(vertices, faces, count, label)
+    depth = nesting(vertices, faces, count, label) if count > 1 else np.zeros(1, np.int64)
+    found = [(np.flatnonzero(label == s), abs(float(volume[s])))
+             for s in np.flatnonzero(depth % 2 == 0)]
+    return sorted(found, key=lambda body: -body[1])

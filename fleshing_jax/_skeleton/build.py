@@ -9,6 +9,7 @@ from scipy.spatial import cKDTree
 
 from .._checks import check_number
 from .._medial_axis.medial_mesh import MedialMesh
+from .._medial_axis.shells import bodies
 from .._medial_axis.unit import UnitFrame
 from .._mesh.deform import longest_edge
 from .bones import bone_limbs
@@ -37,6 +38,9 @@ BELONGS = 0.1
 # one 2.4 times as large as that distance (at twice, the library's own medial mesh was
 # refused). A medial mesh of another shape is off by far more.
 REACHES = 4
+# A separate body enclosing less than this fraction of the largest body's volume is a loose
+# piece of it, not another character (`_one_body`).
+LOOSE = 0.05
 
 
 def skeleton(mesh, *, medial: MedialMesh | None = None, spheres: int = 200,
@@ -113,7 +117,8 @@ def skeleton(mesh, *, medial: MedialMesh | None = None, spheres: int = 200,
 
     **Raises:** `TypeError`/`ValueError` naming the argument: a `mesh` that is not a closed
     triangle mesh (see `fj.medial_mesh`), `spheres` < 2, a `medial` that is not a
-    `MedialMesh` or does not belong to `mesh`; `chains` with a point outside the mesh, a
+    `MedialMesh` or does not belong to `mesh`; a `mesh` of several separate bodies (two
+    characters side by side: find each one's skeleton) when the limbs are found; `chains` with a point outside the mesh, a
     limb that gets no surface, or a child cut before its parent leaves room to bend; `bones`
     of zero length, outside the mesh, with parents out of range or in a cycle, or that get
     no surface to move (each error names the bone).
@@ -145,6 +150,7 @@ def skeleton(mesh, *, medial: MedialMesh | None = None, spheres: int = 200,
                 f"parent: no room to bend {parent}; move their joints apart."
             )
     else:
+        _one_body(vertices, faces)
         limbs, region = _found_limbs(vertices, faces, medial, spheres, seed, adjacency,
                                      margin)
     given = np.asarray(mesh.vertices if given is not None else mesh[0], np.float64)
@@ -152,6 +158,25 @@ def skeleton(mesh, *, medial: MedialMesh | None = None, spheres: int = 200,
         # Welded or with unused vertices dropped: each given vertex takes its copy's region.
         region = region[cKDTree(vertices).query(given)[1]]
     return Skeleton(tuple(limbs), region.astype(np.int32), given)
+
+
+def _one_body(vertices, faces) -> None:
+    """`ValueError` for a mesh of several separate bodies (closed shells, none inside another:
+    two characters side by side), each enclosing at least `LOOSE` of the largest's volume:
+    the limbs are found from one body's hub, and the other body became a limb of it,
+    silently. A smaller loose piece (a thin tail's or wrist's tip come loose in a coarse
+    envelope: 0.004–1.7 % of the character's volume) stays with the body: no pose moves it."""
+    found = bodies(vertices, faces)
+    found = [(ids, volume) for ids, volume in found if volume >= LOOSE * found[0][1]]
+    if len(found) > 1:
+        sizes = ", ".join(str(len(np.unique(faces[ids]))) for ids, _ in found[:4])
+        raise ValueError(
+            f"`mesh` holds {len(found)} separate bodies (closed shells, none inside another; "
+            f"{sizes}{', …' if len(found) > 4 else ''} vertices): a skeleton is one body's "
+            "tree of limbs, and the others would become its limbs. Find each body's skeleton "
+            "on its own mesh (e.g. trimesh's mesh.split(only_watertight=False)), or give the "
+            "limbs (`chains`, `bones`)."
+        )
 
 
 def _found_limbs(vertices, faces, medial, spheres, seed, adjacency, margin):
