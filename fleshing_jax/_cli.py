@@ -408,9 +408,13 @@ def _deform(args) -> int:
         angle = largest_valid_bend(registration, source, sign=sign, **options)
         radius = float(source.length) / angle if angle > 0 else float("inf")
         degrees = np.floor(100 * np.degrees(angle)) / 100  # rounded down: still valid
+        # (Counted over the vertices a bend can keep valid: say which it cannot.)
+        stuck = int(np.sum(~np.asarray(registration.valid)))
         print(
             f"largest bend of the rest spine keeping every vertex valid ({args.method}): "
             f"{degrees:.2f} degrees (arc radius {radius:.6g})"
+            + (f", but the {stuck} outside the rest spine's reach, invalid at any bend"
+               if stuck else "")
         )
     if not valid.all() and not args.allow_invalid:
         print(

@@ -169,3 +169,21 @@ def test_a_loose_piece_of_a_coarse_envelope_is_no_second_character():
     _one_body(*closed_mesh_arrays(_joined(big, _sphere(0.25, [3.0, 0, 0]))))
     with pytest.raises(ValueError, match="2 separate bodies"):
         _one_body(*closed_mesh_arrays(_joined(big, _sphere(0.4, [3.0, 0, 0]))))
+
+
+def test_deform_s_largest_bend_names_the_vertices_no_bend_keeps_valid(tmp_path, creature,
+                                                                       capsys):
+    # The largest valid bend is counted over the vertices a bend can keep valid: the line
+    # says how many lie outside the rest spine's reach (it claimed "every vertex").
+    creature.export(str(tmp_path / "in.obj"))
+    rest = fj.Arc(0.8, 4.0, normal=(0.0, 0.0, -1.0))  # tighter than the creature's belly
+    fj.save_spine(rest, tmp_path / "a.json")
+    code = main([str(a) for a in ("deform", tmp_path / "in.obj", tmp_path / "out.obj",
+                                  "--from", tmp_path / "a.json", "--bend-angle", 10)])
+    out = capsys.readouterr().out
+    margin = 0.5 * longest_edge(creature.vertices, creature.faces)
+    stuck = int(np.sum(~np.asarray(fj.register(np.asarray(creature.vertices), rest,
+                                                   margin=margin).valid)))
+    assert code == 3 and stuck > 0
+    line = next(x for x in out.splitlines() if x.startswith("largest bend"))
+    assert line.endswith(f"but the {stuck} outside the rest spine's reach, invalid at any bend")
