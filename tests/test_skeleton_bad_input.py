@@ -187,3 +187,14 @@ def test_deform_s_largest_bend_names_the_vertices_no_bend_keeps_valid(tmp_path, 
     assert code == 3 and stuck > 0
     line = next(x for x in out.splitlines() if x.startswith("largest bend"))
     assert line.endswith(f"but the {stuck} outside the rest spine's reach, invalid at any bend")
+
+
+def test_flesh_carries_the_map_s_principal_stretch(creature):
+    points = np.asarray(creature.vertices)[::7]
+    images, valid, stretch = fj.flesh(points, SOURCE, TARGET, stretch=True)
+    np.testing.assert_array_equal(images, fj.flesh(points, SOURCE, TARGET)[0])
+    expected = fj.principal_stretch(fj.Fleshing(SOURCE, TARGET), points)
+    np.testing.assert_array_equal(stretch, expected)
+    assert np.asarray(valid).all() and float(np.max(stretch)) > 1.1
+    with pytest.raises(TypeError, match="`stretch`"):
+        fj.flesh(points, SOURCE, TARGET, stretch=1)

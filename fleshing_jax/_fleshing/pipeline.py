@@ -19,6 +19,7 @@ from typing import NamedTuple
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array, ArrayLike, Bool, Float
 
 from .._batching import chunks as _chunks
@@ -612,7 +613,8 @@ def flesh(
     margin: ArrayLike = 0.0,
     beyond: str = "continue",
     progress: bool | None = None,
-) -> tuple[Float[Array, "N 3"], Bool[Array, " N"]]:
+    stretch: bool = False,
+) -> tuple[Array, ...]:
     """Bends `points` from around `source` to around `target`, preserving local volume.
 
     **Arguments:**
@@ -624,13 +626,19 @@ def flesh(
     - `check_projection`, `margin`, `beyond`: see `Fleshing` and `register`.
     - `progress`: show a progress bar (`tqdm`, on stderr) over the blocks of a large batch
       (default: when there are at least `PROGRESS_BLOCKS` of them).
+    - `stretch`: also return, at each point, the largest factor by which the map stretches or
+      squeezes a direction (`fj.principal_stretch` of this fleshing: by `jax.jacfwd`, several
+      times the work of the bend, in one batch). A valid bend keeps volume, yet near the edge
+      of its range it can draw a part out into a spike; the command line refuses it beyond
+      `--max-stretch`. (`fj.deform_mesh(..., stretch=True)` measures it chunk by chunk.)
 
     Memory stays bounded on large batches: called eagerly on tabulated spines, more than
     `BLOCK_POINTS` points are fleshed a block at a time into the output (whose buffer is
     updated in place), so that the peak is the input and output arrays plus one block's work.
 
-    **Returns:** `(deformed (N, 3), valid (N,) bool)`. Invalid points (outside the valid space,
-    or not finite) are returned unchanged and flagged `False`; they never raise.
+    **Returns:** `(deformed (N, 3), valid (N,) bool)`; with `stretch`, `(deformed, valid,
+    stretch (N,))`, NaN where not valid. Invalid points (outside the valid space, or not
+    finite) are returned unchanged and flagged `False`; they never raise.
     """
     points = _check_points(points, "points")
     _check_spine(source, "source")
@@ -639,6 +647,16 @@ def flesh(
     twist = as_twist(twist, points.dtype)  # checked before any work
     margin = as_margin(margin, points.dtype)
     beyond = check_beyond(beyond)
+    if not isinstance(stretch, bool | np.bool_):
+        raise TypeError(f"`stretch` must be a bool, got {type(stretch).__name__}.")
+    if stretch:
+        from .verify import principal_stretch  # (it builds on this module)
+
+        fleshing = Fleshing(source, target, method=method, twist=twist, margin=margin,
+                            check_projection=check_projection, beyond=beyond)
+        options = dict(method=method, twist=twist, check_projection=check_projection,
+                       margin=margin, beyond=beyond, progress=progress)
+        return *flesh(points, source, target, **options), principal_stretch(fleshing, points)
     cast_source, cast_target = cast_floats((source, target), points.dtype)
     if points.shape[0] <= _chunks.CHUNK_POINTS or (
         runs_whole(cast_source) and runs_whole(cast_target)
