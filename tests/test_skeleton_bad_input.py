@@ -198,3 +198,21 @@ def test_flesh_carries_the_map_s_principal_stretch(creature):
     assert np.asarray(valid).all() and float(np.max(stretch)) > 1.1
     with pytest.raises(TypeError, match="`stretch`"):
         fj.flesh(points, SOURCE, TARGET, stretch=1)
+
+
+def test_a_registration_refuses_a_skeleton_of_another_mesh_or_edited_spines(skeleton,
+                                                                            registration):
+    # The same regions and parents: the registration's own mesh and spines would be posed.
+    scaled = fj.Skeleton(skeleton.limbs, skeleton.region, np.asarray(skeleton.vertices) * 1.5)
+    with pytest.raises(ValueError, match="`skeleton` was built on another mesh than the one"):
+        fj.pose_skeleton(registration, scaled, {0: fj.LimbPose(10)})
+    spine = skeleton.limbs[2].spine
+    moved = fj.BSpline(np.asarray(spine.control_points) - [0.1, 0, 0], subdivisions=32)
+    limbs = list(skeleton.limbs)
+    limbs[2] = fj.Limb(moved, limbs[2].joint, limbs[2].parent)
+    edited = fj.Skeleton(limbs, skeleton.region, skeleton.vertices)
+    with pytest.raises(ValueError, match="rest spines or joints differ"):
+        fj.pose_skeleton(registration, edited, {0: fj.LimbPose(10)})
+    # The skeleton itself, or a copy of it (read back from its file), is the one registered.
+    same = fj.Skeleton(skeleton.limbs, np.asarray(skeleton.region), np.array(skeleton.vertices))
+    assert fj.pose_skeleton(registration, same, {}).valid.shape == (len(skeleton.region),)

@@ -118,10 +118,10 @@ def skeleton(mesh, *, medial: MedialMesh | None = None, spheres: int = 200,
     **Raises:** `TypeError`/`ValueError` naming the argument: a `mesh` that is not a closed
     triangle mesh (see `fj.medial_mesh`), `spheres` < 2, a `medial` that is not a
     `MedialMesh` or does not belong to `mesh`; a `mesh` of several separate bodies (two
-    characters side by side: find each one's skeleton) when the limbs are found; `chains` with a point outside the mesh, a
-    limb that gets no surface, or a child cut before its parent leaves room to bend; `bones`
-    of zero length, outside the mesh, with parents out of range or in a cycle, or that get
-    no surface to move (each error names the bone).
+    characters side by side: find each one's skeleton) when the limbs are found; `chains`
+    with a point outside the mesh, a limb that gets no surface, or a child cut before its
+    parent leaves room to bend; `bones` of zero length, outside the mesh, with parents out of
+    range or in a cycle, or that get no surface to move (each error names the bone).
     """
     from .._medial_axis.surface import closed_mesh_arrays
 

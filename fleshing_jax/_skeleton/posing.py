@@ -64,8 +64,9 @@ class SkeletonRegistration(eqx.Module):
     the region's vertices; `joints`, `stops`: scalars, where each limb's bend may start and
     must be complete (see the module's docstring); `vertices` (n, 3): the rest vertices;
     `margin`: scalar; `zones`: each limb's `JointZone`, where a bend of a given angle is
-    concentrated past the joint (`joint_zone`); `skeleton_id`: the skeleton's `fingerprint`,
-    so that a pose with another skeleton is refused.
+    concentrated past the joint (`joint_zone`); `skeleton_id`: the skeleton's `fingerprint`
+    (its limbs and regions, its mesh, its spines and joints), so that a pose with another
+    skeleton is refused, saying which part differs.
     """
 
     registrations: tuple[Registration, ...]
@@ -76,7 +77,7 @@ class SkeletonRegistration(eqx.Module):
     vertices: Array
     margin: Array
     zones: tuple[JointZone, ...]
-    skeleton_id: int = eqx.field(static=True)  # `fingerprint` of the skeleton registered on
+    skeleton_id: tuple[int, ...] = eqx.field(static=True)  # `fingerprint` of its skeleton
 
 
 class PosedSkeleton(NamedTuple):
@@ -113,11 +114,17 @@ def _check_skeleton(skeleton, vertices: np.ndarray) -> None:
             )
 
 
-def fingerprint(skeleton: Skeleton) -> int:
-    """A hash of `skeleton`'s limbs' regions and parents: a registration's, checked by every
-    pose, so that a pose never uses another skeleton's regions (limbs swapped, merged, split)."""
+def fingerprint(skeleton: Skeleton) -> tuple[int, int, int]:
+    """Hashes of `skeleton`'s limbs' regions and parents, of its rest vertices (the mesh it was
+    built on) and of its limbs' spines and joints: a registration's, checked by every pose,
+    so that a pose never uses another skeleton's regions (limbs swapped, merged, split), nor
+    a registration of another mesh or of spines since edited (the registration's, not the
+    skeleton's, would be posed: silently)."""
     parents = tuple(limb.parent for limb in skeleton.limbs)
-    return hash((np.asarray(skeleton.region).tobytes(), parents))
+    spines = tuple(np.asarray(x).tobytes()
+                   for x in jax.tree.leaves([(limb.spine, limb.joint) for limb in skeleton.limbs]))
+    return (hash((np.asarray(skeleton.region).tobytes(), parents)),
+            hash(np.asarray(skeleton.vertices, np.float64).tobytes()), hash(spines))
 
 
 def register_skeleton(mesh, skeleton: Skeleton, *, margin: float | None = None,
@@ -260,12 +267,25 @@ def as_registration(mesh_or_registration, skeleton: Skeleton) -> SkeletonRegistr
         return register_skeleton(mesh_or_registration, skeleton)
     if not isinstance(skeleton, Skeleton):
         raise TypeError(f"`skeleton` must be an fj.Skeleton, got {type(skeleton)}.")
-    if (len(mesh_or_registration.registrations) != len(skeleton.limbs)
-            or (is_concrete(skeleton.region)
-                and fingerprint(skeleton) != mesh_or_registration.skeleton_id)):
+    limbs, mesh, spines = (fingerprint(skeleton) if is_concrete(skeleton)
+                           else mesh_or_registration.skeleton_id)
+    registered = mesh_or_registration.skeleton_id
+    if len(mesh_or_registration.registrations) != len(skeleton.limbs) or limbs != registered[0]:
         raise ValueError(
             "`skeleton` is not the one `mesh_or_registration` was registered on (its limbs or "
             "their regions differ): register the mesh on this skeleton (fj.register_skeleton)."
+        )
+    if mesh != registered[1]:
+        raise ValueError(
+            "`skeleton` was built on another mesh than the one `mesh_or_registration` "
+            "registered (its rest vertices differ: moved, scaled or reordered): register that "
+            "mesh on its own skeleton (fj.register_skeleton)."
+        )
+    if spines != registered[2]:
+        raise ValueError(
+            "`skeleton`'s rest spines or joints differ from those `mesh_or_registration` was "
+            "registered on (an edited skeleton): register the mesh on it again "
+            "(fj.register_skeleton)."
         )
     return mesh_or_registration
 
