@@ -519,13 +519,20 @@ def solve(problem: AbstractPoseProblem, solver, y0, max_steps: int, throw: bool)
     trust-region solver (else 1). The final validity check runs outside, through the public
     (jitted) `pose`, whose compilation is shared with ordinary fleshing of the same spine type.
     """
-    # (A least-squares solver's Jacobian materialised at each step: `jacobian`.)
-    solution = optx.least_squares(for_solver(problem, solver), solver, y0, max_steps=max_steps,
-                                  throw=throw)
+    # The residuals traced once, to a jaxpr that every later use evaluates: the solver's start
+    # and step, the materialised Jacobian's forward passes (`jacobian`, under `vmap`) and the
+    # two losses each traced the fleshing's Python again (5 traces of a spine fit: 1 now).
+    traced = eqx.filter_closure_convert(lambda y: problem(y), y0)
+
+    def residuals(y, args=None):
+        return traced(y)
+
+    solution = optx.least_squares(for_solver(residuals, solver), solver, y0,
+                                  max_steps=max_steps, throw=throw)
     y = solution.value
 
     def loss(y):
-        return sum(jnp.sum(r**2) for r in jax.tree.leaves(problem(y)))
+        return sum(jnp.sum(r**2) for r in jax.tree.leaves(traced(y)))
 
     spine, twist = problem.spine_and_twist(y)
     radius = trust_radius(solver, solution, loss(y).dtype)
