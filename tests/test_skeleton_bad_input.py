@@ -216,3 +216,38 @@ def test_a_registration_refuses_a_skeleton_of_another_mesh_or_edited_spines(skel
     # The skeleton itself, or a copy of it (read back from its file), is the one registered.
     same = fj.Skeleton(skeleton.limbs, np.asarray(skeleton.region), np.array(skeleton.vertices))
     assert fj.pose_skeleton(registration, same, {}).valid.shape == (len(skeleton.region),)
+
+
+# The issue's property: random poses of the tube's limbs (combined, any bend, direction and
+# twist within a turn), at three scales: no edge between two valid vertices changes length
+# more than 4× and 2 % of the diagonal, and no valid vertex is non-finite.
+
+
+def _torn(rest, edges, vertices, valid):
+    """Edges between two valid vertices stretched or shrunk more than 4× and 2 % of the
+    diagonal; valid non-finite vertices."""
+    before = np.linalg.norm(rest[edges[:, 0]] - rest[edges[:, 1]], axis=1)
+    after = np.linalg.norm(vertices[edges[:, 0]] - vertices[edges[:, 1]], axis=1)
+    both = valid[edges[:, 0]] & valid[edges[:, 1]]
+    factor = np.maximum(after / before, before / np.maximum(after, 1e-300))
+    far = np.abs(after - before) > 0.02 * np.linalg.norm(np.ptp(rest, axis=0))
+    finite = np.isfinite(vertices).all(axis=1)
+    return int(np.sum(both & (factor > 4) & far)), int(np.sum(valid & ~finite))
+
+
+@pytest.mark.parametrize("scale", [1.0, 1e-3, 1e3])
+def test_random_poses_never_tear_a_valid_edge(tube, skeleton, registration, scale):
+    rest = np.asarray(tube.vertices) * scale
+    if scale != 1:  # (the same programs: only the values differ)
+        skeleton = fj.Skeleton([fj.Limb(fj.BSpline(np.asarray(limb.spine.control_points) * scale,
+                                                   subdivisions=32), limb.joint * scale,
+                                        limb.parent) for limb in skeleton.limbs],
+                               skeleton.region, rest)
+        registration = fj.register_skeleton((rest, tube.faces), skeleton, margin=0.06 * scale)
+    rng = np.random.default_rng(47)
+    for _ in range(6):
+        limbs = [k for k in range(3) if rng.random() < 0.6] or [2]
+        poses = {k: fj.LimbPose(*rng.uniform([-180, 0, -180], [180, 360, 180])) for k in limbs}
+        posed = fj.pose_skeleton(registration, skeleton, poses)
+        torn = _torn(rest, tube.edges_unique, np.asarray(posed.vertices), np.asarray(posed.valid))
+        assert torn == (0, 0), poses
