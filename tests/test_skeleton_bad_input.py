@@ -5,6 +5,8 @@ Small shapes only: the creature of `test_cli`, the posing tube (`_posing_shapes`
 import json
 import time
 
+import jax
+import jax.numpy as jnp
 import numpy as np
 import pytest
 import trimesh
@@ -251,3 +253,19 @@ def test_random_poses_never_tear_a_valid_edge(tube, skeleton, registration, scal
         posed = fj.pose_skeleton(registration, skeleton, poses)
         torn = _torn(rest, tube.edges_unique, np.asarray(posed.vertices), np.asarray(posed.valid))
         assert torn == (0, 0), poses
+
+
+@pytest.mark.slow  # one jitted program of three posed limbs under vmap: its compile
+def test_random_poses_never_tear_a_valid_edge_under_jit(tube, skeleton, registration):
+    rng = np.random.default_rng(4747)
+    angles = rng.uniform([-180, 0, -180], [180, 360, 180], (8, 3, 3))
+    angles[0, 0, 0], angles[1, 1, 2], angles[2, 2, 0] = np.nan, np.inf, 1e9  # flagged
+    frame = jax.jit(jax.vmap(lambda a: fj.pose_skeleton(
+        registration, skeleton, {k: fj.LimbPose(*a[k]) for k in range(3)})))
+    vertices, valid = (np.asarray(x) for x in frame(jnp.asarray(angles)))
+    rest = np.asarray(tube.vertices)
+    for v, ok in zip(vertices, valid, strict=True):
+        assert _torn(rest, tube.edges_unique, v, ok) == (0, 0)
+    region = np.asarray(skeleton.region)
+    for row, limb in ((0, 0), (1, 1), (2, 2)):  # the limb given a NaN, inf or 1e9 angle
+        assert not valid[row][region == limb].any()
