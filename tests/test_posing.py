@@ -382,3 +382,36 @@ def test_vertices_not_registered_past_the_bend_move_with_the_limb(tube, skeleton
                                np.asarray(exact.vertices)[ids[far]], atol=1e-9)
     assert np.linalg.norm(np.asarray(moved.vertices)[ids[far]] - np.asarray(tube.vertices)[ids[far]],
                           axis=1).min() > 0.1
+
+
+def test_vertices_not_registered_in_the_zone_move_with_their_cross_section(tube, skeleton,
+                                                                            registration):
+    """A vertex not validly registered whose projection falls inside the joint's zone moves
+    as the bent limb's cross-section there does (`BentSpine.carried`), flagged: left at rest,
+    it tore its edges (3.2× on the insect's front leg bent 30°)."""
+    import equinox as eqx
+
+    from fleshing_jax._skeleton.posing import bend_stop
+
+    k, pose = 2, fj.LimbPose(30.0, 20.0)
+    ids = np.asarray(registration.indices[k])
+    s = np.asarray(registration.registrations[k].arc_length)[: ids.size]
+    joint, stop = float(registration.joints[k]), float(bend_stop(registration, k, pose))
+    zone = np.flatnonzero((s > joint + 0.3 * (stop - joint)) & (s < stop))[:4]
+    assert zone.size == 4
+    valid = np.asarray(registration.registrations[k].valid).copy()
+    valid[zone] = False
+    broken = eqx.tree_at(lambda r: r.registrations[k].valid, registration, jnp.asarray(valid))
+    exact = np.asarray(fj.pose_skeleton(registration, skeleton, {k: pose}).vertices)[ids[zone]]
+    moved = fj.pose_skeleton(broken, skeleton, {k: pose})
+    assert not np.asarray(moved.valid)[ids[zone]].any()
+    rest = np.asarray(tube.vertices)[ids[zone]]
+    # Near where the fleshing places them (up to its change of their section, which the
+    # bend's concave side needs), not at rest: their edges hold.
+    travel = np.linalg.norm(exact - rest, axis=1)
+    assert travel.min() > 0.02
+    off = np.linalg.norm(np.asarray(moved.vertices)[ids[zone]] - exact, axis=1)
+    assert np.all(off < 0.25 * travel), (off, travel)
+    edges = tube.edges_unique[np.isin(tube.edges_unique, ids[zone]).any(axis=1)]
+    stretch = _stretch(tube, np.asarray(tube.vertices), np.asarray(moved.vertices), edges)
+    assert 1 / 1.5 < stretch.min() and stretch.max() < 1.5, (stretch.min(), stretch.max())

@@ -350,7 +350,7 @@ def posed(registration: SkeletonRegistration, skeleton: Skeleton, poses: dict,
             images, ok = images[:n], ok[:n]
             if isinstance(pose, LimbPose):
                 trust = trust & sane_angles(pose)
-                images = _rigid_past_the_bend(reg, k, pose, images, motion)
+                images = _unregistered_carried(reg, k, pose, images)
         if carry is not None:
             images = carry(images)
         carried[k], trusted[k] = (carry if motion is None else motion.then(carry)), trust
@@ -362,17 +362,29 @@ def posed(registration: SkeletonRegistration, skeleton: Skeleton, poses: dict,
     return PosedSkeleton(vertices, valid)
 
 
-def _rigid_past_the_bend(registration, k: int, pose: LimbPose, images, motion: Rigid):
+def _unregistered_carried(registration, k: int, pose: LimbPose, images):
     """`images` (n_k, 3) of limb `k`'s region, its vertices not validly registered on the rest
-    spine (near a focal point at rest: under an insect's bent knee) placed by the limb's rigid
-    motion where they project past the bend: the limb there moves as one piece, and so do
-    they, with their neighbours (left at rest, they tore the mesh: 23.6× on the insect's front
-    leg bent 30°). Still flagged: their projection is not certified."""
+    spine (near a focal point at rest: under an insect's bent knee) but projecting past the
+    joint placed as the bent limb's cross-section there moves (`PreparedBent.carried`: past
+    the bend, the limb's rigid motion). Left at rest, they tore the mesh (23.6× on the
+    insect's front leg bent 30°; 3.2× for one left in the joint's zone). Still flagged: their
+    projection is not certified, and the fleshing's change of their section is not applied."""
     n = registration.indices[k].shape[0]
     r = registration.registrations[k]
-    s, points = r.arc_length[:n], r.points[:n]
-    past = ~r.valid[:n] & jnp.isfinite(s) & (s >= bend_stop(registration, k, pose))
-    return jnp.where(past[:, None], motion(points), images)
+    s, points, valid = r.arc_length[:n], r.points[:n], r.valid[:n]
+    joint = registration.joints[k]
+    if is_concrete(s, valid, joint):  # the few such vertices only (a frame's cost)
+        at = np.asarray(s)
+        ids = np.flatnonzero(~np.asarray(valid) & np.isfinite(at) & (at >= np.asarray(joint)))
+        if ids.size == 0:
+            return images
+        s, points = s[ids], points[ids]
+    target = limb_target(registration, k, pose)._prepare()
+    placed = jax.vmap(target.carried)(points, jnp.where(jnp.isfinite(s), s, 0))
+    if is_concrete(s, valid, joint):
+        return images.at[ids].set(placed)
+    past = ~valid & jnp.isfinite(s) & (s >= joint)
+    return jnp.where(past[:, None], placed, images)
 
 
 def posed_limbs(registration: SkeletonRegistration, poses: dict, method: str, check: bool,

@@ -213,6 +213,14 @@ class PreparedBent(AbstractSpine):
         integral = self.positions[m] + half * jnp.asarray(GAUSS_WEIGHTS, s.dtype) @ values
         return jnp.where(s <= self.joint, c0, jnp.where(s >= self.stop, rigid, integral))
 
+    def carried(self, x: Array, s: Array) -> Array:
+        """`x` (3,) moved rigidly with the cross-section at arc length `s`: `C₁(s) + Q(s) (x −
+        C₀(s))` (itself before the joint, the rigid part's motion past the stop). Where the
+        fleshing cannot place a point (it was not registered on the base), this places it as
+        a cross-section of the bent limb there moves."""
+        c0 = self.base._jet(s)[0]
+        return self._position(s, c0) + self._turn(self._angles(s)[0], x - c0)
+
     def _turned(self, s: Array, base, integrate: bool = True):
         """`_jet_and_normals` at `s` from the base's there (`integrate`: as `_position`)."""
         (c0, t0, k0), (i0, j0) = base
