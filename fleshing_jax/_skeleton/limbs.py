@@ -47,6 +47,9 @@ ELONGATION = 1.25
 # parent's thick part (a horn on a head), where a limb that tapers (a tail) has none.
 THINNER = 0.5
 MAX_DEPTH = 3  # body, limbs, their children, grandchildren
+# A path is another route to a limb whose spheres share medial edges with this fraction of its
+# own (a flat ear's rim paths: 0.67-1; an insect's antennae from one base: 0.25; legs: < 0.35).
+SHEET = 0.6
 ROUTES = 3  # routes to a limb's own farthest spheres tried for its spine (`LimbPath`)
 
 
@@ -140,7 +143,7 @@ def _split(graph, centers, radii, nodes, root, parent, limbs, depth):
             continue
         path, last_inside = chain[: cut[0]][::-1], int(chain[cut[0]])  # path: out … tip
         group_spheres = [np.concatenate(g[0]) for g in groups]
-        same = _same_limb(centers, radii, path, group_spheres)
+        same = _same_limb(centers, radii, path, group_spheres, graph)
         if same is not None:
             groups[same][0].append(path)
             continue
@@ -169,6 +172,8 @@ def _split(graph, centers, radii, nodes, root, parent, limbs, depth):
             groups, _assign(centers, radii, [g[0] for g in groups], predecessors, distance, nodes)
         )
     ]
+    if depth == 1:
+        found, groups = _from_thicker_limbs(centers, radii, found, groups)
     for (path, last_inside, core, spheres), (routes, _, _) in zip(found, groups):
         index = len(limbs)
         limbs.append(LimbPath(path, last_inside, core, spheres, parent))
@@ -199,15 +204,44 @@ def _split(graph, centers, radii, nodes, root, parent, limbs, depth):
         limbs[index] = LimbPath(first, last_inside, core, spheres, parent, alternatives)
 
 
-def _same_limb(centers, radii, path, limbs) -> int | None:
+def _from_thicker_limbs(centers, radii, found, groups):
+    """`(found, groups)` without the limbs that leave another limb rather than the body: a
+    limb whose last sphere inside its parent lies inside another limb at least `1/THINNER`
+    times as thick (an ear reached through a head as thick as the torso, no waist between:
+    found from the body before the head was). Its spheres join that limb's, whose own level
+    then finds it as a child."""
+    keep = np.ones(len(found), bool)
+    spheres = [f[3] for f in found]
+    for a, (path, inside, _, _) in enumerate(found):
+        for b, (other, _, _, held) in enumerate(found):
+            if b == a or not keep[b] or radii[other].max() * THINNER < radii[path].max():
+                continue
+            if sphere_gaps(centers[[inside]], centers[held], radii[held])[0] < 0:
+                keep[a] = False
+                spheres[b] = np.union1d(spheres[b], spheres[a])
+                break
+    found = [(*f[:3], spheres[k]) for k, f in enumerate(found)]
+    return ([f for f, k in zip(found, keep) if k], [g for g, k in zip(groups, keep) if k])
+
+
+def _same_limb(centers, radii, path, limbs, graph) -> int | None:
     """The index of the limb in `limbs` (each the spheres of its paths) that `path` is
     another route to (a head reached through two strips of the neck, a strip's second tip):
-    the first one whose spheres hold half of the path's centres, or its tip. Legs side by
-    side, touching at the top, are two limbs."""
+    the first one whose spheres hold half of the path's centres, or its tip; or, a sheet (a
+    flat ear: its rim's tips each a path, side by side), whose spheres are joined by the
+    medial mesh's edges to most of the path's own spheres (`SHEET`), at least two of them.
+    Legs side by side, touching at the top, are two limbs; so are an insect's antennae from
+    a shared base (a quarter of their own spheres joined)."""
     for k, spheres in enumerate(limbs):
         held = sphere_gaps(centers[path], centers[spheres], radii[spheres]) < 0
         if held.mean() >= 0.5 or held[-1]:
             return k
+        own = np.setdiff1d(path, spheres)
+        if len(own) >= 2:
+            joined = (graph[own][:, spheres].getnnz(axis=1) > 0) | (
+                graph[spheres][:, own].getnnz(axis=0) > 0)
+            if joined.mean() >= SHEET:
+                return k
     return None
 
 

@@ -1,0 +1,74 @@
+"""The limbs found on a medial graph (`_skeleton.limbs.find_limbs`), on small graphs built by
+hand: each rule on the shape that needs it, in milliseconds."""
+
+import numpy as np
+
+from fleshing_jax._skeleton.limbs import find_limbs
+
+
+def _chain(a, b, n, r0, r1):
+    t = np.linspace(0, 1, n)[:, None]
+    return (1 - t) * np.asarray(a, float) + t * np.asarray(b, float), np.linspace(r0, r1, n)
+
+
+class _Graph:
+    """Spheres and edges added part by part."""
+
+    def __init__(self):
+        self.centers, self.radii, self.edges = [], [], []
+
+    def add(self, centers, radii, link_to=None, chain=True):
+        start = sum(len(r) for r in self.radii)
+        ids = np.arange(start, start + len(radii))
+        self.centers.append(centers)
+        self.radii.append(radii)
+        if chain:
+            self.edges += list(zip(ids[:-1], ids[1:]))
+        if link_to is not None:
+            self.edges.append((int(link_to), int(ids[0])))
+        return ids
+
+    def sheet(self, side, base, link_to):
+        """A flat ear: a fan of thin spheres out of `base`, joined as a triangulated sheet;
+        each of its rim's spheres is a tip of the graph."""
+        angles, rings = np.linspace(-0.6, 0.6, 5), np.linspace(0.09, 0.25, 6)
+        centers = np.array([[side * r * np.cos(a), base[1] + r * np.sin(a), 0.0]
+                            for r in rings for a in angles])
+        grid = self.add(centers, np.full(len(centers), 0.012), chain=False).reshape(6, 5)
+        for i in range(6):
+            for j in range(5):
+                if j < 4:
+                    self.edges.append((grid[i, j], grid[i, j + 1]))
+                if i < 5:
+                    self.edges.append((grid[i, j], grid[i + 1, j]))
+                if i < 5 and j < 4:
+                    self.edges.append((grid[i, j], grid[i + 1, j + 1]))
+        self.edges += [(int(link_to), int(g)) for g in grid[0]]
+        return grid
+
+    def arrays(self):
+        return np.concatenate(self.centers), np.concatenate(self.radii), np.array(self.edges)
+
+
+def test_a_flat_ear_is_one_limb_not_one_per_tip_of_its_rim():
+    """A flat ear's medial axis is a sheet whose rim has a tip per sample: each tip's path
+    protrudes, and each was a limb (five per ear, as cheburashka's ears: none of them then
+    had a region of its own). The paths joined by the sheet's edges are routes to one limb;
+    legs and arms, side by side but not joined along their length, stay apart."""
+    g = _Graph()
+    torso = g.add(*_chain([0, 0, 0], [0, 0.3, 0], 7, 0.055, 0.055))
+    neck = g.add(*_chain([0, 0.345, 0], [0, 0.345, 0], 1, 0.045, 0.045), link_to=torso[-1])
+    head = g.add(*_chain([0, 0.40, 0], [0, 0.50, 0], 4, 0.07, 0.075), link_to=neck[-1])
+    for side in (-1, 1):
+        g.add(*_chain([side * 0.03, -0.06, 0], [side * 0.03, -0.2, 0], 6, 0.025, 0.025),
+              link_to=torso[0])
+        g.add(*_chain([side * 0.07, 0.22, 0], [side * 0.25, 0.22, 0], 8, 0.015, 0.012),
+              link_to=torso[5])
+        g.sheet(side, [0, 0.5, 0], head[-1])
+    centers, radii, edges = g.arrays()
+    found = find_limbs(centers, radii, edges)
+    tips = np.array([centers[f.path[-1]] for f in found])
+    ears = tips[tips[:, 1] > 0.3]
+    assert len(found) == 6, tips  # two legs, two arms, two ears
+    assert sorted(np.sign(ears[:, 0])) == [-1, 1]
+    assert np.sum(tips[:, 1] < -0.1) == 2 and np.sum(np.abs(tips[:, 1] - 0.22) < 1e-9) == 2
