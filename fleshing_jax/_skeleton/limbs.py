@@ -154,7 +154,7 @@ def _split(graph, centers, radii, nodes, root, parent, limbs, depth):
             # leg beside it in the tree): then a limb of its own.
             # Its own part: the spheres whose centres lie outside that limb's (a head is
             # often two near-equal spheres, and a path through the other one is the head's).
-            k, spheres = below[0], group_spheres[below[0]]
+            spheres = group_spheres[below[0]]
             own = path[sphere_gaps(centers[path], centers[spheres], radii[spheres]) >= 0]
             if len(own) == 0 or radii[own].max() <= THINNER * radii[spheres].max():
                 continue
