@@ -14,7 +14,7 @@ from .._medial_axis.unit import UnitFrame
 from .._mesh.deform import longest_edge
 from .bones import bone_limbs
 from .chains import split_chains
-from .fit import sphere_gaps, spine_from_unit
+from .fit import nearest_spheres, sphere_gaps, spine_from_unit
 from .given import given_limbs
 from .limb_fit import fit_limb
 from .limbs import find_limbs
@@ -219,18 +219,42 @@ def _unit_limbs(vertices, centers, radii, edges, adjacency, margin):
     founds = []  # the kept limbs' paths
     found_limbs = find_limbs(centers, radii, edges)
     parents = {found.parent for found in found_limbs}  # the limbs other limbs leave
+    # Each vertex's nearest medial sphere: a limb's own surface is the vertices nearest to
+    # its spheres (a head's crown, a flat ear's lobe), which the region of a limb that other
+    # limbs leave (a head) or of a child limb (an ear) may take farther from its spine than
+    # the usual reach when that leaves it none (`fit_limb`'s `wide`). Not a limb from the
+    # body with no children: on the quadruped at 60 spheres a horn found twice, by two
+    # routes, took its tip from the other limb of the two that way, too small to pose.
+    nearest = nearest_spheres(vertices, centers, radii)
     for number, found in enumerate(found_limbs):
         parent = index.get(found.parent, -1) if found.parent >= 0 else -1
         if found.parent >= 0 and found.parent not in index:
             continue  # its parent had no region: neither has it
+        own = np.isin(nearest, found.spheres)
+        wide = own if number in parents or found.parent >= 0 else None
+        # The first route whose region leaves its parent room to bend before it (`_conflict`:
+        # spot's ear at seed 2, its first region reaching the base of the head, which then
+        # took it back); none does: the first region (`_room_to_bend` then decides).
+        fitted = None
         for path, inside in ((found.path, found.inside), *found.alternatives):
-            found = dataclasses.replace(found, path=path, inside=inside)
-            spine, part = fit_limb(found, centers, radii, vertices, adjacency,
-                                   region == parent, margin, wide=number in parents)
-            if part is not None:
+            route = dataclasses.replace(found, path=path, inside=inside)
+            spine, part = fit_limb(route, centers, radii, vertices, adjacency,
+                                   region == parent, margin, wide=wide)
+            if part is None:
+                continue
+            early = False
+            if parent >= 0:
+                tentative = region.copy()
+                tentative[part.vertices] = len(limbs)
+                early = _conflict([*limbs, Limb(spine, part.joint, parent)], tentative,
+                                  vertices, adjacency, only=len(limbs)) is not None
+            if fitted is None or not early:
+                fitted = (route, spine, part)
+            if not early:
                 break
-        else:
+        if fitted is None:
             continue
+        found, spine, part = fitted
         index[number] = len(limbs)
         region[part.vertices] = len(limbs)
         limbs.append(Limb(spine, part.joint, parent))
@@ -279,7 +303,7 @@ def _visible(limbs, region, vertices):
     return limbs, region
 
 
-def _conflict(limbs, region, vertices, adjacency):
+def _conflict(limbs, region, vertices, adjacency, only=None):
     """The first `(limb, child, length past the limb's joint)` where the child's region meets
     the limb's at arc lengths (on the limb's spine) within `ROOM` spine samples of where the
     limb's region meets anything else (`register_skeleton` would find no room to bend the
@@ -287,7 +311,7 @@ def _conflict(limbs, region, vertices, adjacency):
     below = descendants(limbs)
     for k, limb in enumerate(limbs):
         ids = np.flatnonzero(region == k)
-        if not below[k] or not len(ids):
+        if not below[k] or not len(ids) or (only is not None and limbs[only].parent != k):
             continue
         s, points, _ = map(np.asarray, spine_samples(limb.spine))
         arc = s[cKDTree(points).query(vertices[ids])[1]]
@@ -296,6 +320,8 @@ def _conflict(limbs, region, vertices, adjacency):
         joint = max(float(limb.joint), float(arc[np.isin(ids, leaves)].max(initial=0.0)))
         room = ROOM * float(s[1] - s[0])
         for child in (c for c, other in enumerate(limbs) if other.parent == k):
+            if only is not None and child != only:
+                continue
             meets = adjacency[ids] @ np.isin(region, [child, *below[child]]).astype(float)
             if arc[meets > 0].min(initial=np.inf) <= joint + room:
                 return k, child, float(s[-1]) - joint

@@ -140,12 +140,25 @@ def sphere_gaps(points: np.ndarray, centers: np.ndarray, radii: np.ndarray) -> n
     `(centers (m, 3), radii (m,))`, `min |p − c| − r` (negative inside one; `inf` for no
     sphere), in blocks of `BLOCK` point-sphere pairs: all pairs at once took 10 GB (spot at
     10,000 spheres, a 302k-vertex mesh)."""
+    return _nearest_surfaces(points, centers, radii)[0]
+
+
+def nearest_spheres(points: np.ndarray, centers: np.ndarray, radii: np.ndarray) -> np.ndarray:
+    """(k,) int: for each of `points` (k, 3), the index of the sphere `(centers (m, 3),
+    radii (m,))` whose surface is nearest (`sphere_gaps`'s; m ≥ 1)."""
+    return _nearest_surfaces(points, centers, radii)[1]
+
+
+def _nearest_surfaces(points, centers, radii):
+    """`sphere_gaps` and `nearest_spheres`, in blocks of `BLOCK` point-sphere pairs."""
     gaps = np.full(len(points), np.inf)
+    nearest = np.zeros(len(points), int)
     step = max(1, BLOCK // max(len(centers), 1))
     for i in range(0, len(points) if len(centers) else 0, step):
-        distance = np.linalg.norm(points[i : i + step, None] - centers[None], axis=-1)
-        gaps[i : i + step] = np.min(distance - radii, axis=1)
-    return gaps
+        distance = np.linalg.norm(points[i : i + step, None] - centers[None], axis=-1) - radii
+        nearest[i : i + step] = np.argmin(distance, axis=1)
+        gaps[i : i + step] = np.take_along_axis(distance, nearest[i : i + step, None], 1)[:, 0]
+    return gaps, nearest
 
 
 def spine_from_unit(spine: BSpline, frame) -> BSpline:

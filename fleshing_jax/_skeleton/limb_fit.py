@@ -21,23 +21,28 @@ REFITS = 3  # straighter fits, at most, until the region lies within the spine's
 # head's spine, made straight for its ears at 0.6, let its region end 0.13 from its tip, and
 # the head with its ears and horns stayed in the body; at 0.75 of it every vertex is valid.
 STRAIGHTER = (1.0, 0.75, 0.5)
-WIDE = 2  # times `regions.REACH`: a thick part's region when the usual reach leaves it none
+# Times `regions.REACH`: how far a limb's region may reach among its own vertices (those
+# nearest to its medial spheres) when the usual reach leaves it none.
+WIDE = 2
 
 
 def fit_limb(found: LimbPath, centers, radii, vertices, adjacency, allowed, margin,
-             cut_at=None, wide=False):
+             cut_at=None, wide=None):
     """The limb's rest spine and its region among the `allowed` vertices (`None` if none);
     `margin`: the valid region's that posing will use; `cut_at`: (3,) the point where the
     limb leaves its parent (a chain's joint), default where its spine leaves the parent's
-    core spheres; `wide`: a thick part other limbs leave (a head), whose region may reach
-    `WIDE` times as far from its spine when the usual reach leaves it none."""
+    core spheres; `wide`: (n,) bool or `None`, the vertices that may lie up to `WIDE` times
+    as far from the spine as usual when the usual reach leaves the limb no region."""
     spine, cut, tip, arc, local = limb_spine(found, centers, radii, vertices, margin,
                                              cut_at=cut_at)
-    for reach in (REACH, WIDE * REACH) if wide else (REACH,):
-        # A head wider than its spine's medial radii say (its crown beyond them): the region
-        # grown within them is its lower half, bordering the body its whole length (a knob:
-        # spot's head at seeds 6 and 11, and scaled by 0.01).
-        part = limb_region(spine, cut, tip, arc, local, vertices, adjacency, allowed, reach)
+    for reach in (REACH, WIDE * REACH) if wide is not None else (REACH,):
+        # A part wider than its spine's medial radii say: a head's crown beyond them (the
+        # region grown within them is its lower half, bordering the body its whole length, a
+        # knob: spot's head at seeds 6 and 11, and scaled by 0.01), a flat ear's lobe (a
+        # slab: its radius is its half thickness; spot's ears at seeds 1, 2 and 10). Only its
+        # own vertices go that far: a horn's wide reach took its neighbour's too.
+        own = wide if reach > REACH else None
+        part = limb_region(spine, cut, tip, arc, local, vertices, adjacency, allowed, reach, own)
         if part is not None:
             break
     for _ in range(REFITS):
@@ -48,7 +53,7 @@ def fit_limb(found: LimbPath, centers, radii, vertices, adjacency, allowed, marg
             break
         for share in STRAIGHTER:
             refit = limb_spine(found, centers, radii, vertices, margin, share * far, cut_at)
-            refit_part = limb_region(*refit, vertices, adjacency, allowed, reach)
+            refit_part = limb_region(*refit, vertices, adjacency, allowed, reach, own)
             if refit_part is not None:
                 break
         if refit_part is None:

@@ -53,21 +53,26 @@ def mesh_adjacency(vertices: np.ndarray, faces: np.ndarray) -> sparse.csr_matrix
 
 
 def limb_region(spine, cut: float, tip: np.ndarray, arc, radius, vertices, adjacency, allowed,
-                reach_factor: float = REACH):
+                reach_factor: float = REACH, own=None):
     """The region of one limb, or `None` when no vertex qualifies or it is a knob.
 
     **Arguments:** `spine`: the limb's rest spine; `cut`: the arc length where it leaves its
     parent; `tip`: (3,) the point its region grows from; `arc`, `radius`: (k,) the local medial
     radius at arc lengths `arc` along the spine; `vertices`: (n, 3) the mesh's;
     `adjacency`: `mesh_adjacency`; `allowed`: (n,) bool, the parent's region;
-    `reach_factor`: how many local medial radii a vertex may lie from the spine (`REACH`).
+    `reach_factor`: how many local medial radii a vertex may lie from the spine (`REACH`);
+    `own`: (n,) bool or `None`, the vertices that may lie beyond `REACH` radii (up to
+    `reach_factor`) when given: the limb's own surface, not a neighbour's.
     """
     s, points, curvature = map(np.asarray, spine_samples(spine))
     distance, nearest = cKDTree(points).query(vertices)
     along = s[nearest]
     local = np.interp(along, arc, radius)
-    reach = np.minimum(reach_factor * local, 1.0 / np.maximum(curvature[nearest], 1e-300))
-    candidate = allowed & (along > cut) & (distance < reach)
+    focal = 1.0 / np.maximum(curvature[nearest], 1e-300)
+    within = distance < np.minimum(reach_factor * local, focal)
+    if own is not None:
+        within = (distance < np.minimum(REACH * local, focal)) | (within & own)
+    candidate = allowed & (along > cut) & within
     seed = int(np.argmin(np.where(candidate, np.linalg.norm(vertices - tip, axis=1), np.inf)))
     if not candidate[seed]:
         return None
