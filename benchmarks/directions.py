@@ -7,8 +7,9 @@ to its left about the world's up, the head nodded 20° down, and the right arm's
 so that the arm points at a point 35° forwards of its rest direction. Prints one Markdown row per
 pose: how far it is from what was asked (the aim: the chord from the joint to where the
 part past the bending zone starts, from the point's direction; a turn or nod: that part's
-tangent from the rest one turned by the asked rotation), in degrees, flagged vertices, volume change, and whether every vertex outside the posed limb
-and its children stayed bit for bit; with `--figure`, the rest and the three poses side by side.
+tangent from the rest one turned by the asked rotation), in degrees, flagged vertices, volume
+change, and whether every vertex outside the posed limb and its children stayed bit for bit;
+with `--figure`, the rest and the three poses side by side.
 """
 
 from __future__ import annotations
@@ -93,7 +94,8 @@ def main():
         body = np.asarray(skeleton.region) == -1
         still = np.array_equal(points[body], vertices[body])
         change = float(fj.volume(points, faces) / fj.volume(vertices, faces)) - 1
-        print(f"| {name} | {k} | {float(pose.bend):.1f} | {_off(registration, k, pose, name, target)}"
+        off = _off(registration, k, pose, name, target)
+        print(f"| {name} | {k} | {float(pose.bend):.1f} | {off}"
               f" | {int(np.sum(~np.asarray(posed.valid)))} | {100 * change:+.4f} | "
               f"{'yes' if still else 'no'} |")
     if args.figure is not None:

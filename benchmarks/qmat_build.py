@@ -1,4 +1,5 @@
-"""Q-MAT (Li et al. 2015) built from its public source and timed beside our `medial_mesh` (issue 49).
+"""Q-MAT (Li et al. 2015) built from its public source and timed beside our `medial_mesh`
+(issue 49).
 
     python benchmarks/qmat_build.py --qmat-src PATH/TO/QMAT [--meshes spot,quadruped,bunny]
                                     [--spheres 200] [--axis-samples 20000] [--work DIR]

@@ -7,12 +7,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from _posing_shapes import RADIUS
 
 import fleshing_jax as fj
 from fleshing_jax._skeleton.joint_zone import JOINT_CURVATURE, ZONE_LENGTHS, joint_zone
 from fleshing_jax._skeleton.posing import limb_target, posed
-
-from _posing_shapes import RADIUS
 
 
 def test_a_zone_is_as_long_as_its_angle_needs_on_a_straight_tube():

@@ -44,7 +44,8 @@ class LimbPose(eqx.Module):
             _strong(as_float_array(v, name, ()))
             for v, name in ((bend, "bend"), (direction, "direction"), (twist, "twist")))
         for name, value in (("bend", bend), ("direction", direction), ("twist", twist)):
-            if isinstance(value, bool | np.bool_) or getattr(value, "dtype", None) == bool:
+            boolean = np.dtype(getattr(value, "dtype", float)) == np.bool_
+            if isinstance(value, bool | np.bool_) or boolean:
                 raise TypeError(f"`{name}` must be an angle in degrees, got {value!r}.")
             value = getattr(self, name)
             if is_concrete(value) and not np.isfinite(float(value)):
