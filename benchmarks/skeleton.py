@@ -3,7 +3,8 @@
     python benchmarks/skeleton.py [--figures benchmarks/figures]
     python benchmarks/skeleton.py --seeds 12     # spot's rig over its medial meshes' seeds
 
-For each character (spot; the procedural quadruped, jointed quadruped, biped and insect):
+For each character (spot; the procedural quadruped, jointed quadruped, biped and insects;
+cheburashka where `../shared/data` holds it):
 its vertices, the skeleton's limbs and how many of them are chains from the body (with their
 lengths), the time of `fj.skeleton` (its medial mesh at 200 spheres included) and of the
 first `register_skeleton` (float64, its compilation included), and a pose of every chain at
@@ -23,6 +24,7 @@ from pathlib import Path
 
 import jax
 import numpy as np
+import trimesh
 
 jax.config.update("jax_enable_x64", True)
 
@@ -39,6 +41,12 @@ CHARACTERS = {
     # The head thicker than the thorax, as on real insects: the root must stay the thorax.
     "insect_thick_head": lambda: characters.insect_medial(head=0.13, thorax=0.09).envelope(42),
 }
+# A real biped with a head thicker than its torso and flat ears (tests and benchmarks only:
+# its licence is not stated, so it is read from the shared data folder, never shipped).
+CHEBURASHKA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "cheburashka.obj"
+if CHEBURASHKA.is_file():
+    CHARACTERS["cheburashka"] = lambda: trimesh.load(str(CHEBURASHKA), process=False,
+                                                     force="mesh")
 
 
 def measure(name, figures):
