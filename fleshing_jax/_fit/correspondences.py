@@ -130,10 +130,13 @@ def fit_spine(
     A far target (a bend of 60–90° from the rest spine) is reached from the targets' own
     shape: by default (`continuation="auto"`), a free-form `init` (a `BSpline` whose control
     points are fitted) starts with its control points fitted by linear least squares to
-    where the targets say the bent spine runs (`_fit.start`), when that poses the source
-    closer to the targets than `init` does. A fit that still does not converge with its rms
-    above the tolerance is retried by continuation from `init`: the target approached in 4
-    stages, each fit started from the one before (`_fit.continuation`). The default solver
+    where the targets say the bent spine runs (`_fit.start`), or from the circular arc
+    closest to that spine, whichever poses the source closest to the targets (`init` too).
+    A fit that does not converge with its rms above the tolerance is retried from where it
+    stopped, the target solved first with every point posed by the map's formula (no cliffs
+    where points leave the valid space), then as asked; if still not, by continuation from
+    `init`: the target approached in 4 stages, each fit started from the one before
+    (`_fit.continuation`). The default solver
     stops once it creeps (steps no longer halving the loss) with the rms at a hundredth of
     the tolerance: a free-form spine's control points slide along the curve almost freely,
     and its solve would otherwise creep on until `max_steps`.
@@ -171,14 +174,15 @@ def fit_spine(
       diagonal (default 1e-3): about the targets' noise over the diagonal for noisy targets;
       `None` for no residual test (the solver's alone, e.g. a regularised fit that trades
       data for smoothness on purpose).
-    - `continuation`: `"auto"` (the default: a plain fit from the closer of `init` and the
-      start from the targets' shape, retried in 4 stages from `init` when it does not
-      converge with its rms above the tolerance; the lower rms is kept, and when both
-      stop at the same rms at a minimum the target is reported unreachable), or the number
-      of stages `n ≥ 1` (1: one plain fit). Stage `k` targets
-      each point's rest position moved `k/n` of the way: the best rigid motion onto the
-      targets followed `k/n` of its angle and shift, plus `k/n` of the rest; the last stage is
-      `target` itself. Every stage poses each point by the map's formula, valid or not (no
+    - `continuation`: `"auto"` (the default: a plain fit from the closest of `init`, the
+      start from the targets' shape and its closest arc, retried from where it stopped
+      without cliffs, then in 4 stages from `init`, while it does not converge with its rms
+      above the tolerance; the lowest rms is kept, and
+      when both stop at the same rms at a minimum the target is reported unreachable), or
+      the number of stages `n ≥ 1` (1: one plain fit). Stage `k` targets each point's
+      rest position moved `k/n` of the way: the best rigid motion onto the targets followed
+      `k/n` of its angle and shift, plus `k/n` of the rest; the last stage is `target`
+      itself. Every stage poses each point by the map's formula, valid or not (no
       jump back to its rest position on the way); the fit as asked (`invalid=`) follows.
 
     **Returns:** a `FitResult`. Its `rms` is the weighted root-mean-square distance between
@@ -237,12 +241,14 @@ def fit_spine(
         explained = EXPLAINED * tolerance * verdict.diagonal(problem.data())
         solver = default_solver("least_squares", dtype, rtol, atol, explained)
 
-    def staged(stages: int, y) -> FitResult:
+    def staged(stages: int, y, follow: bool = False) -> FitResult:
         # Each stage only moves the start: its solve alone, every point posed by the map's
         # formula (`followed_images`: no cliffs on the way). The target itself is solved so
-        # too before the fit as asked: near it, points at the edge of the valid space would
-        # otherwise stop the solve at their cliffs.
-        for goal in staged_targets(source, target, weights, stages) if stages > 1 else ():
+        # too before the fit as asked (in one stage too with `follow`): near it, points at
+        # the edge of the valid space would otherwise stop the solve at their cliffs.
+        goals = staged_targets(source, target, weights, stages) if stages > 1 else (
+            [target] if follow else [])
+        for goal in goals:
             staged_problem = dataclasses.replace(problem, target=jnp.asarray(goal),
                                                  invalid="follow")
             spine, twist_k = solve(staged_problem, solver, y, int(max_steps), False)[:2]
@@ -253,8 +259,16 @@ def fit_spine(
     if continuation == "auto":
         shaped = start.initial(setup.parameters, setup.registration, source_spine,
                                target, weights, setup.y0[1])
-        result = staged(1, start.closer(problem, setup.y0, shaped))
-        if not result.converged and not float(result.rms) <= float(result.tolerance):
+        arced = start.arc(setup.parameters, shaped)
+        result = staged(1, start.closer(problem, setup.y0, shaped, arced))
+        if not _explained(result):
+            # Often stopped near the answer at a cliff (a point posed invalid, its target
+            # valid: the insect's body bent 90°, 200 points, 1.3e-2 of the diagonal): from
+            # there, the target solved without cliffs first, then the fit as asked.
+            polished = staged(1, setup.parameters.of(result.spine, result.twist if fit_twist
+                                                     else None), follow=True)
+            result = polished if float(polished.rms) < float(result.rms) else result
+        if not _explained(result):
             retried = staged(AUTO_STAGES, setup.y0)
             low, high = sorted((float(result.rms), float(retried.rms)))
             stopped = [r.result == optx.RESULTS.successful for r in (result, retried)]
@@ -270,6 +284,11 @@ def fit_spine(
     else:
         result = staged(_check_stages(continuation), setup.y0)
     return eqx.tree_at(lambda r: r.valid, result, unpad_batch(result.valid, n))
+
+
+def _explained(result: FitResult) -> bool:
+    """Whether a fit converged or stopped with its rms within its tolerance (no retry)."""
+    return result.converged or float(result.rms) <= float(result.tolerance)
 
 
 def _check_stages(continuation) -> int:
