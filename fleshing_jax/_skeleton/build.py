@@ -219,19 +219,23 @@ def _unit_limbs(vertices, centers, radii, edges, adjacency, margin):
     founds = []  # the kept limbs' paths
     found_limbs = find_limbs(centers, radii, edges)
     parents = {found.parent for found in found_limbs}  # the limbs other limbs leave
-    # Each vertex's nearest medial sphere: a limb's own surface is the vertices nearest to
-    # its spheres (a head's crown, a flat ear's lobe), which the region of a limb that other
-    # limbs leave (a head) or of a child limb (an ear) may take farther from its spine than
-    # the usual reach when that leaves it none (`fit_limb`'s `wide`). Not a limb from the
-    # body with no children: on the quadruped at 60 spheres a horn found twice, by two
-    # routes, took its tip from the other limb of the two that way, too small to pose.
+    # Where the usual reach leaves a limb no region, its region may reach farther from its
+    # spine (`fit_limb`'s `wide`): a limb that other limbs leave (a head: its crown) among
+    # all its parent's vertices; a child limb (a flat ear's lobe) among its own only, the
+    # vertices whose nearest medial sphere is one of its spheres (a head's region kept to
+    # its own lost cheburashka's crown). Not a limb from the body with no children: on the
+    # quadruped at 60 spheres a horn found twice, by two routes, took its tip from the other
+    # limb of the two that way, too small to pose.
     nearest = nearest_spheres(vertices, centers, radii)
     for number, found in enumerate(found_limbs):
         parent = index.get(found.parent, -1) if found.parent >= 0 else -1
         if found.parent >= 0 and found.parent not in index:
             continue  # its parent had no region: neither has it
-        own = np.isin(nearest, found.spheres)
-        wide = own if number in parents or found.parent >= 0 else None
+        wide = None
+        if number in parents:
+            wide = np.ones(len(vertices), bool)
+        elif found.parent >= 0:
+            wide = np.isin(nearest, found.spheres)
         # The first route whose region leaves its parent room to bend before it (`_conflict`:
         # spot's ear at seed 2, its first region reaching the base of the head, which then
         # took it back); none does: the first region (`_room_to_bend` then decides).

@@ -39,8 +39,7 @@ def fit_limb(found: LimbPath, centers, radii, vertices, adjacency, allowed, marg
         # A part wider than its spine's medial radii say: a head's crown beyond them (the
         # region grown within them is its lower half, bordering the body its whole length, a
         # knob: spot's head at seeds 6 and 11, and scaled by 0.01), a flat ear's lobe (a
-        # slab: its radius is its half thickness; spot's ears at seeds 1, 2 and 10). Only its
-        # own vertices go that far: a horn's wide reach took its neighbour's too.
+        # slab: its radius is its half thickness; spot's ears at seeds 1, 2 and 10).
         own = wide if reach > REACH else None
         part = limb_region(spine, cut, tip, arc, local, vertices, adjacency, allowed, reach, own)
         if part is not None:
