@@ -104,3 +104,28 @@ def test_spot_quad_mesh_deforms_in_file_order():
     # The quads themselves (bilinear volume) keep their volume as well as the triangles do.
     v0, v1 = float(fj.volume(positions, quads)), float(fj.volume(bent.vertices, quads))
     assert abs(v1 - v0) / abs(v0) < 1e-3
+
+
+def test_cheburashka_is_rigged_at_its_torso_with_its_head_arms_leg_and_an_ear():
+    """Cheburashka's head is its thickest part and its neck barely narrower: the head was the
+    body, the torso with both legs one limb, the ears five rim paths each and none a limb.
+    Now the torso is the body; the head a limb with an ear as its child; both arms and a leg
+    leave the torso (issue 45: an animator's rig)."""
+    mesh = trimesh.load(str(_shared("cheburashka.obj")), process=False, force="mesh")
+    v = np.asarray(mesh.vertices)
+    skeleton = fj.skeleton(mesh)
+    region, parents = np.asarray(skeleton.region), [limb.parent for limb in skeleton.limbs]
+    low, high = v[:, 1].min(), v[:, 1].max()
+    height = lambda points: (points[:, 1].mean() - low) / (high - low)  # noqa: E731
+    body = v[region == -1]
+    assert 0.15 < height(body) < 0.45  # the torso, not the head
+    head = region[np.argmax(v[:, 1])]
+    assert head >= 0 and parents[head] == -1
+    ears = {region[np.argmax(v[:, 0])], region[np.argmin(v[:, 0])]}
+    assert any(e >= 0 and parents[e] == head for e in ears)
+    arms = [k for k in range(len(parents)) if parents[k] == -1
+            and 0.2 < height(v[region == k]) < 0.5]
+    sides = {np.sign(v[region == k, 0].mean() - body[:, 0].mean()) for k in arms}
+    assert sides == {-1, 1}
+    leg = region[np.argmin(v[:, 1])]
+    assert leg >= 0 and parents[leg] == -1
