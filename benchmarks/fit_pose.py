@@ -10,12 +10,14 @@ target=..., limbs=...)` from the clean samples, with 0.5 % (of the diagonal) Gau
 and from one side only (the samples whose normals face +x: a partial scan); then spot's rest
 skeleton against a ball (another shape: must not converge). Prints a Markdown table: the
 largest bend and direction errors over the limbs (degrees), `converged`, steps, seconds (the
-first call includes its compilation; the second, of the same target, is the warm time).
+first call includes its compilation; the warm time is the median of the next `WARM` calls of
+the same target), and the load average at the end of each row.
 """
 
 from __future__ import annotations
 
 import argparse
+import os
 import time
 from pathlib import Path
 
@@ -29,6 +31,8 @@ SAVED_SKELETON = Path(__file__).resolve().parents[1] / "notebooks" / "data" / "s
 # The head and two legs (bend, direction) (spot's legs are short and thick: a
 # hind leg bent 60° flags 5 of its 125 vertices, `benchmarks/posing.py`).
 TRUTH = {0: (10.0, 90.0), 5: (20.0, 180.0), 8: (30.0, 0.0)}
+WARM = 3  # calls after the first, of the same target: their median is the warm time (the
+# machine is shared: the load beside each row)
 
 
 def errors(fit, truth):
@@ -63,19 +67,20 @@ def main():
     print(f"spot, {np.dtype(dtype).name}, limbs {sorted(TRUTH)}, diagonal {diagonal:.3f}, "
           f"vertices flagged at the true pose by limb: {flagged}\n")
     print("| target | points | max bend error (°) | max direction error (°) | converged | steps "
-          "| first call (s) | second call (s) |")
-    print("|---|---:|---:|---:|---|---:|---:|---:|")
+          f"| first call (s) | warm call (s, median of {WARM}) | load (1, 5, 15 min) |")
+    print("|---|---:|---:|---:|---|---:|---:|---:|---|")
     for name, target in (("clean", points), ("0.5 % noise", noisy), ("one side", partial),
                          ("a sphere (another shape)", other)):
         seconds = []
-        for _ in range(2):
+        for _ in range(1 + WARM):
             start = time.perf_counter()
             fit = fj.fit_skeleton_pose(registration, skeleton, target=target, limbs=list(TRUTH))
             seconds.append(time.perf_counter() - start)
         bend, turn = errors(fit, truth)
         count = len(target.vertices) if isinstance(target, trimesh.Trimesh) else len(target)
         print(f"| {name} | {count} | {bend:.2f} | {turn:.2f} | {fit.converged} | "
-              f"{int(fit.num_steps)} | {seconds[0]:.1f} | {seconds[1]:.2f} |", flush=True)
+              f"{int(fit.num_steps)} | {seconds[0]:.1f} | {np.median(seconds[1:]):.2f} | "
+              f"{', '.join(f'{x:.1f}' for x in os.getloadavg())} |", flush=True)
         if not fit.converged:
             print(f"\n  message: {fit.message}\n")
 
