@@ -10,7 +10,6 @@ from scipy.sparse import csgraph
 from scipy.spatial import cKDTree
 
 import fleshing_jax as fj
-from fleshing_jax._medial_axis.animal import quadruped
 from fleshing_jax._medial_axis.table import table
 from fleshing_jax._skeleton.regions import mesh_adjacency, spine_samples
 
@@ -19,10 +18,8 @@ FEW = dict(refine=0, progress=False)
 
 
 @pytest.fixture(scope="module")
-def spot():
-    mesh = fj.data.spot()
-    medial = fj.medial_mesh(mesh, 60, samples=5000, **FEW)
-    return mesh, medial, fj.skeleton(mesh, medial=medial)
+def spot(spot_rig):  # (conftest: shared with the skeleton figures' tests)
+    return spot_rig
 
 
 @pytest.fixture(scope="module")
@@ -41,10 +38,8 @@ def capsule_case():
 
 
 @pytest.fixture(scope="module")
-def quadruped_case():
-    mesh = quadruped(32)  # 4,256 vertices; its legs of a pair 0.06 apart, two grid cells
-    medial = fj.medial_mesh(mesh, 60, samples=5000, **FEW)
-    return mesh, medial, fj.skeleton(mesh, medial=medial)
+def quadruped_case(quadruped_rig):  # quadruped(32): its legs of a pair two grid cells apart
+    return quadruped_rig
 
 
 CASES = ["spot", "table_case", "capsule_case", "quadruped_case"]

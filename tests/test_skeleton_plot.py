@@ -9,7 +9,6 @@ import pytest
 
 import fleshing_jax as fj
 from fleshing_jax._cli import main
-from fleshing_jax._medial_axis.animal import quadruped
 from fleshing_jax._skeleton import build
 from fleshing_jax._skeleton.plot import guess_up, up_rotation
 
@@ -17,20 +16,18 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 from mpl_toolkits.mplot3d.art3d import Path3DCollection, Poly3DCollection  # noqa: E402
 
-FEW = dict(refine=0, progress=False)
 PNG = b"\x89PNG\r\n\x1a\n"
 
 
+# The skeleton tests' rigs (conftest): spot (y up) and quadruped(32) (z up).
 @pytest.fixture(scope="module")
-def spot():
-    mesh = fj.data.spot()  # y up
-    return mesh, fj.skeleton(mesh, medial=fj.medial_mesh(mesh, 60, samples=5000, **FEW))
+def spot(spot_rig):
+    return spot_rig[0], spot_rig[2]
 
 
 @pytest.fixture(scope="module")
-def animal():
-    mesh = quadruped(32)  # z up
-    return mesh, fj.skeleton(mesh, medial=fj.medial_mesh(mesh, 60, samples=5000, **FEW))
+def animal(quadruped_rig):
+    return quadruped_rig[0], quadruped_rig[2]
 
 
 @pytest.fixture(autouse=True)
