@@ -12,6 +12,7 @@ Compiled programs are shared between the pytest-xdist workers through JAX's pers
 compilation cache. The notebooks' kernels inherit these flags.
 """
 
+import functools
 import os
 from pathlib import Path
 
@@ -93,6 +94,13 @@ def table_file(tmp_path_factory):
     path = tmp_path_factory.mktemp("table") / "table.obj"
     table().export(path)
     return path
+
+
+@functools.cache
+def spot_skeleton(seed):
+    """`fj.skeleton` of spot (the default medial mesh) at `seed`, built once per worker: the
+    skeleton tests and the characters' tests check seed 1 each (a skeleton is immutable)."""
+    return fj.skeleton(fj.data.spot(), seed=seed)
 
 
 # Spot and the quadruped (`quadruped(32)`) rigged on 60 spheres of a quick medial mesh, shared

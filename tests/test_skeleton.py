@@ -6,6 +6,7 @@ import jax
 import numpy as np
 import pytest
 import trimesh
+from conftest import spot_skeleton
 from scipy.sparse import csgraph
 from scipy.spatial import cKDTree
 
@@ -421,7 +422,7 @@ def test_a_skeleton_built_on_its_own_medial_mesh_is_never_refused():
     ears and horns stayed in the body: a gentler straightening keeps it, every vertex valid
     at rest."""
     mesh = fj.data.spot()
-    skeleton = fj.skeleton(mesh, seed=1)
+    skeleton = spot_skeleton(1)  # (conftest: shared with the characters' test at seed 1)
     registration = fj.register_skeleton(mesh, skeleton)
     snout = int(np.argmin(np.asarray(mesh.vertices)[:, 2]))
     head = int(skeleton.region[snout])

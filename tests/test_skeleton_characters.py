@@ -7,6 +7,7 @@ top moving its tip visibly with nothing flagged and the rest still.
 
 import numpy as np
 import pytest
+from conftest import spot_skeleton
 
 import fleshing_jax as fj
 from fleshing_jax._medial_axis.characters import (
@@ -152,7 +153,7 @@ def test_spot_keeps_its_head_ears_and_horns_on_other_medial_meshes(seed):
     the route whose region leaves the head room to bend is preferred. The head keeps its
     two ears and two horns."""
     mesh = fj.data.spot()
-    skeleton = fj.skeleton(mesh, seed=seed)
+    skeleton = spot_skeleton(seed)  # (conftest: seed 1 shared with test_skeleton.py)
     vertices = np.asarray(mesh.vertices)
     head = skeleton.limb_at(vertices[np.argmin(vertices[:, 2])])  # the snout, towards −z
     assert head >= 0 and skeleton.limbs[head].parent == -1
