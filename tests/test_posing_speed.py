@@ -58,7 +58,8 @@ def test_a_jitted_frame_is_traced_once_for_every_angle(skeleton, registration, c
 def test_a_frame_without_the_projection_check_places_the_same_vertices(skeleton, registration):
     """`check_projection=False` (a live preview's frame) skips only the global check: the
     vertices are placed bit for bit alike, every vertex the checked pose calls valid is still
-    valid, and past the range (150° on the tube's limb) the global check flags 7 more."""
+    valid, and past the range (150° on the tube's limb) both flag every vertex past the
+    joint (inexact: the sections' blend)."""
     for angle in (60.0, 150.0):
         poses = {0: fj.LimbPose(angle, 20.0, 5.0)}
         checked = fj.pose_skeleton(registration, skeleton, poses)
@@ -66,6 +67,6 @@ def test_a_frame_without_the_projection_check_places_the_same_vertices(skeleton,
         assert np.array_equal(np.asarray(quick.vertices), np.asarray(checked.vertices))
         ok, fast = np.asarray(checked.valid), np.asarray(quick.valid)
         assert np.all(fast[ok])
-    assert np.sum(~fast) < np.sum(~ok)
+    assert np.sum(~fast) == np.sum(~ok) > 0
     with pytest.raises(TypeError, match="check_projection"):
         fj.pose_skeleton(registration, skeleton, poses, check_projection="no")

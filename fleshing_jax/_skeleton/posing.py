@@ -351,6 +351,7 @@ def posed(registration: SkeletonRegistration, skeleton: Skeleton, poses: dict,
             if isinstance(pose, LimbPose):
                 trust = trust & sane_angles(pose)
                 images = _unregistered_carried(reg, k, pose, images)
+                images, ok = _past_the_range(reg, k, pose, images, ok)
         if carry is not None:
             images = carry(images)
         carried[k], trusted[k] = (carry if motion is None else motion.then(carry)), trust
@@ -385,6 +386,46 @@ def _unregistered_carried(registration, k: int, pose: LimbPose, images):
         return images.at[ids].set(placed)
     past = ~valid & jnp.isfinite(s) & (s >= joint)
     return jnp.where(past[:, None], placed, images)
+
+
+def _past_the_range(registration, k: int, pose: LimbPose, images, valid):
+    """`(images, valid)` of limb `k`'s region past its joint's exact range: each vertex
+    registered past the joint moves towards where the bent limb's cross-section at its arc
+    length carries it (`PreparedBent.carried`), by a weight rising smoothly from 0 at the
+    range to 1 at twice it, and is flagged inexact. The fleshing's images there squeeze the
+    concave side of a thick joint (a head on its neck) into flaps; the sections' motion
+    keeps the part past the joint whole, at a volume change. Continuous in the angle (the
+    weight, and the images it blends, are). Nodded forwards, against the formulas continued
+    (`fallback`): cheburashka's head (exact to 3.3°) at 30°, worst edge 16.4× → 2.6×, ΔV/V
+    −1.5 % → −0.7 %; spot's (6.0°) at 45°, 9.7× → 2.8×, −3.9 % → −4.2 %, at 15°, 3.0× →
+    1.6×, +0.1 % → −1.4 % (a section's carried offsets do not keep the volume)."""
+    n = registration.indices[k].shape[0]
+    r = registration.registrations[k]
+    s, points = r.arc_length[:n], r.points[:n]
+    exact = registration.zones[k].range
+    u = jnp.clip((jnp.abs(jnp.deg2rad(pose.bend)).astype(exact.dtype) - exact)
+                 / jnp.maximum(exact, 1e-6), 0, 1)
+    weight = u * u * (3 - 2 * u)
+    zone = r.valid[:n] & jnp.isfinite(s) & (s >= registration.joints[k])
+    args = (limb_target(registration, k, pose), points, s, zone, images, weight)
+    if is_concrete(pose, registration):
+        # Eagerly one program for every angle, within the range too (it then changes nothing):
+        # a new angle compiles nothing.
+        images = _carried_blend_program(*args)
+    else:  # a traced frame skips the sections within the range
+        images = jax.lax.cond(weight > 0, _carried_blend, lambda *a: a[4], *args)
+    return images, valid & ~(zone & (weight > 0))
+
+
+def _carried_blend(target, points, s, zone, images, weight):
+    """`images` (n, 3) moved by `weight` towards the sections' motion (`PreparedBent.carried`)
+    where `zone` (n,); as they are where `weight` is 0."""
+    placed = jax.vmap(target._prepare().carried)(points, jnp.where(zone, s, 0))
+    blended = images + weight * (placed - images)
+    return jnp.where(zone[:, None] & (weight > 0), blended, images)
+
+
+_carried_blend_program = eqx.filter_jit(_carried_blend)
 
 
 def posed_limbs(registration: SkeletonRegistration, poses: dict, method: str, check: bool,
