@@ -40,9 +40,10 @@ from scipy.sparse import csgraph
 from .fit import farthest, medial_graph, sphere_gaps
 
 CORE = 0.6  # a core sphere is at least this fraction of the thickest sphere's radius
-# A limb protrudes at least this many of its thickest radii (spot's stubby hind legs: 1.2-1.5
-# past the torso's core on some medial meshes; at 1.5 one was left in the body at seed 1).
-ELONGATION = 1.25
+# A limb protrudes at least its thickest radius: shorter, it is a bump (issue 45: "shorter
+# than its own radius"; the characters' bumps reach 0.86). Spot's stubby hind legs protrude
+# 1.19-1.5 on its medial meshes: at 1.5 one was left in the body at seed 1, at 1.25 at seed 10.
+ELONGATION = 1.0
 # A child limb is at most this fraction of its parent's thickest radius: it grows from the
 # parent's thick part (a horn on a head), where a limb that tapers (a tail) has none.
 THINNER = 0.5
