@@ -337,8 +337,8 @@ def test_pose_command(tube, skeleton, tmp_path, capsys):
     assert f"advice: bend limb 2 at most {largest:.2f} degrees" in captured.out
     # Written anyway (inexact past the range, each section carried whole: no torn edge).
     assert main([*arguments[:2], str(folded), *arguments[3:], "--limb", "2", "--bend", "175",
-                 "--allow-inexact", "--max-stretch", "5"]) == 0
-    assert np.asarray(fj.edge_stretch(tube, fj.load_mesh(folded).vertices)).max() < 5
+                 "--allow-inexact", "--max-stretch", "8"]) == 0
+    assert np.asarray(fj.edge_stretch(tube, fj.load_mesh(folded).vertices)).max() < 8
 
 
 @pytest.mark.parametrize(

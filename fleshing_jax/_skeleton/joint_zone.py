@@ -25,6 +25,8 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array
 
+from .._fleshing.maps import WHOLE_FROM
+
 # κ·ρ kept in a zone: below the radial map's limit 1/√3 ≈ 0.577, where its concave side would
 # be crushed flat; at 0.45 a vertex's principal stretch stays below about 2.5. Below where a
 # pose's whole map leaves the exact one (`maps.WHOLE_FROM`), with room for the interpolated
@@ -45,6 +47,10 @@ class JointZone(eqx.Module):
     lengths: Array
     capacities: Array
     slopes: Array
+    # The largest bend over the whole room that keeps every vertex's `k₁·d*` below the map's
+    # own `maps.WHOLE_FROM` (scalar radians, at least the range): past the range the zone is
+    # the whole room, and the map is exact up to about this bend.
+    exact: Array
 
     def length(self, bend: Array) -> Array:
         """The zone's length for a bend of `bend` radians (scalar, either sign): the shortest
@@ -108,6 +114,8 @@ def joint_zone(arc_length: np.ndarray, offset: np.ndarray, curvature: np.ndarray
         reached = np.searchsorted(s[order], joint + lengths, side="right")
         curvature_bound = np.where(reached > 0, bound[np.maximum(reached - 1, 0)], np.inf)
     capacities = np.minimum(lengths * curvature_bound / _PLATEAU, 2 * np.pi)
+    whole_bound = np.min(np.maximum(WHOLE_FROM - rest * unbent, 0.0)
+                         / np.maximum(np.linalg.norm(d, axis=1) * unbent, 1e-300), initial=np.inf)
     # A zone's capacity falls where a thick part enters it; a bend must not then be given
     # the shorter zone before the thick part and the longer one past it by turns. So each zone
     # is credited with the least capacity of the longer ones (non-decreasing; every zone still
@@ -122,7 +130,8 @@ def joint_zone(arc_length: np.ndarray, offset: np.ndarray, curvature: np.ndarray
     pad = ZONE_LENGTHS - len(capacities)
     capacities, lengths, slopes = (np.pad(a, (0, pad), mode="edge")
                                    for a in (capacities, lengths, slopes))
-    return JointZone(*(jnp.asarray(a, dtype) for a in (lengths, capacities, slopes)))
+    exact = max(float(capacities[-1]), min(room * whole_bound / _PLATEAU, 2 * np.pi))
+    return JointZone(*(jnp.asarray(a, dtype) for a in (lengths, capacities, slopes, exact)))
 
 
 def joint_range(registration, limb: int) -> Array:

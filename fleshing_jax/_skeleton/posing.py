@@ -391,8 +391,9 @@ def _unregistered_carried(registration, k: int, pose: LimbPose, images):
 def _past_the_range(registration, k: int, pose: LimbPose, images, valid):
     """`(images, valid)` of limb `k`'s region past its joint's exact range: each vertex
     registered past the joint moves towards where the bent limb's cross-section at its arc
-    length carries it (`PreparedBent.carried`), by a weight rising smoothly from 0 at the
-    range to 1 at twice it, and is flagged inexact. The fleshing's images there squeeze the
+    length carries it (`PreparedBent.carried`), by a weight rising smoothly from 0 where the
+    map over the whole room stops being exact (`JointZone.exact`, at least the range) to 1 at
+    twice that bend, and is flagged inexact. The fleshing's images there squeeze the
     concave side of a thick joint (a head on its neck) into flaps; the sections' motion
     keeps the part past the joint whole, at a volume change. Continuous in the angle (the
     weight, and the images it blends, are). Nodded forwards, against the formulas continued
@@ -402,7 +403,7 @@ def _past_the_range(registration, k: int, pose: LimbPose, images, valid):
     n = registration.indices[k].shape[0]
     r = registration.registrations[k]
     s, points = r.arc_length[:n], r.points[:n]
-    exact = registration.zones[k].range
+    exact = registration.zones[k].exact
     u = jnp.clip((jnp.abs(jnp.deg2rad(pose.bend)).astype(exact.dtype) - exact)
                  / jnp.maximum(exact, 1e-6), 0, 1)
     weight = u * u * (3 - 2 * u)
