@@ -85,9 +85,10 @@ class PosedSkeleton(NamedTuple):
     exact. A vertex of a posed region outside its limb's valid space (a bend past the joint's
     range, `fj.joint_range`) is placed by the map continued past its conditions: continuous in
     the vertex and the angle, so the mesh stays whole, but its volume is not kept there; one
-    not validly registered on its limb's rest spine moves with the limb's rigid part where it
-    projects past the bend (a `LimbPose`'s), and is left where it was elsewhere, as is one with
-    a non-finite image (all flagged)."""
+    not validly registered on its limb's rest spine moves with the bent limb's cross-section
+    where it projects past a `LimbPose`'s joint, and is left where it was elsewhere, as is one
+    with a non-finite image; past a joint's exact range every vertex past it blends towards
+    its cross-section's motion (all flagged: inexact)."""
 
     vertices: Float[Array, "n 3"]
     valid: Bool[Array, " n"]
@@ -350,8 +351,7 @@ def posed(registration: SkeletonRegistration, skeleton: Skeleton, poses: dict,
             images, ok = images[:n], ok[:n]
             if isinstance(pose, LimbPose):
                 trust = trust & sane_angles(pose)
-                images = _unregistered_carried(reg, k, pose, images)
-                images, ok = _past_the_range(reg, k, pose, images, ok)
+                images, ok = _sections_carried(reg, k, pose, images, ok)
         if carry is not None:
             images = carry(images)
         carried[k], trusted[k] = (carry if motion is None else motion.then(carry)), trust
@@ -363,67 +363,48 @@ def posed(registration: SkeletonRegistration, skeleton: Skeleton, poses: dict,
     return PosedSkeleton(vertices, valid)
 
 
-def _unregistered_carried(registration, k: int, pose: LimbPose, images):
-    """`images` (n_k, 3) of limb `k`'s region, its vertices not validly registered on the rest
-    spine (near a focal point at rest: under an insect's bent knee) but projecting past the
-    joint placed as the bent limb's cross-section there moves (`PreparedBent.carried`: past
-    the bend, the limb's rigid motion). Left at rest, they tore the mesh (23.6× on the
-    insect's front leg bent 30°; 3.2× for one left in the joint's zone). Still flagged: their
-    projection is not certified, and the fleshing's change of their section is not applied."""
+def _sections_carried(registration, k: int, pose: LimbPose, images, valid):
+    """`(images, valid)` of limb `k`'s region with its vertices past the joint moved towards
+    where the bent limb's cross-section at their arc length carries them
+    (`PreparedBent.carried`: past the bend, the limb's rigid motion), all flagged:
+
+    - wholly, the vertices not validly registered on the rest spine (near a focal point at
+      rest: under an insect's bent knee), which the fleshing cannot place: left at rest they
+      tore the mesh (23.6× on the insect's front leg bent 30°, 3.2× for one in the zone);
+    - by a weight rising smoothly with the angle from 0 where the map over the whole room
+      stops being exact (`JointZone.exact`, at least `fj.joint_range`) to 1 at twice that
+      bend, the others: past it the fleshing squeezes a thick joint's concave side (a head
+      on its neck) into flaps; the sections' motion keeps the limb whole, not its volume.
+      Continuous in the angle. Nodded forwards, against the formulas continued: cheburashka's
+      head (exact to 3.3°) at 30°, worst edge 16.4× → 2.6×, ΔV/V −1.5 % → −0.7 %; spot's at
+      45°, 6.2× → 2.6×, −1.7 % → −0.2 %; towards its side, −3.9 % → −4.2 %."""
     n = registration.indices[k].shape[0]
     r = registration.registrations[k]
-    s, points, valid = r.arc_length[:n], r.points[:n], r.valid[:n]
-    joint = registration.joints[k]
-    if is_concrete(s, valid, joint):  # the few such vertices only (a frame's cost)
-        at = np.asarray(s)
-        ids = np.flatnonzero(~np.asarray(valid) & np.isfinite(at) & (at >= np.asarray(joint)))
-        if ids.size == 0:
-            return images
-        s, points = s[ids], points[ids]
-    target = limb_target(registration, k, pose)._prepare()
-    placed = jax.vmap(target.carried)(points, jnp.where(jnp.isfinite(s), s, 0))
-    if is_concrete(s, valid, joint):
-        return images.at[ids].set(placed)
-    past = ~valid & jnp.isfinite(s) & (s >= joint)
-    return jnp.where(past[:, None], placed, images)
-
-
-def _past_the_range(registration, k: int, pose: LimbPose, images, valid):
-    """`(images, valid)` of limb `k`'s region past its joint's exact range: each vertex
-    registered past the joint moves towards where the bent limb's cross-section at its arc
-    length carries it (`PreparedBent.carried`), by a weight rising smoothly from 0 where the
-    map over the whole room stops being exact (`JointZone.exact`, at least the range) to 1 at
-    twice that bend, and is flagged inexact. The fleshing's images there squeeze the
-    concave side of a thick joint (a head on its neck) into flaps; the sections' motion
-    keeps the part past the joint whole, at a volume change. Continuous in the angle (the
-    weight, and the images it blends, are). Nodded forwards, against the formulas continued
-    (`fallback`): cheburashka's head (exact to 3.3°) at 30°, worst edge 16.4× → 2.6×, ΔV/V
-    −1.5 % → −0.7 %; spot's (6.0°) at 45°, 9.7× → 2.8×, −3.9 % → −4.2 %, at 15°, 3.0× →
-    1.6×, +0.1 % → −1.4 % (a section's carried offsets do not keep the volume)."""
-    n = registration.indices[k].shape[0]
-    r = registration.registrations[k]
-    s, points = r.arc_length[:n], r.points[:n]
+    s, points, registered = r.arc_length[:n], r.points[:n], r.valid[:n]
     exact = registration.zones[k].exact
     u = jnp.clip((jnp.abs(jnp.deg2rad(pose.bend)).astype(exact.dtype) - exact)
                  / jnp.maximum(exact, 1e-6), 0, 1)
-    weight = u * u * (3 - 2 * u)
-    zone = r.valid[:n] & jnp.isfinite(s) & (s >= registration.joints[k])
-    args = (limb_target(registration, k, pose), points, s, zone, images, weight)
+    blend = u * u * (3 - 2 * u)
+    past = jnp.isfinite(s) & (s >= registration.joints[k])
+    weight = jnp.where(past, jnp.where(registered, blend, 1), 0).astype(exact.dtype)
+    args = (limb_target(registration, k, pose), points, s, weight, images)
     if is_concrete(pose, registration):
-        # Eagerly one program for every angle, within the range too (it then changes nothing):
-        # a new angle compiles nothing.
+        # Eagerly one program for every angle, within the range too (it then changes only the
+        # unregistered vertices): a new angle compiles nothing.
         images = _carried_blend_program(*args)
-    else:  # a traced frame skips the sections within the range
-        images = jax.lax.cond(weight > 0, _carried_blend, lambda *a: a[4], *args)
-    return images, valid & ~(zone & (weight > 0))
+    else:  # a traced frame skips the sections where nothing is carried
+        images = jax.lax.cond(jnp.any(weight > 0), _carried_blend, lambda *a: a[-1], *args)
+    return images, valid & ~(past & (weight > 0))
 
 
-def _carried_blend(target, points, s, zone, images, weight):
-    """`images` (n, 3) moved by `weight` towards the sections' motion (`PreparedBent.carried`)
-    where `zone` (n,); as they are where `weight` is 0."""
-    placed = jax.vmap(target._prepare().carried)(points, jnp.where(zone, s, 0))
-    blended = images + weight * (placed - images)
-    return jnp.where(zone[:, None] & (weight > 0), blended, images)
+def _carried_blend(target, points, s, weight, images):
+    """`images` (n, 3) moved by `weight` (n,) towards the sections' motion
+    (`PreparedBent.carried`) at arc lengths `s` (n,); as they are where `weight` is 0."""
+    moved = weight > 0
+    placed = jax.vmap(target._prepare().carried)(points, jnp.where(moved, s, 0))
+    blended = jnp.where((weight == 1)[:, None], placed,
+                        images + weight[:, None] * (placed - images))
+    return jnp.where(moved[:, None], blended, images)
 
 
 _carried_blend_program = eqx.filter_jit(_carried_blend)
