@@ -245,7 +245,52 @@ def test_a_solve_traces_its_residuals_once():
             return jnp.sin(y) - self.target
 
     solver = optx.LevenbergMarquardt(1e-10, 1e-10)
-    y, _, result, _ = _solve(Toy(jnp.asarray([0.3, -0.2])), solver, jnp.zeros(2), 16, False)
+    y, _, result, _, _ = _solve(Toy(jnp.asarray([0.3, -0.2])), solver, jnp.zeros(2), 16, False)
     assert result == optx.RESULTS.successful
     np.testing.assert_allclose(np.sin(np.asarray(y)), [0.3, -0.2], atol=1e-9)
     assert len(traced) == 1
+
+
+def test_a_limb_posed_where_the_target_has_nothing_is_not_explained():
+    # Every target point near the posed surface, but 30 % of limb 3's vertices far from the
+    # target, against 10 % of the body's (the side a scan does not see): not explained. The
+    # same share as the body's is a partial scan's, and passes.
+    from fleshing_jax._skeleton.fit_shape import _unexplained
+
+    rest = np.stack([np.arange(100.0), np.zeros(100), np.zeros(100)], axis=1)  # spacing 1
+    region = np.full(100, -1)
+    region[:50] = 3
+    ahead = np.zeros(100)
+    ahead[50:55] = 5.0  # the body: 5 of 50
+    ahead[:15] = 5.0  # limb 3: 15 of 50
+    near = np.zeros(1000)
+    owner = np.full(1000, -1)
+    message = _unexplained(near, 0.01, rest, owner, [3], ahead, region)
+    assert message.startswith("limb 3 is posed where the target has no surface: 30.0 %")
+    assert "10.0 % of the body's" in message
+    ahead[5:15] = 0.0  # limb 3: 5 of 50, as the body
+    assert _unexplained(near, 0.01, rest, owner, [3], ahead, region) == ""
+
+
+def test_the_angle_spread_is_the_sandwich_standard_error():
+    # Linear least squares y = a + b x with known residuals: the sandwich covariance by its
+    # formula, and a parameter the residuals do not depend on gets an enormous spread.
+    from fleshing_jax._fit.uncertainty import block_spread, covariance
+    from fleshing_jax._skeleton.fit_shape import ANGLE_SPREAD, _spreads, _undetermined
+
+    rng = np.random.default_rng(0)
+    x = rng.uniform(-1, 1, 200)
+    jac = np.stack([np.ones_like(x), x], axis=1)
+    r = rng.normal(0, 0.1, 200)
+    inverse = np.linalg.inv(jac.T @ jac)
+    expected = inverse @ (jac.T * r**2) @ jac @ inverse
+    np.testing.assert_allclose(covariance(jac, r), expected, rtol=1e-10)
+    np.testing.assert_allclose(block_spread(expected, [[0], [1]]),
+                               np.sqrt(np.diag(expected)), rtol=1e-10)
+    # Two limbs of (b₁, b₂, ψ); the second's bend columns are zero (a limb the target misses).
+    blind = np.stack([np.ones_like(x), x, x**2, 0 * x, 0 * x, np.cos(3 * x)], axis=1)
+    spread = _spreads((blind, r / 10), (4, 7), 3)  # (b₁, b₂, ψ) per limb
+    assert spread[4] < ANGLE_SPREAD and spread[7] > 1e3
+    message = _undetermined(spread)
+    assert "limb 7 ±" in message and "limb 4" not in message and "markers" in message
+    assert _undetermined({4: spread[4]}) == ""

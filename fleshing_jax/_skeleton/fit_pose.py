@@ -180,11 +180,14 @@ def restricted(registration: SkeletonRegistration, ids: np.ndarray):
 
 
 @eqx.filter_jit
-def _solve(problem: PoseProblem, solver, y0: Array, max_steps: int, throw: bool):
-    """`optimistix.least_squares` on `problem`: `(y, trust radius, result, stats)`. The losses
-    are read from eager poses outside, which share their programs with `pose_skeleton`. The
-    residuals' Jacobian is materialised at each step for a least-squares solver
-    (`_fit.jacobian`: the solve compiles in half the time)."""
+def _solve(problem: PoseProblem, solver, y0: Array, max_steps: int, throw: bool,
+           linearised: bool = False):
+    """`optimistix.least_squares` on `problem`: `(y, trust radius, result, stats, linear)`.
+    The losses are read from eager poses outside, which share their programs with
+    `pose_skeleton`. The residuals' Jacobian is materialised at each step for a least-squares
+    solver (`_fit.jacobian`: the solve compiles in half the time). With `linearised`, `linear`
+    is `(J (n, p), r (n,))` at `y`, read from the Gauss–Newton solver's last state (no second
+    linearisation: `_fit.uncertainty` needs them), or None for another solver."""
     # The residuals traced once, to a jaxpr that every later use evaluates: the solver's
     # start and its step, and the Jacobian's forward passes (under `vmap`), each traced the
     # posing's Python again (two traces of a fit's three limbs: 2 × 4 s).
@@ -196,7 +199,20 @@ def _solve(problem: PoseProblem, solver, y0: Array, max_steps: int, throw: bool)
     solution = optx.least_squares(for_solver(residuals, solver), solver, y0,
                                   max_steps=max_steps, throw=throw)
     radius = trust_radius(solver, solution, y0.dtype)
-    return solution.value, radius, solution.result, solution.stats
+    linear = _linear_state(solution.state) if linearised else None
+    return solution.value, radius, solution.result, solution.stats, linear
+
+
+def _linear_state(state):
+    """`(J, r)` of a Gauss–Newton-type solver's last accepted point (`state.f_info`, under any
+    `_fit.budget` wrapper's `(state, steps)`), else None."""
+    if isinstance(state, tuple):
+        state = state[0]
+    info = getattr(state, "f_info", None)
+    if not isinstance(info, optx.FunctionInfo.ResidualJac):
+        return None
+    residual = jnp.concatenate([jnp.ravel(r) for r in jax.tree.leaves(info.residual)])
+    return info.jac.as_matrix(), residual
 
 
 def _default_limbs(skeleton: Skeleton, ids: np.ndarray) -> tuple[int, ...]:
@@ -239,7 +255,10 @@ def fit_skeleton_pose(
     `init` (the rest pose) at a decreasing robust scale (`_skeleton/fit_shape.py`): a partial
     scan (one side seen) and stray points are tolerated. `converged` is then also False when
     more than 2 % of the target lies farther from the posed surface than its own noise level
-    allows (another shape, a wrong local minimum), with a message saying so.
+    allows (another shape, a wrong local minimum), when a fitted limb's part of it is not
+    explained either way, or when a fitted limb's bend is determined by the target only to
+    more than ±1° (its standard error, `stats["angle_spread"]`, degrees by limb: a short, thick
+    limb barely moves its part of a sampled surface), with a message naming the limb.
 
     **Arguments:**
 
@@ -330,7 +349,7 @@ def fit_skeleton_pose(
     held = {k: v for k, v in init.items() if k not in limbs}
     problem = PoseProblem(small, skeleton, held, rows, targets, limbs, method)
     y0 = jnp.stack([parameters_of(init.get(k, LimbPose()), dtype) for k in limbs])
-    y, radius, result, stats = _solve(problem, solver, y0, max_steps, bool(throw))
+    y, radius, result, stats, _ = _solve(problem, solver, y0, max_steps, bool(throw))
 
     def outcome(poses):
         whole = pose_skeleton(registration, skeleton, poses, method=method)
