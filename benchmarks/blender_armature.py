@@ -1,10 +1,11 @@
 """Our jointed pose against Blender's armature on the same joint rotations (issues 45/46).
 
     python benchmarks/blender_armature.py --bpy /path/to/venv-with-bpy/bin/python \
-        [--figure benchmarks/figures/skeleton-biped-vs-blender.png]
+        [--character biped|spot] [--figure benchmarks/figures/skeleton-biped-vs-blender.png]
 
 The procedural biped's skeleton (`fj.skeleton`, 200 spheres): one leg posed at its hip 40°,
-knee 70°, ankle 20°, one arm at its shoulder, elbow and wrist alike, the head 30° (float64).
+knee 70°, ankle 20°, one arm at its shoulder, elbow and wrist alike, the head 30° (float64);
+or spot's saved skeleton: its head turned 45°, a front leg lifted 45°, a hind leg 60°.
 Blender (`pip install bpy` in another environment: `--bpy` names its Python) gets one bone
 per limb (head at the limb's bend start, tail where its bend is complete), a still body
 bone, automatic heat weights, and as each bone's rotation the rotation our pose gives that
@@ -24,22 +25,14 @@ from pathlib import Path
 
 import numpy as np
 
+SPOT_SKELETON = Path(__file__).resolve().parents[1] / "notebooks" / "data" / "spot-skeleton.json"
 
-def ours(out: Path):
-    import jax
 
-    jax.config.update("jax_enable_x64", True)
-    import fleshing_jax as fj
-    from fleshing_jax._medial_axis.characters import biped
-    from fleshing_jax._skeleton.posing import posed_limbs
-
-    mesh = biped()
-    vertices, faces = np.asarray(mesh.vertices), np.asarray(mesh.faces)
-    skeleton = fj.skeleton(mesh)
-    registration = fj.register_skeleton(mesh, skeleton)
-    count = len(skeleton.limbs)
+def biped_poses(fj, skeleton):
+    """The biped (`characters.biped`, its own skeleton): a leg at hip 40°, knee 70°, ankle
+    20°, an arm at shoulder, elbow and wrist alike, the head 30°."""
     chains = {}
-    for k in range(count):
+    for k in range(len(skeleton.limbs)):
         chain = skeleton.chain(k)
         if len(chain) > len(chains.get(chain[0], ())):
             chains[chain[0]] = chain
@@ -53,6 +46,40 @@ def ours(out: Path):
     head = next(c for c in chains.values() if tip(c)[2] > 0.9)
     poses = {k: fj.LimbPose(a) for c in (leg, arm) for k, a in zip(c, (40.0, 70.0, 20.0))}
     poses[head[0]] = fj.LimbPose(30.0)
+    return lambda registration: poses
+
+
+def spot_poses(fj, skeleton):
+    """Spot (`fj.data.spot()`, y up, head towards −z; the saved skeleton of
+    notebooks/data): the head turned 45° about up (as an animator turns a neck bone), a
+    front leg lifted 45° forwards, a hind leg 60° backwards."""
+    up, ahead = (0.0, 1.0, 0.0), np.array([0.0, 0.0, -1.0])
+    return lambda registration: {
+        0: fj.turn(registration, skeleton, 0, 45.0, up=up),
+        5: fj.LimbPose(45.0, towards=ahead), 8: fj.LimbPose(60.0, towards=-ahead)}
+
+
+def ours(out: Path, character: str):
+    import equinox as eqx
+    import jax
+
+    jax.config.update("jax_enable_x64", True)
+    import fleshing_jax as fj
+    from fleshing_jax._medial_axis.characters import biped
+    from fleshing_jax._skeleton.posing import posed_limbs
+
+    if character == "spot":
+        mesh = fj.data.spot()
+        skeleton = fj.load_skeleton(SPOT_SKELETON)
+        poses_of = spot_poses(fj, skeleton)
+    else:
+        mesh = biped()
+        skeleton = fj.skeleton(mesh)
+        poses_of = biped_poses(fj, skeleton)
+    vertices, faces = np.asarray(mesh.vertices), np.asarray(mesh.faces)
+    registration = fj.register_skeleton(mesh, skeleton)
+    count = len(skeleton.limbs)
+    poses = poses_of(registration)
     posed = fj.pose_skeleton(registration, skeleton, poses)
     rotations = np.tile(np.eye(3), (count, 1, 1))
     for k, (_, _, motion) in posed_limbs(registration, poses, "radial", True, False).items():
@@ -65,7 +92,8 @@ def ours(out: Path):
                       for k in range(count)])  # fmt: skip
     fast = fj.register_skeleton(mesh, skeleton, dtype=np.float32)
     frame = jax.jit(lambda scale: fj.pose_skeleton(
-        fast, skeleton, {k: fj.LimbPose(scale * p.bend) for k, p in poses.items()}).vertices)
+        fast, skeleton, {k: eqx.tree_at(lambda q: q.bend, p, scale * p.bend)
+                         for k, p in poses.items()}).vertices)
     frame(np.float32(1.0)).block_until_ready()
     times = []
     for i in range(20):
@@ -157,13 +185,14 @@ def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--bpy", required=True, help="a Python with `bpy` installed")
     parser.add_argument("--figure", type=Path, default=None)
+    parser.add_argument("--character", choices=("biped", "spot"), default="biped")
     parser.add_argument("--blender-side", nargs=2, help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.blender_side:
         return blender(*map(Path, args.blender_side))
     with tempfile.TemporaryDirectory() as folder:
         mine, theirs = Path(folder) / "ours.npz", Path(folder) / "blender.npz"
-        ours(mine)
+        ours(mine, args.character)
         subprocess.run([args.bpy, __file__, "--bpy", args.bpy, "--blender-side", str(mine),
                         str(theirs)], check=True, capture_output=True)  # fmt: skip
         o, b = dict(np.load(mine)), dict(np.load(theirs))
@@ -181,7 +210,10 @@ def main():
         print(f"| {name} | {flagged} | {100 * change:+.3f} | {worst:.2f} | {torn} | "
               f"{100 * drift:.3f} | {ms:.2f} |")
     if args.figure is not None:
-        _figure(args.figure, rest, faces, [o["posed"], b["lbs"], b["dqs"]])
+        # Drawn z up: spot's y up becomes the picture's vertical.
+        axes = [0, 2, 1] if args.character == "spot" else [0, 1, 2]
+        _figure(args.figure, rest[:, axes], faces,
+                [p[:, axes] for p in (o["posed"], b["lbs"], b["dqs"])])
 
 
 def _figure(path, rest, faces, posed):
