@@ -200,6 +200,19 @@ def test_shape_fit_to_another_shape_is_not_converged(skeleton, registration):
     assert "does not explain the target" in fit.message
 
 
+def test_a_limb_the_target_does_not_show_is_not_converged(skeleton, registration, samples):
+    # The clean sample without limb 2's part (the points nearest its posed vertices): nothing
+    # in the target says how limb 2 is bent, so the fit may not call it converged. (The same
+    # limbs and solve sizes as the clean fit: its compiled solve.)
+    from scipy.spatial import cKDTree
+
+    posed = np.asarray(fj.pose_skeleton(registration, skeleton, SHAPE_TRUTH).vertices)
+    owner = np.asarray(skeleton.region)[cKDTree(posed).query(samples[0])[1]]
+    fit = _shape_fit(registration, skeleton, samples[0][owner != 2])
+    assert not fit.converged
+    assert "limb 2" in fit.message and "limb 0" not in fit.message, fit.message
+
+
 def test_shape_fit_bad_input(skeleton, registration):
     with pytest.raises(ValueError, match="nothing to fit to"):
         fj.fit_skeleton_pose(registration, skeleton)
