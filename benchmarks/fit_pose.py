@@ -9,7 +9,8 @@ target; the pose recovered from the rest pose by `fj.fit_skeleton_pose(registrat
 target=..., limbs=...)` from the clean samples, with 0.5 % (of the diagonal) Gaussian noise,
 and from one side only (the samples whose normals face +x: a partial scan); then spot's rest
 skeleton against a ball (another shape: must not converge). Prints a Markdown table: the
-largest bend and direction errors over the limbs (degrees), `converged`, steps, seconds (the
+largest bend and direction errors over the limbs (degrees), the largest standard error of a
+fitted bend (`stats["angle_spread"]`: over ±1° is not converged), `converged`, steps, seconds (the
 first call includes its compilation; the warm time is the median of the next `WARM` calls of
 the same target), and the load average at the end of each row.
 """
@@ -46,6 +47,8 @@ def errors(fit, truth):
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--float32", action="store_true")
+    parser.add_argument("--only", choices=["clean", "noise", "side", "sphere"],
+                        help="one target's row only (the first call then compiles)")
     args = parser.parse_args()
     if not args.float32:
         jax.config.update("jax_enable_x64", True)
@@ -66,19 +69,25 @@ def main():
     other.apply_translation(spot.bounds.mean(axis=0))
     print(f"spot, {np.dtype(dtype).name}, limbs {sorted(TRUTH)}, diagonal {diagonal:.3f}, "
           f"vertices flagged at the true pose by limb: {flagged}\n")
-    print("| target | points | max bend error (°) | max direction error (°) | converged | steps "
+    print("| target | points | max bend error (°) | max direction error (°) | largest spread (°) "
+          "| converged | steps "
           f"| first call (s) | warm call (s, median of {WARM}) | load (1, 5, 15 min) |")
-    print("|---|---:|---:|---:|---|---:|---:|---:|---|")
-    for name, target in (("clean", points), ("0.5 % noise", noisy), ("one side", partial),
-                         ("a sphere (another shape)", other)):
+    print("|---|---:|---:|---:|---:|---|---:|---:|---:|---|")
+    rows = (("clean", points), ("0.5 % noise", noisy), ("one side", partial),
+            ("a sphere (another shape)", other))
+    for name, target in rows:
+        if args.only and not name.startswith({"noise": "0.5", "side": "one",
+                                              "sphere": "a sphere"}.get(args.only, args.only)):
+            continue
         seconds = []
         for _ in range(1 + WARM):
             start = time.perf_counter()
             fit = fj.fit_skeleton_pose(registration, skeleton, target=target, limbs=list(TRUTH))
             seconds.append(time.perf_counter() - start)
         bend, turn = errors(fit, truth)
+        spread = max(fit.stats["angle_spread"].values())
         count = len(target.vertices) if isinstance(target, trimesh.Trimesh) else len(target)
-        print(f"| {name} | {count} | {bend:.2f} | {turn:.2f} | {fit.converged} | "
+        print(f"| {name} | {count} | {bend:.2f} | {turn:.2f} | {spread:.2f} | {fit.converged} | "
               f"{int(fit.num_steps)} | {seconds[0]:.1f} | {np.median(seconds[1:]):.2f} | "
               f"{', '.join(f'{x:.1f}' for x in os.getloadavg())} |", flush=True)
         if not fit.converged:
