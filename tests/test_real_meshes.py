@@ -106,11 +106,15 @@ def test_spot_quad_mesh_deforms_in_file_order():
     assert abs(v1 - v0) / abs(v0) < 1e-3
 
 
-def test_cheburashka_is_rigged_at_its_torso_with_its_head_arms_leg_and_an_ear():
+def test_cheburashka_is_rigged_at_its_torso_with_its_head_ears_arms_and_feet():
     """Cheburashka's head is its thickest part and its neck barely narrower: the head was the
     body, the torso with both legs one limb, the ears five rim paths each and none a limb.
-    Now the torso is the body; the head a limb with an ear as its child; both arms and a leg
-    leave the torso (issue 45: an animator's rig)."""
+    Now the torso is the body; the head a limb with both ears as its children; both arms
+    and both feet leave the torso (issue 45: an animator's rig). The left ear's rim was
+    reached by two paths with no medial edge between them (two limbs, the reach band around
+    either spine bordering the rest of the disc its whole length: in the head), and a
+    foot's band was a knob against the body: each now one limb whose region is its own
+    vertices (`limbs._joined_routes`, `regions.limb_region`'s `owned`)."""
     mesh = trimesh.load(str(_shared("cheburashka.obj")), process=False, force="mesh")
     v = np.asarray(mesh.vertices)
     skeleton = fj.skeleton(mesh)
@@ -119,13 +123,16 @@ def test_cheburashka_is_rigged_at_its_torso_with_its_head_arms_leg_and_an_ear():
     height = lambda points: (points[:, 1].mean() - low) / (high - low)  # noqa: E731
     body = v[region == -1]
     assert 0.15 < height(body) < 0.45  # the torso, not the head
+    middle = body[:, 0].mean()
     head = region[np.argmax(v[:, 1])]
     assert head >= 0 and parents[head] == -1
-    ears = {region[np.argmax(v[:, 0])], region[np.argmin(v[:, 0])]}
-    assert any(e >= 0 and parents[e] == head for e in ears)
+    ears = [region[np.argmax(v[:, 0])], region[np.argmin(v[:, 0])]]
+    assert ears[0] != ears[1] and all(e >= 0 and parents[e] == head for e in ears)
     arms = [k for k in range(len(parents)) if parents[k] == -1
             and 0.2 < height(v[region == k]) < 0.5]
-    sides = {np.sign(v[region == k, 0].mean() - body[:, 0].mean()) for k in arms}
+    sides = {np.sign(v[region == k, 0].mean() - middle) for k in arms}
     assert sides == {-1, 1}
-    leg = region[np.argmin(v[:, 1])]
-    assert leg >= 0 and parents[leg] == -1
+    feet = [region[np.argmin(np.where((v[:, 0] > middle) == right, v[:, 1], np.inf))]
+            for right in (False, True)]  # the lowest vertex on each side
+    assert feet[0] != feet[1] and all(k >= 0 and parents[k] == -1 for k in feet)
+    assert len(skeleton.limbs) == 7  # head, two ears, two arms, two feet

@@ -153,13 +153,30 @@ def test_spot_keeps_its_head_ears_and_horns_on_other_medial_meshes(seed):
     that region reached the base of the head, which took it back (`build._room_to_bend`):
     the route whose region leaves the head room to bend is preferred. The head keeps its
     two ears and two horns."""
-    mesh = fj.data.spot()
     skeleton = spot_skeleton(seed)  # (conftest: seed 1 shared with test_skeleton.py)
-    vertices = np.asarray(mesh.vertices)
-    head = skeleton.limb_at(vertices[np.argmin(vertices[:, 2])])  # the snout, towards −z
+    _assert_spot_rig(np.asarray(fj.data.spot().vertices), skeleton)
+
+
+@pytest.mark.slow
+def test_spot_scaled_by_a_hundredth_keeps_its_head_ears_and_horns():
+    """Spot scaled by 0.01 (its unit frame another size than at 1, 10 or 1000: another
+    medial mesh) had 8 limbs: its head's spine ran to the snout, its region left the body
+    obliquely (0 to 0.02 along it) and an ear at the back of the head met it at 0.008, no
+    room to bend the head, on every route of the ear's; the ear joined the head. A head
+    losing a child that way now tries its routes along which its children leave it
+    farther out (to its crown, between its ears and horns: `build._unit_limbs`). 9 limbs."""
+    vertices, faces = 0.01 * np.asarray(fj.data.spot().vertices), fj.data.spot().faces
+    _assert_spot_rig(vertices / 0.01, fj.skeleton((vertices, faces)))
+
+
+def _assert_spot_rig(vertices, skeleton):
+    """Spot's head (at its snout) a limb of the body with its ears and horns as its four
+    children, and each hoof in a leg of its own (`vertices` in spot's own units)."""
+    region = np.asarray(skeleton.region)
+    head = int(region[np.argmin(vertices[:, 2])])  # the snout, towards −z
     assert head >= 0 and skeleton.limbs[head].parent == -1
     assert len(skeleton.children(head)) == 4  # ears and horns
-    feet = vertices[vertices[:, 1] < -0.65]  # y up: the hooves
-    quarters = {(bool(x > 0), bool(z > 0.4)): skeleton.limb_at(p) for p in feet
-                for x, _, z in [p]}
+    feet = np.flatnonzero(vertices[:, 1] < -0.65)  # y up: the hooves
+    quarters = {(bool(vertices[k, 0] > 0), bool(vertices[k, 2] > 0.4)): int(region[k])
+                for k in feet}
     assert len(quarters) == 4 and len(set(quarters.values())) == 4 and min(quarters.values()) >= 0

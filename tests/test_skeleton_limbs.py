@@ -72,3 +72,36 @@ def test_a_flat_ear_is_one_limb_not_one_per_tip_of_its_rim():
     assert len(found) == 6, tips  # two legs, two arms, two ears
     assert sorted(np.sign(ears[:, 0])) == [-1, 1]
     assert np.sum(tips[:, 1] < -0.1) == 2 and np.sum(np.abs(tips[:, 1] - 0.22) < 1e-9) == 2
+
+
+def test_a_limb_reached_through_a_thicker_limb_is_its_child():
+    """A head thicker than the torso, on a thin neck on one side and a thick cheek on the
+    other (cheburashka's: no waist on that side): the tree reaches the right ear through the
+    cheek, thick all the way, so its path leaves the body's core inside the head, and it was
+    a limb of the body beside the head that carries it. Its last sphere inside lies in the
+    head's spheres, at least twice as thick as it (`_from_thicker_limbs`): the head's child,
+    as the left ear reached through the neck is."""
+    g = _Graph()
+    torso = g.add(*_chain([0, 0, 0], [0, 0.3, 0], 7, 0.055, 0.055))
+    for side in (-1, 1):
+        g.add(*_chain([side * 0.03, -0.06, 0], [side * 0.03, -0.2, 0], 6, 0.025, 0.025),
+              link_to=torso[0])
+        g.add(*_chain([side * 0.07, 0.22, 0], [side * 0.25, 0.22, 0], 8, 0.015, 0.012),
+              link_to=torso[5])
+    head = g.add(*_chain([-0.05, 0.42, 0], [0.05, 0.42, 0], 6, 0.075, 0.075))
+    neck = g.add(*_chain([-0.05, 0.35, 0], [-0.05, 0.35, 0], 1, 0.025, 0.025),
+                 link_to=torso[-1])
+    cheek = g.add(*_chain([0.05, 0.35, 0], [0.05, 0.35, 0], 1, 0.06, 0.06), link_to=torso[-1])
+    g.edges += [(int(neck[0]), int(head[0])), (int(cheek[0]), int(head[-1]))]
+    for side, end in ((-1, head[0]), (1, head[-1])):
+        g.add(*_chain([side * 0.12, 0.5, 0], [side * 0.2, 0.62, 0], 6, 0.013, 0.011),
+              link_to=end)
+    centers, radii, edges = g.arrays()
+    found = find_limbs(centers, radii, edges)
+    tips = np.array([centers[f.path[-1]] for f in found])
+    parents = np.array([f.parent for f in found])
+    heads = [k for k, f in enumerate(found) if radii[f.path].max() >= 0.07]
+    assert len(heads) == 1 and parents[heads[0]] == -1
+    ears = np.flatnonzero(np.abs(tips[:, 1] - 0.62) < 1e-9)
+    assert len(ears) == 2 and np.all(parents[ears] == heads[0]), (tips, parents)
+    assert len(found) == 7  # the head, its ears, two legs, two arms

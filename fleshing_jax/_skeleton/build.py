@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import itertools
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -17,7 +18,7 @@ from .chains import split_chains
 from .fit import nearest_spheres, sphere_gaps, spine_from_unit
 from .given import given_limbs
 from .limb_fit import fit_limb
-from .limbs import find_limbs
+from .limbs import ROUTES, find_limbs
 from .regions import mesh_adjacency, spine_samples
 from .skeleton import Limb, Skeleton, descendants, merge_limb
 
@@ -55,8 +56,10 @@ def skeleton(mesh, *, medial: MedialMesh | None = None, spheres: int = 200,
     `jax_enable_x64`), exactly arc-length, its curvature below `0.8 / r` (`r` the local
     medial radius: see `fit.fit_bspline`), from a little inside its parent (`s = 0`, at most
     one radius in) to where it meets the surface beyond its tip. Its region (see
-    `_skeleton.regions`) is contiguous on the surface, within the spine's reach, and its
-    border vertices project on the spine at arc lengths ≤ `joint`.
+    `_skeleton.regions`) is contiguous on the surface, within the spine's reach (where no
+    reach leaves it one: the vertices nearest to its own medial spheres, a flat ear's disc,
+    a foot against the body), and its border vertices project on the spine at arc lengths
+    ≤ `joint`.
 
     A long limb is then split at its joints into a chain of limbs, each the parent of the
     next (`_skeleton.chains`: where the medial radius narrows, else where the axis turns,
@@ -214,20 +217,105 @@ def _from_unit(limb: Limb, frame: UnitFrame) -> Limb:
 
 def _unit_limbs(vertices, centers, radii, edges, adjacency, margin):
     """`_found_limbs`'s limbs and region, in the unit frame."""
-    region = np.full(len(vertices), -1)
-    limbs, index = [], {}  # index: a found limb's number → its index in `limbs` (kept ones)
-    founds = []  # the kept limbs' paths
     found_limbs = find_limbs(centers, radii, edges)
+    nearest = nearest_spheres(vertices, centers, radii)
+    empty = _Fitted(np.full(len(vertices), -1), [], {}, [], set())
+    start: dict[int, int] = {}  # a found limb's number → its route tried first
+    fitted, saved = _fit_from(found_limbs, start, 0, empty, centers, radii, vertices,
+                              adjacency, margin, nearest)  # fmt: skip
+    # A parent whose region leaves a child no room to bend it on every route of the child's
+    # (spot scaled by 0.01: the head's spine to its snout, its region leaving the body
+    # obliquely, 0 to 0.02 along it, and an ear at the back of the head meeting it at
+    # 0.008) tries the routes along which its children leave it farther out (`ROUTES` of
+    # them, the farthest first: to its crown, between its ears and horns); the route that
+    # leaves the fewest children without room is kept, the first on a tie.
+    for number in sorted({found_limbs[c].parent for c in fitted.early}):
+        if number < 0 or number not in fitted.index:
+            continue
+        found = found_limbs[number]
+        routes = [(found.path, found.inside), *found.alternatives]
+        children = [f for f in found_limbs if f.parent == number]
+        along = [_children_along(route, children, centers) for route in routes]
+        farther = [k for k in np.argsort(along, kind="stable")[::-1] if along[k] > along[0]]
+        best = (_lost(found_limbs, fitted, number), fitted, saved, start)
+        for first in farther[:ROUTES]:
+            if best[0] == 0:
+                break
+            trial_start = {**start, number: int(first)}
+            trial, trial_saved = _fit_from(found_limbs, trial_start, number, saved[number],
+                                           centers, radii, vertices, adjacency, margin,
+                                           nearest)  # fmt: skip
+            if number in trial.index and _lost(found_limbs, trial, number) < best[0]:
+                best = (_lost(found_limbs, trial, number), trial,
+                        {**{k: v for k, v in saved.items() if k < number}, **trial_saved},
+                        trial_start)  # fmt: skip
+        _, fitted, saved, start = best
+    limbs, region = split_chains(fitted.limbs, fitted.founds, fitted.region, centers, radii,
+                                 vertices, adjacency, margin)  # fmt: skip
+    limbs, region = _visible(limbs, region, vertices)
+    return _room_to_bend(limbs, region, vertices, adjacency)
+
+
+@dataclasses.dataclass
+class _Fitted:
+    """The limbs fitted so far: `region` (n,), `limbs`, `index` (a found limb's number → its
+    index in `limbs`, kept ones), `founds` (the kept limbs' routes), `early` (the numbers
+    of the children whose every route's region left their parent no room to bend)."""
+
+    region: np.ndarray
+    limbs: list
+    index: dict
+    founds: list
+    early: set
+
+    def copy(self) -> _Fitted:
+        return _Fitted(self.region.copy(), list(self.limbs), dict(self.index),
+                       list(self.founds), set(self.early))  # fmt: skip
+
+
+def _children_along(route, children, centers) -> float:
+    """How far along `route` (`(path, inside)`, a limb's) the first of `children` (found
+    limbs) leaves it: the least arc length, on the polyline from `inside` through the path's
+    centres, of the point nearest to a child's first sphere."""
+    path, inside = route
+    line = centers[np.r_[inside, path]]
+    arc = np.r_[0, np.cumsum(np.linalg.norm(np.diff(line, axis=0), axis=1))]
+    least = np.inf
+    for child in children:
+        point = centers[child.path[0]]
+        a, b = line[:-1], line[1:]
+        t = np.clip(np.einsum("ij,ij->i", point - a, b - a)
+                    / np.maximum(np.einsum("ij,ij->i", b - a, b - a), 1e-300), 0, 1)
+        gap = np.linalg.norm(a + t[:, None] * (b - a) - point, axis=1)
+        k = int(np.argmin(gap))
+        least = min(least, arc[k] + t[k] * (arc[k + 1] - arc[k]))
+    return float(least)
+
+
+def _lost(found_limbs, fitted: _Fitted, number: int) -> int:
+    """How many children of found limb `number` got no region or no room to bend."""
+    children = [c for c, found in enumerate(found_limbs) if found.parent == number]
+    return sum(c in fitted.early or c not in fitted.index for c in children)
+
+
+def _fit_from(found_limbs, start, first, fitted, centers, radii, vertices, adjacency, margin,
+              nearest):
+    """The found limbs from number `first` on fitted after `fitted` (the state before it,
+    kept), each trying its route `start.get(number, 0)` first; returns the state after the last
+    and the state before each of them (`{number: _Fitted}`)."""
     parents = {found.parent for found in found_limbs}  # the limbs other limbs leave
+    fitted, saved = fitted.copy(), {}
+    region, limbs, index = fitted.region, fitted.limbs, fitted.index
     # Where the usual reach leaves a limb no region, its region may reach farther from its
     # spine (`fit_limb`'s `wide`): a limb that other limbs leave (a head: its crown) among
     # all its parent's vertices; a child limb (a flat ear's lobe) among its own only, the
     # vertices whose nearest medial sphere is one of its spheres (a head's region kept to
     # its own lost cheburashka's crown). Not a limb from the body with no children: on the
     # quadruped at 60 spheres a horn found twice, by two routes, took its tip from the other
-    # limb of the two that way, too small to pose.
-    nearest = nearest_spheres(vertices, centers, radii)
-    for number, found in enumerate(found_limbs):
+    # limb of the two that way, too small to pose. Where no reach does, its own vertices.
+    for number in range(first, len(found_limbs)):
+        saved[number] = fitted.copy()
+        found = found_limbs[number]
         parent = index.get(found.parent, -1) if found.parent >= 0 else -1
         if found.parent >= 0 and found.parent not in index:
             continue  # its parent had no region: neither has it
@@ -239,12 +327,24 @@ def _unit_limbs(vertices, centers, radii, edges, adjacency, margin):
         # The first route whose region leaves its parent room to bend before it (`_conflict`:
         # spot's ear at seed 2, its first region reaching the base of the head, which then
         # took it back); none does: the first region (`_room_to_bend` then decides).
-        fitted = None
-        for path, inside in ((found.path, found.inside), *found.alternatives):
+        # Where no route's reach gives it a region, its own vertices (`fit_limb`'s `owned`),
+        # not before (on the quadruped at 60 spheres, a horn's first route's own vertices
+        # took less than its second route's reach did).
+        choice = None
+        routes = [(found.path, found.inside), *found.alternatives]
+        routes.insert(0, routes.pop(start.get(number, 0)))  # the route tried first
+        owned = np.isin(nearest, found.spheres)
+        for (path, inside), own in itertools.chain(((r, None) for r in routes),
+                                                   ((r, owned) for r in routes)):
+            if own is not None and choice is not None:
+                break
             route = dataclasses.replace(found, path=path, inside=inside)
             spine, part = fit_limb(route, centers, radii, vertices, adjacency,
-                                   region == parent, margin, wide=wide)
-            if part is None:
+                                   region == parent, margin, wide=wide, owned=own)
+            if part is None or (own is not None and not _visibly(spine, part, vertices)):
+                # An own region that a bend would not visibly move is none: kept until
+                # `_visible` merged it, the 25 own vertices of a horn found twice were
+                # missing from the other limb's region (the quadruped at 60 spheres).
                 continue
             early = False
             if parent >= 0:
@@ -252,21 +352,20 @@ def _unit_limbs(vertices, centers, radii, edges, adjacency, margin):
                 tentative[part.vertices] = len(limbs)
                 early = _conflict([*limbs, Limb(spine, part.joint, parent)], tentative,
                                   vertices, adjacency, only=len(limbs)) is not None
-            if fitted is None or not early:
-                fitted = (route, spine, part)
+            if choice is None or not early:
+                choice = (route, spine, part, early)
             if not early:
                 break
-        if fitted is None:
+        if choice is None:
             continue
-        found, spine, part = fitted
+        route, spine, part, early = choice
+        if early:
+            fitted.early.add(number)
         index[number] = len(limbs)
         region[part.vertices] = len(limbs)
         limbs.append(Limb(spine, part.joint, parent))
-        founds.append(found)
-    limbs, region = split_chains(limbs, founds, region, centers, radii, vertices, adjacency,
-                                 margin)
-    limbs, region = _visible(limbs, region, vertices)
-    return _room_to_bend(limbs, region, vertices, adjacency)
+        fitted.founds.append(route)
+    return fitted, saved
 
 
 def _room_to_bend(limbs: list[Limb], region: np.ndarray, vertices, adjacency):
@@ -290,12 +389,27 @@ def _room_to_bend(limbs: list[Limb], region: np.ndarray, vertices, adjacency):
     return limbs, region
 
 
+def _visibly(spine, part, vertices) -> bool:
+    """Whether a bend of the limb (`spine`, its region `part`) would visibly move its region
+    on its own (`_visible`'s test, before any child is cut from it, counting the vertices
+    past its joint only: the ones a bend moves)."""
+    s, points, _ = map(np.asarray, spine_samples(spine))
+    moved = vertices[part.vertices]
+    moved = moved[s[cKDTree(points).query(moved)[1]] > part.joint]
+    far = np.linalg.norm(moved - np.asarray(spine(part.joint)), axis=1).max(initial=0.0)
+    return len(part.vertices) >= FEWEST and float(far) >= VISIBLE * _diagonal(vertices)
+
+
+def _diagonal(vertices) -> float:
+    return float(np.linalg.norm(np.ptp(vertices, axis=0)))
+
+
 def _visible(limbs, region, vertices):
     """`(limbs, region)` with every limb that a bend would not visibly move merged into its
     parent: fewer than `FEWEST` vertices, or no vertex of its region or its descendants'
     farther than `VISIBLE` times the mesh's diagonal from its joint (a 30° bend there moves
     them by half that distance at most: a bump, a medial mesh's spike)."""
-    diagonal = float(np.linalg.norm(np.ptp(vertices, axis=0)))
+    diagonal = _diagonal(vertices)
     k = len(limbs) - 1
     while k >= 0:  # the deepest first: a limb's merged children count as its own
         moved = np.isin(region, [k, *descendants(limbs)[k]])

@@ -27,21 +27,29 @@ WIDE = 2
 
 
 def fit_limb(found: LimbPath, centers, radii, vertices, adjacency, allowed, margin,
-             cut_at=None, wide=None):
+             cut_at=None, wide=None, owned=None):
     """The limb's rest spine and its region among the `allowed` vertices (`None` if none);
     `margin`: the valid region's that posing will use; `cut_at`: (3,) the point where the
     limb leaves its parent (a chain's joint), default where its spine leaves the parent's
     core spheres; `wide`: (n,) bool or `None`, the vertices that may lie up to `WIDE` times
-    as far from the spine as usual when the usual reach leaves the limb no region."""
+    as far from the spine as usual when the usual reach leaves the limb no region; `owned`:
+    (n,) bool or `None`, when given the limb's own vertices (nearest to its medial spheres),
+    among which its region is grown instead, whatever their distance to the spine."""
     spine, cut, tip, arc, local = limb_spine(found, centers, radii, vertices, margin,
                                              cut_at=cut_at)
-    for reach in (REACH, WIDE * REACH) if wide is not None else (REACH,):
-        # A part wider than its spine's medial radii say: a head's crown beyond them (the
-        # region grown within them is its lower half, bordering the body its whole length, a
-        # knob: spot's head at seeds 6 and 11, and scaled by 0.01), a flat ear's lobe (a
-        # slab: its radius is its half thickness; spot's ears at seeds 1, 2 and 10).
-        own = wide if reach > REACH else None
-        part = limb_region(spine, cut, tip, arc, local, vertices, adjacency, allowed, reach, own)
+    # A part wider than its spine's medial radii say: a head's crown beyond them (the region
+    # grown within them is its lower half, bordering the body its whole length, a knob:
+    # spot's head at seeds 6 and 11), a flat ear's lobe (a slab: its radius is its half
+    # thickness; spot's ears at seeds 1, 2 and 10). Wider still, or against its parent (a
+    # disc of an ear whose strip around the spine borders the rest of the disc its whole
+    # length, a foot under a body: cheburashka's), the limb's own surface (`owned`).
+    tries = [{"reach_factor": REACH}]
+    if wide is not None:
+        tries.append({"reach_factor": WIDE * REACH, "own": wide})
+    if owned is not None:
+        tries = [{"owned": owned}]
+    for how in tries:
+        part = limb_region(spine, cut, tip, arc, local, vertices, adjacency, allowed, **how)
         if part is not None:
             break
     for _ in range(REFITS):
@@ -52,7 +60,7 @@ def fit_limb(found: LimbPath, centers, radii, vertices, adjacency, allowed, marg
             break
         for share in STRAIGHTER:
             refit = limb_spine(found, centers, radii, vertices, margin, share * far, cut_at)
-            refit_part = limb_region(*refit, vertices, adjacency, allowed, reach, own)
+            refit_part = limb_region(*refit, vertices, adjacency, allowed, **how)
             if refit_part is not None:
                 break
         if refit_part is None:

@@ -53,7 +53,7 @@ def mesh_adjacency(vertices: np.ndarray, faces: np.ndarray) -> sparse.csr_matrix
 
 
 def limb_region(spine, cut: float, tip: np.ndarray, arc, radius, vertices, adjacency, allowed,
-                reach_factor: float = REACH, own=None):
+                reach_factor: float = REACH, own=None, owned=None):
     """The region of one limb, or `None` when no vertex qualifies or it is a knob.
 
     **Arguments:** `spine`: the limb's rest spine; `cut`: the arc length where it leaves its
@@ -62,7 +62,11 @@ def limb_region(spine, cut: float, tip: np.ndarray, arc, radius, vertices, adjac
     `adjacency`: `mesh_adjacency`; `allowed`: (n,) bool, the parent's region;
     `reach_factor`: how many local medial radii a vertex may lie from the spine (`REACH`);
     `own`: (n,) bool or `None`, the vertices that may lie beyond `REACH` radii (up to
-    `reach_factor`) when given: the limb's own surface, not a neighbour's.
+    `reach_factor`) when given: the limb's own surface, not a neighbour's; `owned`: (n,) bool
+    or `None`, when given the region is grown among these vertices (those nearest to the
+    limb's medial spheres) instead of within a reach of its spine: a part wider or flatter
+    than its spine's radii say, whose reach band borders the rest of it the band's whole
+    length (a flat ear's strip) or lies against the parent (a foot's knob under a body).
     """
     s, points, curvature = map(np.asarray, spine_samples(spine))
     distance, nearest = cKDTree(points).query(vertices)
@@ -72,6 +76,8 @@ def limb_region(spine, cut: float, tip: np.ndarray, arc, radius, vertices, adjac
     within = distance < np.minimum(reach_factor * local, focal)
     if own is not None:
         within = (distance < np.minimum(REACH * local, focal)) | (within & own)
+    if owned is not None:
+        within = owned & (distance < focal)
     candidate = allowed & (along > cut) & within
     seed = int(np.argmin(np.where(candidate, np.linalg.norm(vertices - tip, axis=1), np.inf)))
     if not candidate[seed]:
