@@ -754,9 +754,13 @@ def _pose(args) -> int:
         for limb, causes in limb_causes(registration, skeleton, poses, args.method).items():
             if causes.invalid:
                 print(f" limb {limb}:")
-                largest = np.floor(100 * float(joint_range(registration, limb))) / 100
+                pose = poses[limb]  # (a bend the other way: towards the opposite direction)
+                towards = float(pose.direction) + (180.0 if float(pose.bend) < 0 else 0.0)
+                largest = np.floor(100 * float(joint_range(
+                    registration, limb, towards, twist=float(pose.twist)))) / 100
                 _print_causes(causes, f"bend limb {limb} at most {largest:.2f} degrees (its exact "
-                                      "range at its joint), or try another --method")
+                                      "range at its joint in this direction), or try another "
+                                      "--method")
         if not args.allow_invalid:
             print(f"not written: {int(np.sum(~valid))} vertices are posed inexactly (past "
                   "their joint's range: placed continuously, the volume not kept there); bend "

@@ -14,13 +14,19 @@ from fleshing_jax._skeleton.joint_zone import JOINT_CURVATURE, ZONE_LENGTHS, joi
 from fleshing_jax._skeleton.posing import limb_target, posed
 
 
+def _straight_frames(n):
+    """`joint_zone`'s frames of a straight spine along z, its normals x and y."""
+    axes = np.eye(3)[[2, 0, 1]]
+    return dict(frames=tuple(np.tile(axis, (n, 1)) for axis in axes), axes=axes)
+
+
 def test_a_zone_is_as_long_as_its_angle_needs_on_a_straight_tube():
     # Rings of radius 0.3 every 0.01 along a straight spine, bendable from 1 to 3.
     s = np.repeat(np.linspace(0, 4, 401), 8)
     angle = np.tile(np.linspace(0, 2 * np.pi, 8, endpoint=False), 401)
     offset = RADIUS * np.stack([np.cos(angle), np.sin(angle)], 1)
     zone = joint_zone(s, offset, np.zeros_like(offset), np.ones(len(s), bool), 1.0, 3.0,
-                      np.float64)
+                      np.float64, **_straight_frames(len(s)))
     # κ = 4θ/(3L) on the ramp's plateau, κ·ρ = JOINT_CURVATURE: L = 4θρ/(3 JOINT_CURVATURE).
     for degrees in (20.0, 45.0, 90.0):
         theta = np.radians(degrees)
@@ -41,7 +47,7 @@ def test_a_thick_part_lengthens_the_zone_continuously():
     radius = np.where(s > 1.5, 2 * RADIUS, RADIUS)[:, None]
     offset = radius * np.stack([np.cos(angle), np.sin(angle)], 1)
     zone = joint_zone(s, offset, np.zeros_like(offset), np.ones(len(s), bool), 1.0, 3.0,
-                      np.float64)
+                      np.float64, **_straight_frames(len(s)))
     capacities, lengths = np.asarray(zone.capacities), np.asarray(zone.lengths)
     assert np.all(np.diff(capacities) >= 0) and np.all(np.diff(lengths) >= 0)
     # Every tabulated zone keeps the bound for its capacity.
@@ -91,18 +97,27 @@ def test_a_sweep_of_the_angle_moves_every_vertex_continuously(tube, skeleton, re
     # cannot refuse, in the same batch.
     # Past the range (129°), the vertices outside the map's conditions are placed by the
     # whole map (`Poser`'s `fallback`): flagged, but the mesh stays whole.
+    # Then the direction, over half a turn in 1/2° steps, at a bend where the blend past the
+    # range is partly in, and varies with the direction (by the vertices' place on the rings).
     largest = np.degrees(float(registration.zones[2].range))
     angles = np.linspace(0.0, 180.0, 361)
     absurd = np.array([np.nan, np.inf, -np.inf, 1e9, 361.0])
-    sweep = jax.jit(jax.vmap(lambda bend: posed(registration, skeleton, {2: fj.LimbPose(bend)},
-                                                "radial", check=False)))
-    vertices, valid = (np.asarray(x) for x in sweep(jnp.asarray(np.r_[angles, absurd])))
+    directions = np.linspace(0.0, 180.0, 361)
+    blended = 1.1 * float(fj.joint_range(registration, 2, 0.0))
+    sweep = jax.jit(jax.vmap(lambda bend, direction: posed(
+        registration, skeleton, {2: fj.LimbPose(bend, direction)}, "radial", check=False)))
+    bends = np.r_[angles, absurd, np.full(len(directions), blended)]
+    vertices, valid = (np.asarray(x) for x in sweep(
+        jnp.asarray(bends), jnp.asarray(np.r_[np.zeros(len(angles) + len(absurd)), directions])))
     rest = np.asarray(tube.vertices)
     edges = tube.edges_unique
     shortest = np.min(np.linalg.norm(rest[edges[:, 0]] - rest[edges[:, 1]], axis=1))
     steps = np.linalg.norm(np.diff(vertices[: len(angles)], axis=0), axis=-1)
     # The tip turns 1/2° a step at 2.3 units from the joint: 0.02; no vertex jumps an edge.
     assert steps.max() < 0.3 * shortest
+    turned = vertices[len(angles) + len(absurd):]
+    assert np.linalg.norm(np.diff(turned, axis=0), axis=-1).max() < 0.3 * shortest
+    assert not valid[len(angles) + len(absurd):].any(axis=0).all()  # (blended: inexact)
     # Whole at every angle: no edge stretched 4×, none crushed (past the range the concave
     # side is compressed towards the centre of curvature, `maps.radial_bend_whole`; the exact
     # map's continuation folded it across: edges down to 2 % of their length at 160°).
@@ -114,7 +129,7 @@ def test_a_sweep_of_the_angle_moves_every_vertex_continuously(tube, skeleton, re
     assert valid[: len(angles)][angles <= largest].all() and not valid[len(angles) - 1].all()
     # A NaN, infinite or past-a-full-turn angle flags the whole limb, and nothing else.
     region = np.asarray(skeleton.region)
-    for row in valid[len(angles):]:
+    for row in valid[len(angles): len(angles) + len(absurd)]:
         assert not row[region == 2].any() and row[region != 2].all()
 
 

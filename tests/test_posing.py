@@ -276,6 +276,54 @@ def test_past_its_range_a_limb_stays_whole_and_is_flagged_inexact(tube, skeleton
     np.testing.assert_array_equal(folded[region != k], rest[region != k])
 
 
+@pytest.fixture(scope="module")
+def flat():
+    """The tube pressed flat: its cross-section an ellipse, 0.3 across in y, 0.1 in z; the same
+    limbs (the same shapes: the tube's compiled programs serve it). `(mesh, skeleton,
+    registration)`."""
+    from _posing_shapes import RADIUS, tube_registration, tube_skeleton
+
+    angle = np.linspace(0, 2 * np.pi, 16, endpoint=False)
+    mesh = fj.extrusion(RADIUS * np.stack([np.cos(angle), np.sin(angle) / 3], 1), 6.0, 60)
+    skeleton = tube_skeleton(mesh)
+    return mesh, skeleton, tube_registration(mesh, skeleton)
+
+
+def test_an_exact_pose_in_a_thin_direction_is_the_map_s_own(flat):
+    """The blend past the range starts where the map over the zone stops being exact in the
+    direction asked, not at each vertex's worst one: the flat limb bends towards its thin side
+    about three times as far as towards its wide side exactly; between the two, a bend towards
+    the thin side is the map's, bit for bit and unflagged, and one towards the wide side is
+    blended (all flagged past the joint)."""
+    from fleshing_jax._skeleton.posing import posed_limbs
+
+    mesh, skeleton, registration = flat
+    k, region = 2, np.asarray(skeleton.region)
+    thin, wide = (float(fj.joint_range(registration, k, towards=up))
+                  for up in ((0.0, 0.0, 1.0), (0.0, 1.0, 0.0)))
+    assert float(fj.joint_range(registration, k)) <= wide and 2.5 * wide < thin < 3.5 * wide
+    ids, n = np.asarray(registration.indices[k]), int(np.sum(region == k))
+    bend = 0.5 * (wide + thin)
+    for up, exact in (((0.0, 0.0, 1.0), True), ((0.0, 1.0, 0.0), False)):
+        poses = {k: fj.LimbPose(bend, towards=up)}
+        vertices, valid = _pose(registration, skeleton, poses)
+        own = np.asarray(posed_limbs(registration, poses, "radial", True, False)[k][0])[:n]
+        assert np.array_equal(vertices[ids], own) == exact
+        assert valid.all() == exact and valid[region != k].all()
+    # At the largest exact bend (floored) towards its wide side, exact still.
+    poses = {k: fj.LimbPose(wide - 1e-6, towards=(0.0, 1.0, 0.0))}
+    assert _pose(registration, skeleton, poses)[1].all()
+    # The blend's weight is continuous in the direction: its measure, the largest vertex's
+    # excess, swept over a full turn in 1/10° steps at that bend, from exact to blended.
+    zone, joint = registration.zones[k], registration.joints[k]
+    theta = jnp.radians(bend)
+    stop = zone.end(theta, joint, registration.stops[k])
+    excess = np.asarray(jax.jit(jax.vmap(lambda phi: jnp.max(zone.margins(
+        theta, phi, 0.0, joint, stop))))(jnp.radians(jnp.linspace(0, 360, 3601))))
+    assert excess.min() < -0.3 and excess.max() > 0.3
+    assert np.max(np.abs(np.diff(excess))) < 0.01
+
+
 def test_pose_stretch_is_the_posed_map_s_and_one_elsewhere(skeleton, registration):
     np.testing.assert_array_equal(fj.pose_stretch(registration, skeleton, {}), 1.0)
     stretch = np.asarray(fj.pose_stretch(registration, skeleton, {0: fj.LimbPose(40, 90)}))
@@ -333,8 +381,12 @@ def test_pose_command(tube, skeleton, tmp_path, capsys):
     assert main([*arguments[:2], str(folded), *arguments[3:], "--limb", "2", "--bend", "175"]) == 3
     captured = capsys.readouterr()
     assert "limb 2:" in captured.out and "not written" in captured.err and not folded.exists()
-    largest = np.floor(100 * float(fj.joint_range(fj.register_skeleton(tube, skeleton), 2))) / 100
+    # The advice names the largest bend that works in the direction asked: exact there.
+    registered = fj.register_skeleton(tube, skeleton)
+    largest = np.floor(100 * float(fj.joint_range(registered, 2, 0.0))) / 100
     assert f"advice: bend limb 2 at most {largest:.2f} degrees" in captured.out
+    assert largest > float(fj.joint_range(registered, 2))
+    assert np.asarray(fj.pose_skeleton(registered, skeleton, {2: fj.LimbPose(largest)}).valid).all()
     # Written anyway (inexact past the range, each section carried whole: no torn edge).
     assert main([*arguments[:2], str(folded), *arguments[3:], "--limb", "2", "--bend", "175",
                  "--allow-inexact", "--max-stretch", "8"]) == 0

@@ -16,16 +16,23 @@ reads the zone for its angle by interpolation: continuous and non-decreasing in 
 a sweep of the angle moves every vertex continuously; past the largest angle the zone is the
 whole room, as before joints were concentrated, and the vertices beyond the map's reach are
 flagged.
+
+The table holds in every direction. A pose bends in one: the zone also keeps, per vertex, what
+gives its `k₁·d*` on the bent spine in any direction and twist (`JointZone.margins`), so that
+a pose knows whether the map over its zone is exact where it is asked to bend, not at each
+vertex's worst direction.
 """
 
 from __future__ import annotations
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array
 
 from .._fleshing.maps import WHOLE_FROM
+from .._spines.bent import ramp, rotate
 
 # κ·ρ kept in a zone: below the radial map's limit 1/√3 ≈ 0.577, where its concave side would
 # be crushed flat; at 0.45 a vertex's principal stretch stays below about 2.5. Below where a
@@ -42,15 +49,23 @@ class JointZone(eqx.Module):
     a zone of `lengths[i]` keeps the curvature bound for bends up to `capacities[i]` (see the
     module's docstring), and the zone's length between them is the monotone cubic through
     these points with these slopes (Fritsch–Carlson): continuous in the angle with its first
-    derivative, so that a fit of the angle sees no kink."""
+    derivative, so that a fit of the angle sees no kink.
+
+    For the map's exactness in a given direction (`margins`), per registered vertex (N,) (rows
+    of vertices not validly registered, or outside `[joint, stop]`, are zero: they bound
+    nothing): `arc` its arc length, `rests` its `k₀·d*`, `moments` (N, 3) `T₀ × D` and
+    `twisting` `(t × T₀)·D`, with `D` its unbent offset `d*` in space and `T₀` the rest
+    spine's tangent there; `axes` (3, 3): the rest spine's tangent `t` and normals `(I, J)` at
+    the joint (rows)."""
 
     lengths: Array
     capacities: Array
     slopes: Array
-    # The largest bend over the whole room that keeps every vertex's `k₁·d*` below the map's
-    # own `maps.WHOLE_FROM` (scalar radians, at least the range): past the range the zone is
-    # the whole room, and the map is exact up to about this bend.
-    exact: Array
+    axes: Array
+    arc: Array
+    rests: Array
+    moments: Array
+    twisting: Array
 
     def length(self, bend: Array) -> Array:
         """The zone's length for a bend of `bend` radians (scalar, either sign): the shortest
@@ -66,10 +81,42 @@ class JointZone(eqx.Module):
         h01, h11 = t**2 * (3 - 2 * t), t**2 * (t - 1)
         return h00 * y[i] + h10 * safe * m[i] + h01 * y[i + 1] + h11 * safe * m[i + 1]
 
+    def end(self, bend: Array, joint: Array, stop: Array) -> Array:
+        """Where a bend of `bend` radians (scalar) is complete, past `joint`, at most `stop`
+        (scalar arc lengths: the limb's joint and its room's end)."""
+        # (`minimum`: the whole room in single precision is at most the stop, not an ulp past.)
+        return jnp.minimum(joint + self.length(bend), stop)
+
     @property
     def range(self) -> Array:
         """The largest bend (radians) the limb takes with its curvature bound kept."""
         return self.capacities[-1]
+
+    def margins(self, bend: Array, direction: Array, twist: Array, joint: Array,
+                stop: Array) -> Array:
+        """How far each vertex (N,) is past where the radial map over the zone stops being
+        exact, `(k₁·d* − WHOLE_FROM) / max(WHOLE_FROM − k₀·d*, WHOLE_FROM / 2)`: `≤ 0` where it
+        is exact; for the vertex's own `k₁·d*` linear in the bend, the bend's relative excess
+        over where that vertex leaves it, `(θ − θᵢ)/θᵢ` (clamped denominators: a vertex already
+        near the bound at rest is not given an abrupt ramp). Continuous in every argument.
+
+        **Arguments** (scalars, radians; arc lengths): the `fj.BentSpine`'s `bend`,
+        `direction` (from `I` at the joint), `twist`, `joint` and `stop`.
+
+        The bent spine's curvature in its frame, which turns with the bend, is `k₀ + Qᵀ Q′ T₀`
+        (`fj.BentSpine`: `Q = R_a(θ r) R_t(ψ r)`, `a = t × (cos φ I + sin φ J)`), and `Qᵀ Q′ T₀
+        = r′ (θ R_t(−ψ r) a × T₀ + ψ t × T₀)`: the twist turns the bend's direction in the frame
+        by `−ψ r` along the zone, and on a curved rest spine adds a curvature of its own.
+        """
+        width = stop - joint
+        r, slope = ramp(jnp.clip((self.arc - joint) / width, 0, 1))
+        t, first, second = self.axes
+        axis = jnp.cross(t, jnp.cos(direction) * first + jnp.sin(direction) * second)
+        turned = jax.vmap(rotate, in_axes=(None, 0, None))(t, -twist * r, axis)
+        bent = (slope / width) * (bend * jnp.sum(turned * self.moments, axis=-1)
+                                  + twist * self.twisting)
+        room = jnp.maximum(WHOLE_FROM - self.rests, WHOLE_FROM / 2)
+        return (self.rests + bent - WHOLE_FROM) / room
 
 
 def _monotone_slopes(x: np.ndarray, y: np.ndarray) -> np.ndarray:
@@ -85,13 +132,17 @@ def _monotone_slopes(x: np.ndarray, y: np.ndarray) -> np.ndarray:
 
 
 def joint_zone(arc_length: np.ndarray, offset: np.ndarray, curvature: np.ndarray,
-               valid: np.ndarray, joint: float, stop: float, dtype) -> JointZone:
+               valid: np.ndarray, joint: float, stop: float, dtype, *, frames: tuple,
+               axes: np.ndarray) -> JointZone:
     """A limb's `JointZone`, from its region's registration on its rest spine: per vertex (n,)
     `arc_length`, `offset` (n, 2) and rest `curvature` (n, 2) in the frame there, and `valid`
-    (n,); `joint`, `stop`: where the limb's bend may start and must be complete."""
+    (n,); `joint`, `stop`: where the limb's bend may start and must be complete; `frames`:
+    the rest spine's `(tangent, I, J)` (each (n, 3)) at each vertex's arc length, and `axes`
+    (3, 3) its `(tangent, I, J)` at `joint` (rows)."""
     room = stop - joint
     s = np.asarray(arc_length, float)
     keep = np.asarray(valid, bool) & (s >= joint) & (s <= stop)
+    margins = _margin_rows(keep, offset, curvature, s, frames, axes)
     s = s[keep]
     d, k = np.asarray(offset, float)[keep], np.asarray(curvature, float)[keep]
     # The shortest zone is the limb's thickness at the joint: the flesh of a joint deforms
@@ -114,8 +165,6 @@ def joint_zone(arc_length: np.ndarray, offset: np.ndarray, curvature: np.ndarray
         reached = np.searchsorted(s[order], joint + lengths, side="right")
         curvature_bound = np.where(reached > 0, bound[np.maximum(reached - 1, 0)], np.inf)
     capacities = np.minimum(lengths * curvature_bound / _PLATEAU, 2 * np.pi)
-    whole_bound = np.min(np.maximum(WHOLE_FROM - rest * unbent, 0.0)
-                         / np.maximum(np.linalg.norm(d, axis=1) * unbent, 1e-300), initial=np.inf)
     # A zone's capacity falls where a thick part enters it; a bend must not then be given
     # the shorter zone before the thick part and the longer one past it by turns. So each zone
     # is credited with the least capacity of the longer ones (non-decreasing; every zone still
@@ -130,18 +179,43 @@ def joint_zone(arc_length: np.ndarray, offset: np.ndarray, curvature: np.ndarray
     pad = ZONE_LENGTHS - len(capacities)
     capacities, lengths, slopes = (np.pad(a, (0, pad), mode="edge")
                                    for a in (capacities, lengths, slopes))
-    exact = max(float(capacities[-1]), min(room * whole_bound / _PLATEAU, 2 * np.pi))
-    return JointZone(*(jnp.asarray(a, dtype) for a in (lengths, capacities, slopes, exact)))
+    return JointZone(*(jnp.asarray(a, dtype) for a in (lengths, capacities, slopes, axes,
+                                                       *margins)))
 
 
-def joint_range(registration, limb: int) -> Array:
-    """The largest bend (degrees, scalar) limb `limb` takes at its joint within the map's
-    curvature bound, in every direction: its region is bent, in the shortest zone past the
-    joint the angle needs, with every vertex's `k₁·d* ≤ JOINT_CURVATURE` (below the radial
-    map's `1/√3`). Past it the zone is the limb's whole room and vertices may be flagged.
+def _margin_rows(keep, offset, curvature, s, frames, axes) -> tuple:
+    """`JointZone`'s per-vertex fields `(arc, rests, moments, twisting)` (see there), zero
+    where not `keep` and where a vertex's `k₀·d*` is already past `WHOLE_FROM` at rest (the
+    map flags it in every pose; a blend it started would move the rest pose)."""
+    d, k = np.asarray(offset, float), np.asarray(curvature, float)
+    rest = np.sum(k * d, axis=1)
+    unbent = np.sqrt(np.maximum(1 - (2 / 3) * rest, 0))
+    tangent, first, second = (np.asarray(f, float) for f in frames)
+    offsets = unbent[:, None] * (d[:, :1] * first + d[:, 1:] * second)
+    rests = rest * unbent
+    keep = keep & (rests < WHOLE_FROM)
+    moments = np.cross(tangent, offsets)
+    twisting = np.sum(np.cross(np.asarray(axes, float)[0], tangent) * offsets, axis=1)
+    return (np.where(keep, s, 0.0), np.where(keep, rests, 0.0),
+            np.where(keep[:, None], moments, 0.0), np.where(keep, twisting, 0.0))
+
+
+def joint_range(registration, limb: int, direction=None, *, twist=0.0,
+                towards=None) -> Array:
+    """The largest bend (degrees, scalar) limb `limb` takes at its joint exactly.
+
+    Without a direction: in every direction, within the map's curvature bound: its region is
+    bent, in the shortest zone past the joint the angle needs, with every vertex's `k₁·d* ≤
+    JOINT_CURVATURE` (below the radial map's `1/√3`); past it the zone is the limb's whole
+    room. With a `direction` (degrees, as `fj.LimbPose`'s) or `towards` (3,), and a `twist`:
+    the largest bend in that direction up to which every bend keeps the radial map exact over
+    its zone (every vertex's `k₁·d* ≤ maps.WHOLE_FROM`: `JointZone.margins`), where a pose is
+    neither blended nor flagged for its curvature (at least the range without a twist;
+    360 where no bend leaves it; 0 where the twist alone does).
 
     **Arguments:** `registration`: a `register_skeleton` (`SkeletonRegistration`); `limb`:
-    a limb index of its skeleton. **Raises** `ValueError` for another limb index.
+    a limb index of its skeleton; `direction`, `twist`, `towards`: as `fj.LimbPose`'s.
+    **Raises** `ValueError` for another limb index, or a direction as `fj.LimbPose` does.
     """
     zones = registration.zones
     if isinstance(limb, bool) or not isinstance(limb, int | np.integer) or not (
@@ -149,4 +223,40 @@ def joint_range(registration, limb: int) -> Array:
         raise ValueError(
             f"`limb`: {limb!r} is not a limb index of this registration (0 to {len(zones) - 1})."
         )
-    return jnp.rad2deg(zones[limb].range)
+    zone = zones[limb]
+    if direction is None and towards is None and twist == 0:
+        return jnp.rad2deg(zone.range)
+    from .limb_pose import LimbPose
+
+    pose = LimbPose(0.0, 0.0 if direction is None else direction, twist, towards=towards)
+    joint, stop = registration.joints[limb], registration.stops[limb]
+    _, phi, psi = pose.radians(registration.rests[limb], joint)
+    bends = jnp.linspace(0, 2 * np.pi, _SCANNED, dtype=joint.dtype)
+    excess = np.asarray(_excess(zone, bends, phi, psi, joint, stop))
+    past = np.flatnonzero(excess > 0)
+    if not len(past):
+        return jnp.asarray(360.0, joint.dtype)
+    if past[0] == 0:
+        return jnp.asarray(0.0, joint.dtype)
+    # Between the last exact bend scanned and the first inexact one, by bisection.
+    lo, hi = float(bends[past[0] - 1]), float(bends[past[0]])
+    for _ in range(_BISECTIONS):
+        middle = 0.5 * (lo + hi)
+        inexact = float(_excess(zone, jnp.asarray([middle], joint.dtype), phi, psi, joint,
+                                stop)[0]) > 0
+        lo, hi = (lo, middle) if inexact else (middle, hi)
+    return jnp.rad2deg(jnp.asarray(lo, joint.dtype))
+
+
+_SCANNED = 721  # bends scanned from 0 to a full turn (every half degree) by `joint_range`
+_BISECTIONS = 30  # then halving the half degree: to 5e-10 degrees
+
+
+@eqx.filter_jit
+def _excess(zone: JointZone, bends: Array, direction: Array, twist: Array, joint: Array,
+            stop: Array) -> Array:
+    """The largest `JointZone.margins` (B,) at each of `bends` (B,) radians."""
+    def largest(bend):
+        return jnp.max(zone.margins(bend, direction, twist, joint, zone.end(bend, joint, stop)))
+
+    return jax.vmap(largest)(bends)

@@ -61,13 +61,20 @@ class LimbPose(eqx.Module):
             if is_concrete(self.direction) and float(self.direction) != 0:
                 raise ValueError("give the bend's `direction` or `towards`, not both.")
 
-    def spine(self, rest: AbstractSpine, joint: Array, stop: Array) -> BentSpine:
-        """The limb's `rest` spine bent by this pose from arc length `joint` to `stop`."""
+    def radians(self, rest: AbstractSpine, joint: Array) -> tuple[Array, Array, Array]:
+        """`(bend, direction, twist)` in radians, in `rest`'s dtype, the direction measured
+        from the first normal of `rest`'s frame at arc length `joint` (`towards` read there):
+        the arguments of the `fj.BentSpine` the pose makes."""
         dtype = rest.length.dtype
         bend, direction, twist = (jnp.deg2rad(v).astype(dtype)
                                   for v in (self.bend, self.direction, self.twist))
         if self.towards is not None:
             direction = _direction_of(rest, joint, self.towards.astype(dtype))
+        return bend, direction, twist
+
+    def spine(self, rest: AbstractSpine, joint: Array, stop: Array) -> BentSpine:
+        """The limb's `rest` spine bent by this pose from arc length `joint` to `stop`."""
+        bend, direction, twist = self.radians(rest, joint)
         return BentSpine(rest, joint=joint, stop=stop, bend=bend, direction=direction,
                          twist=twist)
 

@@ -87,8 +87,9 @@ class PosedSkeleton(NamedTuple):
     the vertex and the angle, so the mesh stays whole, but its volume is not kept there; one
     not validly registered on its limb's rest spine moves with the bent limb's cross-section
     where it projects past a `LimbPose`'s joint, and is left where it was elsewhere, as is one
-    with a non-finite image; past a joint's exact range every vertex past it blends towards
-    its cross-section's motion (all flagged: inexact)."""
+    with a non-finite image; past where the map over a joint's zone stops being exact in the
+    pose's direction (`fj.joint_range` with a direction) every vertex past the joint blends
+    towards its cross-section's motion (all flagged: inexact)."""
 
     vertices: Float[Array, "n 3"]
     valid: Bool[Array, " n"]
@@ -171,9 +172,14 @@ def register_skeleton(mesh, skeleton: Skeleton, *, margin: float | None = None,
                 f"`skeleton`: limb {k}'s region meets its child limbs (arc length {stop:.4g}) "
                 f"before it leaves its parent ({joint:.4g}): there is no room to bend it."
             )
-        zones.append(joint_zone(arc[ids], *(np.asarray(f)[: len(ids)] for f in (
-            reg.offset, reg.curvature, reg.valid)), joint, stop, points.dtype))
         rest = _looked_up(spine) if tabulates(spine) else spine
+        # (All rows, padded ones invalid: every limb's zone has the same shapes.)
+        at = np.where(np.asarray(reg.valid), np.asarray(reg.arc_length), joint)
+        (_, *frames), axes = _frames_at(rest, jnp.asarray(at, points.dtype),
+                                        jnp.asarray(joint, points.dtype))
+        zones.append(joint_zone(*(np.asarray(f) for f in (
+            reg.arc_length, reg.offset, reg.curvature, reg.valid)), joint, stop, points.dtype,
+            frames=frames, axes=axes))
         registrations.append(reg)
         rests.append(rest)
         indices.append(jnp.asarray(ids, jnp.int32))
@@ -183,6 +189,16 @@ def register_skeleton(mesh, skeleton: Skeleton, *, margin: float | None = None,
         stops.append(jnp.minimum(jnp.asarray(stop, points.dtype), rest.length))
     return SkeletonRegistration(tuple(registrations), tuple(rests), tuple(indices), tuple(joints),
                                 tuple(stops), points, margin, tuple(zones), fingerprint(skeleton))
+
+
+@eqx.filter_jit
+def _frames_at(spine: AbstractSpine, s: Array, joint: Array):
+    """`((C, T, I, J) (n, 3) each, (T, I, J) (3, 3))`: `spine`'s frames at arc lengths `s`
+    (n,) and at `joint` (scalar); one program for every limb (their shapes are bucketed)."""
+    prepared = spine._prepare()
+    (c, t, _), (i, j) = jax.vmap(prepared._jet_and_normals)(s)
+    (_, t0, _), (i0, j0) = prepared._jet_and_normals(joint)
+    return (c, t, i, j), jnp.stack([t0, i0, j0])
 
 
 def _edges(faces: np.ndarray) -> np.ndarray:
@@ -363,6 +379,9 @@ def posed(registration: SkeletonRegistration, skeleton: Skeleton, poses: dict,
     return PosedSkeleton(vertices, valid)
 
 
+BLEND_WIDTH = 0.3  # the blend's width, in `JointZone.margins`: done by k₁·d* ≈ 0.65 at most
+
+
 def _sections_carried(registration, k: int, pose: LimbPose, images, valid):
     """`(images, valid)` of limb `k`'s region with its vertices past the joint moved towards
     where the bent limb's cross-section at their arc length carries them
@@ -371,22 +390,30 @@ def _sections_carried(registration, k: int, pose: LimbPose, images, valid):
     - wholly, the vertices not validly registered on the rest spine (near a focal point at
       rest: under an insect's bent knee), which the fleshing cannot place: left at rest they
       tore the mesh (23.6× on the insect's front leg bent 30°, 3.2× for one in the zone);
-    - by a weight rising smoothly with the angle from 0 where the map over the whole room
-      stops being exact (`JointZone.exact`, at least `fj.joint_range`) to 1 at twice that
-      bend, the others: past it the fleshing squeezes a thick joint's concave side (a head
-      on its neck) into flaps; the sections' motion keeps the limb whole, not its volume.
-      Continuous in the angle. Nodded forwards, against the formulas continued: cheburashka's
-      head (exact to 3.3°) at 30°, worst edge 16.4× → 2.6×, ΔV/V −1.5 % → −0.7 %; spot's at
-      45°, 6.2× → 2.6×, −1.7 % → −0.2 %; towards its side, −3.9 % → −4.2 %."""
+    - the others by one weight, rising smoothly from 0 where the radial map over the pose's
+      zone stops being exact in the direction and twist asked (some vertex's `k₁·d*` reaches
+      `maps.WHOLE_FROM`) to 1 at about twice that bend (`JointZone.margins`: the largest
+      vertex's relative excess): past it the fleshing squeezes a thick joint's concave side (a
+      head on its neck) into flaps; the sections' motion keeps the limb whole, not its
+      volume. Continuous in the angle, the direction and the twist; 0, and the map's images
+      bit for bit, wherever the map is exact. Nodded forwards, against the formulas
+      continued: cheburashka's head (exact to 3.3°) at 30°, worst edge 16.4× → 2.6×, ΔV/V
+      −1.5 % → −0.7 %; spot's at 45°, 6.2× → 2.6×, −1.7 % → −0.2 %; towards its side,
+      −3.9 % → −4.2 %."""
     n = registration.indices[k].shape[0]
     r = registration.registrations[k]
     s, points, registered = r.arc_length[:n], r.points[:n], r.valid[:n]
-    exact = registration.zones[k].exact
-    u = jnp.clip((jnp.abs(jnp.deg2rad(pose.bend)).astype(exact.dtype) - exact)
-                 / jnp.maximum(exact, 1e-6), 0, 1)
+    rest, joint = registration.rests[k], registration.joints[k]
+    bend, direction, twist = pose.radians(rest, joint)
+    # (Over the zone's padded rows too: they are zero, and bound nothing.)
+    margins = registration.zones[k].margins(bend, direction, twist, joint,
+                                            bend_stop(registration, k, pose))
+    # (The largest by its index: `jnp.max`'s derivative finds it again by equality, which an
+    # unoptimised XLA, recomputing the margins in two fusions, missed: a NaN gradient.)
+    u = jnp.clip(margins[jnp.argmax(margins)] / BLEND_WIDTH, 0, 1)
     blend = u * u * (3 - 2 * u)
-    past = jnp.isfinite(s) & (s >= registration.joints[k])
-    weight = jnp.where(past, jnp.where(registered, blend, 1), 0).astype(exact.dtype)
+    past = jnp.isfinite(s) & (s >= joint)
+    weight = jnp.where(past, jnp.where(registered, blend, 1), 0).astype(joint.dtype)
     args = (limb_target(registration, k, pose), points, s, weight, images)
     if is_concrete(pose, registration):
         # Eagerly one program for every angle, within the range too (it then changes only the
@@ -464,9 +491,8 @@ def bend_stop(registration: SkeletonRegistration, k: int, pose: LimbPose) -> Arr
     """Where limb `k`'s bend by `pose` is complete (scalar arc length): its joint plus the
     zone the angle needs (`joint_zone`); past it the limb moves rigidly."""
     joint = registration.joints[k]
-    zone = registration.zones[k].length(jnp.deg2rad(pose.bend).astype(joint.dtype))
-    # (`minimum`: the whole room in single precision is at most the stop, not an ulp past it.)
-    return jnp.minimum(joint + zone, registration.stops[k])
+    bend = jnp.deg2rad(pose.bend).astype(joint.dtype)
+    return registration.zones[k].end(bend, joint, registration.stops[k])
 
 
 def _check_limb_spine(registration: SkeletonRegistration, k: int, spine: AbstractSpine) -> None:
