@@ -414,13 +414,20 @@ def _sections_carried(registration, k: int, pose: LimbPose, images, valid):
     blend = u * u * (3 - 2 * u)
     past = jnp.isfinite(s) & (s >= joint)
     weight = jnp.where(past, jnp.where(registered, blend, 1), 0).astype(joint.dtype)
-    args = (limb_target(registration, k, pose), points, s, weight, images)
+    target = limb_target(registration, k, pose)
     if is_concrete(pose, registration):
         # Eagerly one program for every angle, within the range too (it then changes only the
-        # unregistered vertices): a new angle compiles nothing.
-        images = _carried_blend_program(*args)
+        # unregistered vertices): a new angle compiles nothing. It runs on the registration's
+        # padded rows (their weight 0: left as they are), so that every limb of a bucket
+        # shares it too: at each region's own size, the tube's three limbs compiled three.
+        size = r.points.shape[0]
+        padded = np.zeros(size, weight.dtype)
+        padded[:n] = np.asarray(weight)
+        images = _carried_blend_program(target, r.points, r.arc_length, padded,
+                                        pad_batch(images, size))[:n]
     else:  # a traced frame skips the sections where nothing is carried
-        images = jax.lax.cond(jnp.any(weight > 0), _carried_blend, lambda *a: a[-1], *args)
+        images = jax.lax.cond(jnp.any(weight > 0), _carried_blend, lambda *a: a[-1],
+                              target, points, s, weight, images)
     return images, valid & ~(past & (weight > 0))
 
 
