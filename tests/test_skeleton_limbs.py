@@ -105,3 +105,36 @@ def test_a_limb_reached_through_a_thicker_limb_is_its_child():
     ears = np.flatnonzero(np.abs(tips[:, 1] - 0.62) < 1e-9)
     assert len(ears) == 2 and np.all(parents[ears] == heads[0]), (tips, parents)
     assert len(found) == 7  # the head, its ears, two legs, two arms
+
+
+def test_a_slanted_border_with_the_body_is_levelled_across_the_limb():
+    """A limb whose border with the body runs at a slant (the body down one side of it, as
+    spot's shoulder runs down its front leg's outer side) had its joint past the border's
+    lowest vertex: a bend moved only its far part. `levelled` gives the limb the body's
+    vertices past the border's top, beside it: the border runs across the spine and the
+    joint moves up to the border's top; only body vertices change hands."""
+    from _posing_shapes import tube_mesh
+
+    import fleshing_jax as fj
+    from fleshing_jax._skeleton.regions import levelled, mesh_adjacency
+
+    mesh = tube_mesh()  # radius 0.25, along x from 0 to 6
+    vertices = np.asarray(mesh.vertices)
+    x, y = vertices[:, 0], vertices[:, 1]
+    region = np.full(len(vertices), -1)
+    region[x > 4.0 + 0.4 * (y > 0)] = 0  # the body reaches 0.4 further along on one side
+    region[x > 5.5] = 1  # a child, which the levelling leaves alone
+    spine = fj.Line(3.0, origin=(3.0, 0.0, 0.0))
+    limbs = [fj.Limb(spine, 1.4 + 1e-9, -1),  # the old border's last vertex, x = 4.4
+              fj.Limb(fj.Line(0.8, origin=(5.2, 0.0, 0.0)), 0.35, 0)]
+    adjacency = mesh_adjacency(vertices, np.asarray(mesh.faces))
+    out_limbs, out_region = levelled(limbs, region, vertices, adjacency)
+    changed = out_region != region
+    assert changed.any() and np.all(region[changed] == -1) and np.all(out_region[changed] == 0)
+    assert np.array_equal(out_region == 1, region == 1)
+    # The border is now across the tube at x = 4 (the old border's top): the joint there.
+    body = vertices[out_region == -1]
+    assert body[:, 0].max() < 4.0 + 0.11  # (a ring spacing: 0.1)
+    # (The border's vertices lie a ring or two past the body's last: rings 0.1 apart.)
+    assert float(out_limbs[0].joint) < 1.0 + 0.21 < float(limbs[0].joint) - 0.15
+    assert out_limbs[1] is limbs[1]

@@ -19,7 +19,7 @@ from .fit import nearest_spheres, sphere_gaps, spine_from_unit
 from .given import given_limbs
 from .limb_fit import fit_limb
 from .limbs import ROUTES, find_limbs
-from .regions import mesh_adjacency, spine_samples
+from .regions import levelled, mesh_adjacency, spine_samples
 from .skeleton import Limb, Skeleton, descendants, merge_limb
 
 # A child's region meets its parent's at least this many spine samples beyond where the
@@ -253,6 +253,7 @@ def _unit_limbs(vertices, centers, radii, edges, adjacency, margin):
     limbs, region = split_chains(fitted.limbs, fitted.founds, fitted.region, centers, radii,
                                  vertices, adjacency, margin)  # fmt: skip
     limbs, region = _visible(limbs, region, vertices)
+    limbs, region = levelled(limbs, region, vertices, adjacency)
     return _room_to_bend(limbs, region, vertices, adjacency)
 
 
