@@ -5,7 +5,7 @@
 
 The procedural biped's skeleton (`fj.skeleton`, 200 spheres): one leg posed at its hip 40°,
 knee 70°, ankle 20°, one arm at its shoulder, elbow and wrist alike, the head 30° (float64);
-or spot's saved skeleton: its head turned 45°, a front leg lifted 45°, a hind leg 60°.
+or spot's (`fj.skeleton`): its head turned 45°, a front leg lifted 45°, a hind leg 60°.
 Blender (`pip install bpy` in another environment: `--bpy` names its Python) gets one bone
 per limb (head at the limb's bend start, tail where its bend is complete), a still body
 bone, automatic heat weights, and as each bone's rotation the rotation our pose gives that
@@ -24,8 +24,6 @@ import time
 from pathlib import Path
 
 import numpy as np
-
-SPOT_SKELETON = Path(__file__).resolve().parents[1] / "notebooks" / "data" / "spot-skeleton.json"
 
 
 def biped_poses(fj, skeleton):
@@ -50,13 +48,18 @@ def biped_poses(fj, skeleton):
 
 
 def spot_poses(fj, skeleton):
-    """Spot (`fj.data.spot()`, y up, head towards −z; the saved skeleton of
-    notebooks/data): the head turned 45° about up (as an animator turns a neck bone), a
-    front leg lifted 45° forwards, a hind leg 60° backwards."""
+    """Spot (`fj.data.spot()`, y up, head towards −z; its own skeleton): the head turned 45°
+    about up (as an animator turns a neck bone), its right front leg lifted 45° forwards, its
+    right hind leg 60° backwards."""
     up, ahead = (0.0, 1.0, 0.0), np.array([0.0, 0.0, -1.0])
+    tips = np.array([np.asarray(limb.spine(limb.spine.length)) for limb in skeleton.limbs])
+    top = [k for k, limb in enumerate(skeleton.limbs) if limb.parent == -1]
+    head = max(top, key=lambda k: tips[k, 1])
+    legs = [k for k in top if tips[k, 1] < -0.6 and tips[k, 0] < 0]
+    front, hind = min(legs, key=lambda k: tips[k, 2]), max(legs, key=lambda k: tips[k, 2])
     return lambda registration: {
-        0: fj.turn(registration, skeleton, 0, 45.0, up=up),
-        5: fj.LimbPose(45.0, towards=ahead), 8: fj.LimbPose(60.0, towards=-ahead)}
+        head: fj.turn(registration, skeleton, head, 45.0, up=up),
+        front: fj.LimbPose(45.0, towards=ahead), hind: fj.LimbPose(60.0, towards=-ahead)}
 
 
 def ours(out: Path, character: str):
@@ -70,7 +73,7 @@ def ours(out: Path, character: str):
 
     if character == "spot":
         mesh = fj.data.spot()
-        skeleton = fj.load_skeleton(SPOT_SKELETON)
+        skeleton = fj.skeleton(mesh)
         poses_of = spot_poses(fj, skeleton)
     else:
         mesh = biped()
@@ -224,7 +227,7 @@ def _figure(path, rest, faces, posed):
     from mpl_toolkits.mplot3d.art3d import Poly3DCollection
 
     titles = ["rest", "fleshing_jax", "Blender LBS", "Blender DQS"]
-    figure = plt.figure(figsize=(16, 6))
+    figure = plt.figure(figsize=(16, 4.5))
     light = np.array([0.3, -0.5, 0.8]) / np.linalg.norm([0.3, -0.5, 0.8])
     for i, (points, title) in enumerate(zip([rest, *posed], titles)):
         ax = figure.add_subplot(1, 4, i + 1, projection="3d")
@@ -239,6 +242,7 @@ def _figure(path, rest, faces, posed):
         for set_limits, c in zip((ax.set_xlim, ax.set_ylim, ax.set_zlim), centre):
             set_limits(c - half, c + half)
         ax.view_init(10, -70)
+        ax.set_box_aspect(None, zoom=1.5)  # mplot3d's default margin leaves the shape small
         ax.set_axis_off()
         ax.set_title(title)
     figure.tight_layout()
