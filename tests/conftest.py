@@ -27,7 +27,11 @@ import numpy as np  # noqa: E402
 import pytest  # noqa: E402
 
 jax.config.update("jax_enable_x64", True)
-_CACHE = Path(__file__).resolve().parents[1] / ".pytest_cache" / "jax-compilation-cache"
+# FLESHING_JAX_TEST_CACHE points a run at another cache (an empty folder times a cold run).
+_CACHE = Path(
+    os.environ.get("FLESHING_JAX_TEST_CACHE")
+    or Path(__file__).resolve().parents[1] / ".pytest_cache" / "jax-compilation-cache"
+)
 jax.config.update("jax_compilation_cache_dir", str(_CACHE))
 os.environ["FLESHING_JAX_CACHE"] = str(_CACHE)  # the command line in tests: the same cache
 jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.2)
