@@ -261,3 +261,49 @@ def test_quick_programs_compile_with_cheap_options_at_top_level_only():
     assert program.optimised._cached._cache_size() == 1
     # The options are XLA's own: a compile with them succeeds.
     jax.jit(double).lower(x).compile(compiler_options=QUICK_COMPILE)
+
+
+def test_fleshing_under_eager_transformations_runs_its_compiled_program(monkeypatch):
+    """`jax.vmap(M)` and `jax.jacfwd(M)` called eagerly transform `M`'s compiled program
+    whole (one program); under a caller's `jit` the one-point map is traced inline. Never is
+    it run operation by operation (each compiled on its own: hundreds of programs)."""
+    from fleshing_jax._batching.quick import compiling
+    from fleshing_jax._fleshing import pipeline
+
+    assert not compiling()
+    seen = {}
+
+    def probe(name):
+        def f(x):
+            seen[name] = compiling()
+            return x
+
+        return f
+
+    jax.vmap(probe("vmap"))(jnp.ones(2))
+    jax.jacfwd(probe("jacfwd"))(jnp.ones(2))
+    jax.grad(lambda x: probe("grad")(x).sum())(jnp.ones(2))
+    jax.jit(probe("jit"))(jnp.ones(2))
+    jax.jit(jax.vmap(probe("vmap in jit")))(jnp.ones(2))
+    jax.vmap(jax.jit(probe("jit in vmap")))(jnp.ones(2))
+    assert seen == {"vmap": False, "jacfwd": False, "grad": False, "jit": True,
+                    "vmap in jit": True, "jit in vmap": True}  # fmt: skip
+
+    inline = []
+    apply_point = pipeline.apply_point
+
+    def recording(fleshing, x):
+        inline.append(compiling())
+        return apply_point(fleshing, x)
+
+    monkeypatch.setattr(pipeline, "apply_point", recording)
+    source, target = fj.Line(2.0), fj.Arc(1.5, 2.0)
+    fleshing = fj.Fleshing(source, target)
+    points = _points(70)
+    images, valid = jax.vmap(fleshing.apply)(points)
+    jacobian = jax.jacfwd(fleshing)(points[0])
+    assert all(inline), "the one-point map ran operation by operation"
+    expected, expected_valid = fj.flesh(points, source, target)
+    np.testing.assert_array_equal(valid, expected_valid)
+    np.testing.assert_allclose(images, expected, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(np.linalg.det(jacobian), 1.0, atol=1e-10)

@@ -37,6 +37,24 @@ def top_level() -> bool:
     return trace_state_clean()
 
 
+def compiling() -> bool:
+    """Whether JAX is tracing a program to compile (`jit`, directly or under other
+    transformations), rather than nothing or only transformations applied eagerly (`vmap`,
+    `jacfwd`, `grad` of eager code, whose operations would each run, and compile, on their
+    own)."""
+    try:
+        from jax._src.core import trace_ctx
+        from jax._src.interpreters.partial_eval import DynamicJaxprTrace
+    except ImportError:  # (a JAX without them: taken as compiling, the caller's safe case)
+        return True
+    trace = trace_ctx.trace
+    while trace is not None:  # from the innermost transformation outwards
+        if isinstance(trace, DynamicJaxprTrace):
+            return True
+        trace = getattr(trace, "parent_trace", None)
+    return False
+
+
 class Program:
     """`fun` under `eqx.filter_jit`, compiled either the optimised way or quickly
     (`QUICK_COMPILE`): `program(*args, quick=True)` picks the quick one when called at the
