@@ -11,11 +11,13 @@ import fleshing_jax as fj
 from fleshing_jax._fleshing.maps import _halley_root
 
 A = 2 / (3 * np.sqrt(3))  # the branch point of μ³ − μ = α
+# Roots of a batch, compiled: run eagerly, each test was about 85 one-operation programs.
+roots = jax.jit(jax.vmap(fj.cubic_root))
 
 
 def test_cubic_root_solves_the_cubic_on_both_branches():
     alpha = jnp.concatenate([jnp.linspace(-A, A, 2001), jnp.linspace(A, 50.0, 2001)])
-    mu = jax.vmap(fj.cubic_root)(alpha)
+    mu = roots(alpha)
     np.testing.assert_allclose(mu**3 - mu, alpha, atol=1e-13, rtol=1e-13)
     assert float(fj.cubic_root(0.0)) == 1.0
     # The branch through μ(0) = 1: increasing, from 1/√3 at α = −a, through 2/√3 at α = a.
@@ -24,7 +26,7 @@ def test_cubic_root_solves_the_cubic_on_both_branches():
     np.testing.assert_allclose(float(fj.cubic_root(A)), 2 / np.sqrt(3), atol=1e-14)
     # Far on the convex side (large α), where the starting guess comes from the exponent bits.
     large = jnp.asarray([1.0, 1.0 + 1e-12, 7.5, 1e3, 1e6, 1e12, 1e30])
-    mu = jax.vmap(fj.cubic_root)(large)
+    mu = roots(large)
     np.testing.assert_allclose(mu**3 - mu, large, rtol=1e-15)
 
 
@@ -33,11 +35,11 @@ def test_cubic_root_in_float32_matches_the_closed_form():
     # the whole valid range but the ill-conditioned neighbourhood of the double root, and the
     # iteration itself to float64 round-off.
     alpha = np.concatenate([np.linspace(-A + 1e-3, 3.0, 4001), np.geomspace(3.0, 1e30, 200)])
-    mu32 = jax.vmap(fj.cubic_root)(jnp.asarray(alpha, jnp.float32))
+    mu32 = roots(jnp.asarray(alpha, jnp.float32))
     assert mu32.dtype == jnp.float32
-    mu64 = jax.vmap(fj.cubic_root)(jnp.asarray(alpha))
+    mu64 = roots(jnp.asarray(alpha))
     np.testing.assert_allclose(mu32, mu64, rtol=1e-6)
-    np.testing.assert_allclose(_halley_root(jnp.asarray(alpha)), mu64, rtol=2e-15)
+    np.testing.assert_allclose(jax.jit(_halley_root)(jnp.asarray(alpha)), mu64, rtol=2e-15)
     assert float(_halley_root(jnp.asarray(-A))) == pytest.approx(1 / np.sqrt(3), abs=1e-7)
 
 
@@ -46,7 +48,7 @@ def test_cubic_root_gradients_are_finite_at_the_branch_points():
     # Where arccos hands over to arccosh (α = a), on both sides and exactly there.
     near_a = jnp.asarray([A - 1e-9, A, A + 1e-9])
     slopes = grad(near_a)
-    mu = jax.vmap(fj.cubic_root)(near_a)
+    mu = roots(near_a)
     np.testing.assert_allclose(slopes, 1 / (3 * mu**2 - 1), rtol=1e-12)
     np.testing.assert_allclose(slopes, 1 / 3, rtol=1e-6)  # μ = 2/√3: 1/(3·4/3 − 1)
     # Towards the double root (α → −a) the slope grows like 1/√(α + a), but stays finite;
@@ -68,10 +70,17 @@ def test_radial_map_gradient_through_the_branch_switch():
     def mapped(radius):
         return fj.Fleshing(source, fj.Arc(radius, 3.0, normal=(0, 1, 0)), twist=0.0)(x)
 
+    # The image and its derivative in one compiled program, also for the differences:
+    # differentiated eagerly, the map ran as about 200 one-operation programs.
+    @jax.jit
+    def image_and_slope(radius):
+        return jax.jvp(mapped, (radius,), (jnp.ones_like(radius),))
+
     for radius in (0.6, 0.8659, 1.5):
-        jac = jax.jacfwd(mapped)(radius)
+        jac = image_and_slope(radius)[1]
         assert np.all(np.isfinite(np.asarray(jac)))
-        np.testing.assert_allclose(jac, central_difference(mapped, radius), rtol=1e-5, atol=1e-7)
+        fd = central_difference(lambda r: image_and_slope(r)[0], radius)
+        np.testing.assert_allclose(jac, fd, rtol=1e-5, atol=1e-7)
 
 
 def test_whole_radial_bend_is_exact_then_compresses_without_crossing_the_centre():
@@ -83,8 +92,9 @@ def test_whole_radial_bend_is_exact_then_compresses_without_crossing_the_centre(
     k = jnp.asarray([2.0, 0.0])
     p = np.linspace(-1.0, 1.5, 1001)
     d = jnp.stack([jnp.asarray(p) / 2.0, jnp.full(p.shape, 0.1)], axis=1)
-    whole, ok = jax.vmap(radial_bend_whole, in_axes=(0, None))(d, k)
-    exact, exact_ok = jax.vmap(radial_bend, in_axes=(0, None))(d, k)
+    # (Compiled, here and below: run eagerly, the test was about 270 one-operation programs.)
+    whole, ok = jax.jit(jax.vmap(radial_bend_whole, in_axes=(0, None)))(d, k)
+    exact, exact_ok = jax.jit(jax.vmap(radial_bend, in_axes=(0, None)))(d, k)
     below = p <= WHOLE_FROM
     np.testing.assert_array_equal(whole[below], exact[below])
     np.testing.assert_array_equal(ok, exact_ok & below)  # flagged past the switch
@@ -95,12 +105,13 @@ def test_whole_radial_bend_is_exact_then_compresses_without_crossing_the_centre(
     def p1_of(q):
         return radial_bend_whole(jnp.stack([q / 2.0, 0.1]), k)[0] @ k
 
-    slope = jax.grad(p1_of)
+    slope = jax.jit(jax.grad(p1_of))
     for q in (WHOLE_FROM - 1e-7, WHOLE_FROM + 1e-7, 3.0):
         assert np.isfinite(float(slope(q)))
     np.testing.assert_allclose(slope(WHOLE_FROM - 1e-7), slope(WHOLE_FROM + 1e-7), rtol=1e-5)
-    check_grads(lambda x: radial_bend_whole(x, k)[0], (d[900],), order=2)
-    check_grads(lambda x: radial_bend_whole(x, k)[0], (d[100],), order=2)
+    bent = jax.jit(lambda x: radial_bend_whole(x, k)[0])
+    check_grads(bent, (d[900],), order=2)
+    check_grads(bent, (d[100],), order=2)
     # Single precision stays single.
     assert radial_bend_whole(d[0].astype(jnp.float32), k.astype(jnp.float32))[0].dtype == (
         jnp.float32)
