@@ -1,5 +1,6 @@
 """Analytic spines: arc-length parameterisation, derivatives, frames, continuation."""
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -25,15 +26,34 @@ def _samples(spine, n=9, overshoot=0.3):
     return jnp.linspace(-overshoot * length, (1 + overshoot) * length, n)
 
 
+# The samples' derivatives and frames, each one compiled program for a spine type (the spine
+# an argument: both helices share it): evaluated eagerly, sample by sample, the two tests were
+# about 300 one-operation programs.
+@eqx.filter_jit
+def _derivatives(spine, s):
+    def one(s):
+        return (jax.jacfwd(spine)(s), jax.jacfwd(jax.jacfwd(spine))(s), spine.tangent(s),
+                spine.curvature_vector(s))  # fmt: skip
+
+    return jax.vmap(one)(s)
+
+
+@eqx.filter_jit
+def _frames(spine, s):
+    def normal(s):
+        return fj.rotation_minimizing_frame(spine, s, twist=0.4)[1]
+
+    return jax.vmap(lambda s: (fj.rotation_minimizing_frame(spine, s, twist=0.4),
+                               jax.jacfwd(normal)(s), spine.tangent(s)))(s)  # fmt: skip
+
+
 def test_unit_speed_and_curvature_vector(spine):
     # Derivatives by autodiff of the position, including on the continuations past the ends.
-    for s in _samples(spine):
-        tangent = jax.jacfwd(spine)(s)
-        k = jax.jacfwd(jax.jacfwd(spine))(s)
+    for tangent, k, closed_tangent, closed_k in zip(*_derivatives(spine, _samples(spine))):
         np.testing.assert_allclose(np.linalg.norm(tangent), 1.0, atol=1e-12)
-        np.testing.assert_allclose(spine.tangent(s), tangent, atol=1e-12)
-        np.testing.assert_allclose(spine.curvature_vector(s), k, atol=1e-10)
-        assert abs(np.dot(spine.curvature_vector(s), spine.tangent(s))) < 1e-12
+        np.testing.assert_allclose(closed_tangent, tangent, atol=1e-12)
+        np.testing.assert_allclose(closed_k, k, atol=1e-10)
+        assert abs(np.dot(closed_k, closed_tangent)) < 1e-12
 
 
 def test_closed_forms():
@@ -53,20 +73,23 @@ def test_closed_forms():
 def test_torsion_matches_frenet_derivative():
     helix = SPINES["left-helix"]
     s = 1.3
-    (t, n, b), defined = fj.frenet_frame(helix, s)
+
+    @jax.jit  # (one program: eagerly, about 100 one-operation ones)
+    def frame_and_binormal_rate(s):
+        return fj.frenet_frame(helix, s), jax.jacfwd(lambda s: fj.frenet_frame(helix, s)[0][2])(s)
+
+    ((t, n, b), defined), db = frame_and_binormal_rate(s)
     assert bool(defined)
-    db = jax.jacfwd(lambda s: fj.frenet_frame(helix, s)[0][2])(s)
     np.testing.assert_allclose(db, -helix.torsion(s) * n, atol=1e-12)  # B' = −τN
 
 
 def test_rotation_minimizing_frame(spine):
-    for s in _samples(spine):
-        frame = fj.rotation_minimizing_frame(spine, s, twist=0.4)
+    for frame, di, tangent in zip(*_frames(spine, _samples(spine))):
+        frame = np.asarray(frame)
         np.testing.assert_allclose(frame @ frame.T, np.eye(3), atol=1e-13)
         np.testing.assert_allclose(np.linalg.det(frame), 1.0, atol=1e-13)
-        np.testing.assert_allclose(frame[0], spine.tangent(s), atol=1e-14)
+        np.testing.assert_allclose(frame[0], tangent, atol=1e-14)
         # Rotation minimising: I' has no component along J (no spin about the tangent).
-        di = jax.jacfwd(lambda s: fj.rotation_minimizing_frame(spine, s, twist=0.4)[1])(s)
         assert abs(np.dot(di, frame[2])) < 1e-11
 
 
