@@ -34,7 +34,7 @@ from .eager import pose_eagerly, register_eagerly
 from .ends import EndFrames, aligned_twist, check_beyond, end_band, rigid_beyond, target_ends
 from .maps import BEND, UNBEND, WHOLE
 from .methods import check_method
-from .projection import Registrar, Registration, invalid_past, register_point
+from .projection import Registrar, Registration, _same, invalid_past, register_point
 from .reach import search_range
 from .region import ValidRegion, clear_all, clear_where
 from .target import TargetFrames
@@ -213,9 +213,11 @@ class Poser(eqx.Module):
     def pose(self, registration: Registration) -> tuple[Array, Array]:
         """`pose_point` for a batch of registered points (`length` shared or repeated per
         point): `(images (n, 3), valid (n,))`."""
-        image, _, valid, pending = self._bent_images(registration)
+        image, s1, valid, pending = self._bent_images(registration)
         if self.region is not None:  # the sampled test, for the images left pending
-            valid = clear_where(pending, self.region, self._image, valid, registration)
+            # (On this pass's images: bent again in the test's loops, the bend was traced and
+            # compiled twice more, half of a bent B-spline limb's posing program.)
+            valid = clear_where(pending, self.region, _same, valid, (image, s1))
         image = jnp.where(self._kept(valid, registration)[:, None], image, registration.points)
         return self.rigid(registration, image, valid)
 
@@ -244,7 +246,7 @@ class Poser(eqx.Module):
         """`pose` without the region's sampled check: `(images, valid, pending)`, where the
         pending points (valid but not certified by the reach bound; none on lines and arcs)
         have their image but are not valid yet, for `eager` to check them."""
-        image, _, certified, pending = self._bent_images(registration)
+        image, _, certified, pending = self._bent_images(registration)  # (`_`: s₁)
         kept = self._kept(certified | pending, registration)
         return jnp.where(kept[:, None], image, registration.points), certified, pending
 
@@ -280,14 +282,14 @@ class Poser(eqx.Module):
         return clear_all(self.region, self._image, registration)
 
     def _bent_images(self, registration: Registration) -> tuple[Array, Array, Array, Array]:
-        """`(images, valid, certified, pending)`: valid before the projection check; certified
-        by the reach bound or checked in closed form (or valid, without the check);
+        """`(images, s₁, certified, pending)`: `s₁` the images' arc lengths on the target;
+        certified by the reach bound or checked in closed form (or valid, without the check);
         pending: the valid points that the bound does not certify, for the sampled test."""
         image, valid, s1, distance = jax.vmap(
             lambda reg: bend_point(reg, self.frames, self.method, self.fallback, self.ends),
             in_axes=(batch_axes(registration),),
         )(registration)
-        return image, valid, *self._certify(valid, s1, distance)
+        return image, s1, *self._certify(valid, s1, distance)
 
     def _certify(self, valid: Array, s1: Array, distance: Array) -> tuple[Array, Array]:
         """`(certified, pending)` of valid images at `s₁` and `distance` from the target."""
