@@ -464,7 +464,7 @@ def posed_limbs(registration: SkeletonRegistration, poses: dict, method: str, ch
         # (run only where the reach bound leaves points pending). Posed by the two-phase
         # eager pipeline instead (`_fleshing.eager`), a new angle that left a point pending
         # compiled that fallback on the spot: the tube bent 60° then 90°, 0.09 s then 30 s.
-        pose_limb = _pose_limb if not is_concrete(poses) else _pose_limb_program
+        pose_limb = _pose_limb if not is_concrete(poses) else _pose_limb_eagerly
         return {k: pose_limb(*pair, method, check) for k, pair in pairs.items()}
     groups: dict = {}  # limbs by the structure and shapes of their (registration, target)
     for k, pair in pairs.items():
@@ -546,17 +546,30 @@ def limb_poser(registration: Registration, target: AbstractSpine, method: str,
 
 
 def _pose_limb(registration, target, method, check=True):
-    """One limb's region posed onto `target`: `(images, valid, end motion)`, traced: in a
-    caller's program, or in `_pose_limb_program` (an eager pose's, shared by every limb of
-    a bucket and every angle)."""
-    poser = limb_poser(registration, target, method, check)
+    """One limb's region posed onto `target`: `(images, valid, end motion)`, traced in a
+    caller's program (eagerly: `_pose_limb_eagerly`)."""
+    return _posed_by(registration, limb_poser(registration, target, method, check))
+
+
+def _posed_by(registration, poser):
+    """`_pose_limb` with its target prepared (`limb_poser`)."""
     images, ok = pose_prepared(registration, poser)
     # The children move as the region's points past the end do (`beyond="rigid"`): with the
     # target's end frame the preparation made, not a second preparation of the target.
     return images, ok, motion_between(registration.ends, poser.ends)
 
 
-_pose_limb_program = eqx.filter_jit(_pose_limb)
+def _pose_limb_eagerly(registration, target, method, check=True):
+    """`_pose_limb` called eagerly: two compiled programs, each shared by every limb of a
+    bucket and every angle: the target's preparation (`limb_poser`: the program
+    `pose_stretch` prepares its targets with too), and the pose, the projection check's
+    sampled fallback inside (run only where points are pending). (As one program, the
+    preparation was compiled into it, and again on its own for `pose_stretch`: 4 s of CPU
+    on the tube's float64 limb.)"""
+    return _posed_by_program(registration, limb_poser(registration, target, method, check))
+
+
+_posed_by_program = eqx.filter_jit(_posed_by)
 
 
 # In single precision a limb's bent spines read its rest spine from a table made once here
