@@ -17,7 +17,7 @@ from fleshing_jax._batching import chunks
 from fleshing_jax._batching.chunks import map_chunks
 from fleshing_jax._batching.compact import update_where
 from fleshing_jax._fleshing.projection import closest_arc_lengths
-from fleshing_jax._fleshing.reach import LocalReach, reach_lower_bound
+from fleshing_jax._fleshing.reach import REACH_SAMPLES, LocalReach, reach_lower_bound
 from fleshing_jax._numerics import cast_floats
 
 U_TURN = [[0, 0, 0], [4, 0, 0], [5, 0, 0], [5.5, 0.5, 0], [5, 1, 0], [4, 1, 0], [0, 1, 0]]
@@ -29,36 +29,38 @@ def _coil():
 
 
 def test_reach_lower_bound():
-    assert np.isinf(float(reach_lower_bound(fj.Line(3.0))))
-    arc = float(reach_lower_bound(fj.Arc(3.0, 4.0)))
+    # (Each spine's bounds built in one compiled program: built eagerly, they were hundreds of
+    # one-operation programs.)
+    lower = eqx.filter_jit(reach_lower_bound)
+    assert np.isinf(float(lower(fj.Line(3.0))))
+    arc = float(lower(fj.Arc(3.0, 4.0)))
     assert 0.5 < arc <= 3.0  # the reach of an arc is its radius
     helix = fj.Helix(1.0, 1.0, 12.0)
-    assert (
-        0.1
-        < float(reach_lower_bound(helix))
-        <= 1 / float(jnp.linalg.norm(helix.curvature_vector(0.0)))
-    )
+    assert 0.1 < float(lower(helix)) <= 1 / float(jnp.linalg.norm(helix.curvature_vector(0.0)))
     # The U-turn's tightest bend has curvature 4: the reach is at most 1/4 there. Its bounds
     # stay below that around the bend and exceed it along the straight branches (1 apart).
-    u_turn = fj.BSpline(U_TURN, degree=3)
-    s = jnp.linspace(0.0, u_turn.length, 4001)
-    kappa = jnp.max(jnp.linalg.norm(jax.vmap(u_turn.curvature_vector)(s), axis=-1))
-    reach = LocalReach(u_turn)
-    bend = float(s[jnp.argmax(jnp.linalg.norm(jax.vmap(u_turn.curvature_vector)(s), axis=-1))])
-    assert float(reach(bend)) <= 1 / float(kappa) < float(reach(1.0))
+    s, kappa, reach = _curvatures_and_reach(fj.BSpline(U_TURN, degree=3))
+    bend = float(s[np.argmax(kappa)])
+    assert float(reach(bend)) <= 1 / float(np.max(kappa)) < float(reach(1.0))
     assert 0.25 < float(reach(1.0)) <= 0.5  # the branches are 1 apart
+
+
+@eqx.filter_jit
+def _curvatures_and_reach(spine):
+    """The curvature at 4001 arc lengths along `spine`, and its `LocalReach`."""
+    s = jnp.linspace(0.0, spine.length, 4001)
+    kappa = jnp.linalg.norm(jax.vmap(spine.curvature_vector)(s), axis=-1)
+    return s, kappa, LocalReach(spine)
 
 
 def _local_reach_by_definition(spine, samples=96):
     """The bounds of `_fleshing.reach.LocalReach` computed as written, in NumPy float64: for
     each sample `i` and window `w = m h`, the curvature bound within `m + 1` samples and the
     smallest `q_ij` over all samples `j` at least `w − h` away."""
-    spine = spine._prepare()
-    e0, e1 = spine.extension()
-    lo, hi = -float(e0), float(spine.length) + float(e1)
-    grid = jnp.linspace(lo, hi, samples).astype(spine.length.dtype)
+    lo, hi, jets = _sampled_jets(spine, samples)
+    lo, hi = float(lo), float(hi)
     h = (hi - lo) / (samples - 1)
-    positions, tangents, k = (np.asarray(a, np.float64) for a in jax.vmap(spine.jet)(grid))
+    positions, tangents, k = (np.asarray(a, np.float64) for a in jets)
     kappa = np.linalg.norm(k, axis=-1)
     jumps = np.abs(np.diff(kappa, append=kappa[-1]))
 
@@ -90,6 +92,23 @@ def _local_reach_by_definition(spine, samples=96):
     return np.array(bounds)
 
 
+@eqx.filter_jit  # (one program a spine: evaluated eagerly, hundreds of small ones)
+def _sampled_jets(spine, samples):
+    """The search range `(lo, hi)` of `spine` and its jets at `samples` points over it."""
+    spine = spine._prepare()
+    e0, e1 = spine.extension()
+    lo, hi = -e0, spine.length + e1
+    grid = jnp.linspace(lo, hi, samples).astype(spine.length.dtype)
+    return lo, hi, jax.vmap(spine.jet)(grid)
+
+
+@eqx.filter_jit
+def _reach_bounds(spine, samples=REACH_SAMPLES):
+    """`LocalReach(spine, samples)`'s bounds and `reach_lower_bound(spine, samples)`, in one
+    program (built eagerly: hundreds of one-operation programs)."""
+    return LocalReach(spine, samples).bounds, reach_lower_bound(spine, samples)
+
+
 # float64 with `-m slow`: the running minima are the same code in both; float32 is posing's.
 @pytest.mark.parametrize("dtype", [pytest.param(np.float64, marks=pytest.mark.slow), np.float32])
 def test_local_reach_equals_its_definition(dtype):
@@ -97,17 +116,18 @@ def test_local_reach_equals_its_definition(dtype):
     shapes.append(fj.BSpline(U_TURN, degree=3))
     for spine in shapes:
         spine = jax.tree.map(lambda a: a.astype(dtype) if eqx.is_inexact_array(a) else a, spine)
-        bounds = np.asarray(LocalReach(spine, 96).bounds, np.float64)
+        bounds, lowest = _reach_bounds(spine, 96)
+        bounds = np.asarray(bounds, np.float64)
         expected = _local_reach_by_definition(spine)
         # (float32: `√(|δ|² − along²)` cancels, a bound is good to about 1e-4 relative, and a
         # bound clamped at 0 can come out at a few ulps.)
         rtol, atol = (1e-10, 0) if dtype == np.float64 else (2e-4, 1e-6)
         np.testing.assert_allclose(bounds, expected, rtol=rtol, atol=atol, err_msg=str(spine))
         # The global bound is the smallest local one.
-        assert float(reach_lower_bound(spine, 96)) == float(bounds.min())
+        assert float(lowest) == float(bounds.min())
     # Local: along the U-turn's straight branches the bounds exceed the bend's radius of
     # curvature (1/4), which the bend's own bounds stay below.
-    bounds = np.asarray(LocalReach(fj.BSpline(U_TURN, degree=3)).bounds)
+    bounds = np.asarray(_reach_bounds(fj.BSpline(U_TURN, degree=3))[0])
     assert bounds.min() < 0.25 < np.median(bounds)
 
 
@@ -116,6 +136,22 @@ def _smallest_squared_distances(points, dense):
     (round-off ~1e-14 here, far below the test's tolerance)."""
     squared = np.sum(points**2, 1)[:, None] + np.sum(dense**2, 1)[None] - 2 * points @ dense.T
     return np.maximum(squared.min(axis=1), 0)
+
+
+@eqx.filter_jit  # (one program a spine: evaluated eagerly, hundreds of small ones)
+def _points_inside_the_bounds(spine, fraction, angle, depth):
+    """Points at `depth` (a fraction) of the `LocalReach` bound from the continued `spine`,
+    at arc lengths `fraction` of the first 383 sample spacings and at `angle` about the
+    tangent; the spine densely sampled (40001 points) over the same range; its reach."""
+    spine = spine._prepare()
+    reach = LocalReach(spine)
+    s = reach.lo + fraction * 383 * reach.h
+    (c, t, _), (i, j) = jax.vmap(spine.jet_and_normals)(s)
+    r = jax.vmap(reach)(s) * depth
+    angle = angle[:, None]
+    x = c + r[:, None] * (jnp.cos(angle) * i + jnp.sin(angle) * j)
+    dense = jax.vmap(spine)(jnp.linspace(reach.lo, reach.lo + 383 * reach.h, 40001))
+    return x, r, dense, reach
 
 
 @pytest.mark.parametrize("shape", ["arc", "helix", "u_turn", "coil"])
@@ -127,15 +163,12 @@ def test_local_reach_bounds_are_sound(shape):
         "helix": fj.Helix(1.0, 1.0, 12.0),
         "u_turn": fj.BSpline(U_TURN, degree=3),
         "coil": _coil(),
-    }[shape]._prepare()
-    reach = LocalReach(spine)
+    }[shape]
     rng = np.random.default_rng(5)
-    s = jnp.asarray(rng.uniform(float(reach.lo), float(reach.lo) + 383 * float(reach.h), 2000))
-    (c, t, _), (i, j) = jax.vmap(spine.jet_and_normals)(s)
-    angle = jnp.asarray(rng.uniform(0, 2 * np.pi, 2000))[:, None]
-    r = jax.vmap(reach)(s) * jnp.asarray(rng.uniform(0.9, 0.999, 2000))
-    x = c + r[:, None] * (jnp.cos(angle) * i + jnp.sin(angle) * j)
-    dense = np.asarray(jax.vmap(spine)(jnp.linspace(reach.lo, reach.lo + 383 * reach.h, 40001)))
+    fraction, angle, depth = (rng.uniform(*bounds, 2000) for bounds in
+                              ((0, 1), (0, 2 * np.pi), (0.9, 0.999)))  # fmt: skip
+    x, r, dense, reach = _points_inside_the_bounds(spine, fraction, angle, depth)
+    dense = np.asarray(dense)
     nearest = np.sqrt(np.concatenate([_smallest_squared_distances(block, dense)
                                       for block in np.split(np.asarray(x), 8)]))  # fmt: skip
     assert np.all(nearest >= np.asarray(r) * (1 - 1e-9) - 1e-12)
@@ -150,7 +183,7 @@ def test_batched_projection_equals_global_search(shape):
     lo, hi = np.min(spine.control_points, 0) - 0.4, np.max(spine.control_points, 0) + 0.4
     box = rng.uniform(lo, hi, (300, 3))
     # And points very near the spine, most of them inside the certified reach bound.
-    near = jax.vmap(spine)(jnp.asarray(rng.uniform(0, float(spine.length), 100)))
+    near = _positions_and_reach(spine, rng.uniform(0, float(spine.length), 100))[0]
     points = jnp.concatenate([jnp.asarray(box), near + rng.normal(0, 0.01, (100, 3))])
     single = jax.jit(jax.vmap(lambda x: fj.closest_arc_length(spine, x)))(points)
     batched = eqx.filter_jit(closest_arc_lengths)(spine, points)
@@ -158,9 +191,15 @@ def test_batched_projection_equals_global_search(shape):
     np.testing.assert_array_equal(np.asarray(batched[1]), ok)
     np.testing.assert_allclose(np.asarray(batched[0])[ok], np.asarray(single[0])[ok], atol=1e-9)
     # Both paths ran: some points certified by the reach bound, others searched globally.
-    distance = np.linalg.norm(np.asarray(points - jax.vmap(spine)(single[0])), axis=-1)
-    reach = np.asarray(jax.vmap(LocalReach(spine))(single[0]))
+    feet, reach = map(np.asarray, _positions_and_reach(spine, single[0]))
+    distance = np.linalg.norm(np.asarray(points) - feet, axis=-1)
     assert np.any(ok & (distance < reach)) and np.any(ok & (distance > reach))
+
+
+@eqx.filter_jit  # (one program: evaluated eagerly, hundreds of one-operation programs)
+def _positions_and_reach(spine, s):
+    """`spine` at the arc lengths `s` (n,), and its `LocalReach` bounds there."""
+    return jax.vmap(spine)(s), jax.vmap(LocalReach(spine))(s)
 
 
 @pytest.mark.parametrize("dtype", [jnp.float64, jnp.float32])
@@ -266,23 +305,23 @@ def _chunked(monkeypatch, size: int, call):
 
 
 def test_flesh_in_chunks_equals_one_point_path(monkeypatch):
-    # Chunks of 64 points: 397 points make 7 chunks, the last one padded.
+    # Chunks of 64 points: 400 points, padded to 512 (`_batching.buckets`), make 8 chunks.
+    # (The one-point reference is the compiled program of the U-turn's test above: the same
+    # fleshing, closed over, and point count.)
     target = fj.BSpline(U_TURN, degree=3)
     source = fj.Line(float(target.length))
     rng = np.random.default_rng(5)
-    n = 397
+    n = 400
     points = np.column_stack(
         [rng.uniform(-0.3, float(target.length) + 0.3, n), rng.uniform(-0.6, 0.6, (n, 2))]
     )
     points[::50] = np.nan  # invalid points stay invalid, without disturbing the others
     points = jnp.asarray(points)
-    fleshing = fj.Fleshing(source, target, method="normal", twist=0.2)
+    fleshing = fj.Fleshing(source, target, method="radial", twist=0.4)
     expected = jax.jit(jax.vmap(fleshing.apply))(points)
     for out, valid in (
-        _chunked(monkeypatch, 64,
-                 lambda: fj.flesh(points, source, target, method="normal", twist=0.2)),
-        _chunked(monkeypatch, 64, lambda: fj.pose(fj.register(points, source), target,
-                                                  method="normal", twist=0.2)),
+        _chunked(monkeypatch, 64, lambda: fj.flesh(points, source, target, twist=0.4)),
+        _chunked(monkeypatch, 64, lambda: fj.pose(fj.register(points, source), target, twist=0.4)),
     ):
         np.testing.assert_array_equal(np.asarray(valid), np.asarray(expected[1]))
         np.testing.assert_allclose(np.asarray(out), np.asarray(expected[0]), atol=1e-10)
@@ -361,10 +400,14 @@ def test_closed_form_feet_need_no_reach_bounds():
     # reach bounds (which only certify the searched feet of the other spines).
     from fleshing_jax._fleshing.projection import Registrar
 
+    # (What is built is known from tracing it: `filter_eval_shape` runs and compiles nothing.)
+    def prepared(spine):
+        return eqx.filter_eval_shape(Registrar, spine)
+
     for spine in (fj.Line(2.0), fj.Arc(1.5, 3.0)):
-        assert Registrar(spine).reach is None
+        assert prepared(spine).reach is None
     curve = fj.BSpline(np.array([[0, 0, 0], [1, 0.3, 0], [2, 0, 0.2], [3, 0, 0.0]]), degree=3)
-    assert isinstance(Registrar(curve).reach, LocalReach)
+    assert isinstance(prepared(curve).reach, LocalReach)
 
 
 @pytest.mark.parametrize("dtype", [jnp.float64, jnp.float32])
