@@ -112,16 +112,16 @@ def test_merge_gives_a_limb_s_region_and_children_to_its_parent(given):
 def test_a_limb_a_bend_would_not_visibly_move_joins_its_parent(given):
     """`fj.skeleton` never returns a limb of a few vertices (an insect's limbs of 3–33
     vertices moved nothing a user sees) nor one whose vertices all lie near its joint."""
-    from fleshing_jax._skeleton.build import FEWEST, _visible
+    from fleshing_jax._skeleton.visible import FEWEST, visible
 
     mesh, skeleton = given
     vertices, region = np.asarray(mesh.vertices), np.asarray(skeleton.region).copy()
     tail = np.flatnonzero(region == 4)
     region[tail[FEWEST - 1 :]] = -1  # the tail keeps FEWEST − 1 vertices
-    limbs, kept = _visible(list(skeleton.limbs), region, vertices)
+    limbs, kept = visible(list(skeleton.limbs), region, vertices)
     assert len(limbs) == 5 and np.all(kept[tail] == -1) and np.all(kept[region == 5] == 4)
     # The legs, with their knees, are kept as they are.
-    limbs, kept = _visible(list(skeleton.limbs), np.asarray(skeleton.region), vertices)
+    limbs, kept = visible(list(skeleton.limbs), np.asarray(skeleton.region), vertices)
     assert len(limbs) == 6 and np.array_equal(kept, np.asarray(skeleton.region))
 
 

@@ -118,7 +118,7 @@ def test_a_slanted_border_with_the_body_is_levelled_across_the_limb():
     import fleshing_jax as fj
     from fleshing_jax._skeleton.regions import levelled, mesh_adjacency
 
-    mesh = tube_mesh()  # radius 0.25, along x from 0 to 6
+    mesh = tube_mesh()  # radius 0.3, along x from 0 to 6
     vertices = np.asarray(mesh.vertices)
     x, y = vertices[:, 0], vertices[:, 1]
     region = np.full(len(vertices), -1)
@@ -128,7 +128,7 @@ def test_a_slanted_border_with_the_body_is_levelled_across_the_limb():
     limbs = [fj.Limb(spine, 1.4 + 1e-9, -1),  # the old border's last vertex, x = 4.4
               fj.Limb(fj.Line(0.8, origin=(5.2, 0.0, 0.0)), 0.35, 0)]
     adjacency = mesh_adjacency(vertices, np.asarray(mesh.faces))
-    out_limbs, out_region = levelled(limbs, region, vertices, adjacency)
+    out_limbs, out_region = levelled(limbs, region, vertices, adjacency, tops=[0])
     changed = out_region != region
     assert changed.any() and np.all(region[changed] == -1) and np.all(out_region[changed] == 0)
     assert np.array_equal(out_region == 1, region == 1)
@@ -138,3 +138,74 @@ def test_a_slanted_border_with_the_body_is_levelled_across_the_limb():
     # (The border's vertices lie a ring or two past the body's last: rings 0.1 apart.)
     assert float(out_limbs[0].joint) < 1.0 + 0.21 < float(limbs[0].joint) - 0.15
     assert out_limbs[1] is limbs[1]
+
+
+def test_a_limb_whose_vertices_past_its_joint_barely_move_joins_its_parent():
+    """A bend moves only a limb's vertices past its joint (and its descendants'): a limb whose
+    region is long but whose joint lies near its end (the bunny's 25-vertex knob beside its
+    tail) moves nothing a user sees, and joins its parent; counting its vertices before the
+    joint kept it. The same region with its joint near its border stays a limb, and so does
+    a limb whose own moved vertices stay near its joint but which carries a child far."""
+    import fleshing_jax as fj
+    from fleshing_jax._skeleton.visible import VISIBLE, visible
+
+    # A thin rod along x from 0 to 6 (rings 0.1 apart, radius 0.05): diagonal ≈ 6.
+    angle = np.linspace(0, 2 * np.pi, 16, endpoint=False)
+    mesh = fj.extrusion(0.05 * np.stack([np.cos(angle), np.sin(angle)], 1), 6.0, 60)
+    vertices = np.asarray(mesh.vertices)
+    x = vertices[:, 0]
+    spine = fj.Line(2.5, origin=(3.5, 0.0, 0.0))  # to the rod's end
+    region = np.where(x > 4.0 + 1e-9, 0, -1)  # 20 rings and the end's centre
+    # Its joint at x = 5.85: the rings at 5.9 and 6 move, within 0.16 of the joint's point,
+    # below VISIBLE of the diagonal (0.24); the region reaches 1.85 from it.
+    assert 0.16 < VISIBLE * np.linalg.norm(np.ptp(vertices, axis=0))
+    limbs, kept = visible([fj.Limb(spine, 2.35, -1)], region, vertices)
+    assert limbs == [] and np.all(kept == -1)
+    # Its joint at x = 4.1: the limb moves 19 rings, up to 1.9 from the joint: kept.
+    limbs, kept = visible([fj.Limb(spine, 0.6, -1)], region, vertices)
+    assert len(limbs) == 1 and np.array_equal(kept, region)
+    # A parent whose own moved ring (x = 5) lies 0.07 from its joint, carrying a child
+    # (x > 5, its joint at 5.5) up to 1 beyond it: both kept.
+    region = np.select([x > 5.0 + 1e-9, x > 4.0 + 1e-9], [1, 0], -1)
+    family = [fj.Limb(fj.Line(1.5, origin=(3.5, 0.0, 0.0)), 1.45, -1),
+              fj.Limb(fj.Line(1.5, origin=(4.5, 0.0, 0.0)), 1.0, 0)]
+    limbs, kept = visible(list(family), region, vertices)
+    assert len(limbs) == 2 and np.array_equal(kept, region)
+
+
+def test_a_slanted_border_with_a_parent_limb_is_levelled_at_a_chain_s_top_only():
+    """An ear meeting its head at a slant (spot's at seed 0: its joint at 67 % of its spine,
+    the ear's 27 vertices past it too near to move visibly, and it joined the head) is
+    levelled as a leg is against the body: it takes its parent's vertices past its border's
+    top, and no other region changes. A piece of a chain below its joint (not in `tops`)
+    keeps the border its split gave it."""
+    from _posing_shapes import tube_mesh
+
+    import fleshing_jax as fj
+    from fleshing_jax._skeleton.regions import levelled, mesh_adjacency
+
+    mesh = tube_mesh()  # radius 0.3, along x from 0 to 6, rings 0.1 apart
+    vertices = np.asarray(mesh.vertices)
+    x, y = vertices[:, 0], vertices[:, 1]
+    region = np.full(len(vertices), -1)
+    region[x > 2.0 + 1e-9] = 0  # the head, from the body
+    region[x > 4.0 + 0.4 * (y > 0)] = 1  # the ear: the head reaches 0.4 further on one side
+    limbs = [fj.Limb(fj.Line(5.0, origin=(1.0, 0.0, 0.0)), 1.0 + 1e-9, -1),
+             fj.Limb(fj.Line(3.0, origin=(3.0, 0.0, 0.0)), 1.4 + 1e-9, 0)]
+    adjacency = mesh_adjacency(vertices, np.asarray(mesh.faces))
+    out_limbs, out_region = levelled(limbs, region, vertices, adjacency, tops=[0, 1])
+    changed = out_region != region
+    assert changed.any() and np.all(region[changed] == 0) and np.all(out_region[changed] == 1)
+    assert vertices[out_region == 0][:, 0].max() < 4.0 + 0.11  # across the tube at x = 4
+    assert float(out_limbs[1].joint) < 1.0 + 0.21 < float(limbs[1].joint) - 0.15
+    assert out_limbs[0] is limbs[0]  # (its border with the body was level already)
+    # The same limb as a chain's lower piece: left as it is.
+    out_limbs, out_region = levelled(limbs, region, vertices, adjacency, tops=[0])
+    assert np.array_equal(out_region, region) and out_limbs[1] is limbs[1]
+    # A sibling in the slanted zone (a horn beside an ear, spot at 60 spheres), which the
+    # ear's growth would enclose, bordering the ear alone: the ear is left as it is.
+    beside = region.copy()
+    beside[(np.abs(x - 4.3) < 1e-9) & (y > 0.29)] = 2  # a vertex ringed by the slant zone
+    horn = fj.Limb(fj.Line(1.0, origin=(4.3, 0.0, 0.0)), 0.1, 0)
+    out_limbs, out_region = levelled([*limbs, horn], beside, vertices, adjacency, tops=[0, 1])
+    assert np.array_equal(out_region, beside) and out_limbs[1] is limbs[1]

@@ -21,15 +21,11 @@ from .limb_fit import fit_limb
 from .limbs import ROUTES, find_limbs
 from .regions import levelled, mesh_adjacency, spine_samples
 from .skeleton import Limb, Skeleton, descendants, merge_limb
+from .visible import FEWEST, box_diagonal, moves_visibly, visible
 
 # A child's region meets its parent's at least this many spine samples beyond where the
 # parent's region meets the rest (`_room_to_bend`; `register_skeleton` projects exactly).
 ROOM = 2
-# A limb moves at least this many vertices, and some of them (its own or its descendants')
-# at least this fraction of the mesh's diagonal from its joint: else a bend of it moves
-# nothing a user sees (an insect's limbs of 3–33 vertices), and it joins its parent.
-FEWEST = 12
-VISIBLE = 0.04
 # A medial mesh belongs to a mesh when its centres lie in the mesh's bounding box (up to this
 # fraction of its diagonal), no sphere's radius exceeds `REACHES` times the distance from its
 # centre to the nearest vertex, and every vertex lies within this fraction of the diagonal
@@ -64,8 +60,8 @@ def skeleton(mesh, *, medial: MedialMesh | None = None, spheres: int = 200,
     A long limb is then split at its joints into a chain of limbs, each the parent of the
     next (`_skeleton.chains`: where the medial radius narrows, else where the axis turns,
     else in the middle of a limb 6 radii long), and a limb a 30° bend would not visibly
-    move (fewer than `FEWEST` vertices, none `VISIBLE` of the diagonal from its joint)
-    joins its parent.
+    move joins its parent (`_skeleton.visible`: fewer than `FEWEST` of its vertices past
+    its joint, or none of those and its descendants' `VISIBLE` of the diagonal from it).
 
     A shape with no thicker part for a branch to leave (a tube, a capsule) is a body and one
     limb: the body the end sphere of the medial axis's longest path (a cap one radius deep),
@@ -250,10 +246,13 @@ def _unit_limbs(vertices, centers, radii, edges, adjacency, margin):
                         {**{k: v for k, v in saved.items() if k < number}, **trial_saved},
                         trial_start)  # fmt: skip
         _, fitted, saved, start = best
-    limbs, region = split_chains(fitted.limbs, fitted.founds, fitted.region, centers, radii,
-                                 vertices, adjacency, margin)  # fmt: skip
-    limbs, region = _visible(limbs, region, vertices)
-    limbs, region = levelled(limbs, region, vertices, adjacency)
+    limbs, region, tops = split_chains(fitted.limbs, fitted.founds, fitted.region, centers,
+                                       radii, vertices, adjacency, margin)  # fmt: skip
+    # Levelled first: a bend moves what lies past the joint, which a slanted border put far
+    # out (spot's ear at seed 0: 27 vertices past its joint at 67 % of its spine, within 3.8 %
+    # of the diagonal from it; levelled, at 33 %).
+    limbs, region = levelled(limbs, region, vertices, adjacency, tops)
+    limbs, region = visible(limbs, region, vertices)
     return _room_to_bend(limbs, region, vertices, adjacency)
 
 
@@ -342,9 +341,11 @@ def _fit_from(found_limbs, start, first, fitted, centers, radii, vertices, adjac
             route = dataclasses.replace(found, path=path, inside=inside)
             spine, part = fit_limb(route, centers, radii, vertices, adjacency,
                                    region == parent, margin, wide=wide, owned=own)
-            if part is None or (own is not None and not _visibly(spine, part, vertices)):
+            if part is None or (own is not None and not moves_visibly(
+                    spine, part.joint, vertices[part.vertices], np.empty((0, 3)),
+                    box_diagonal(vertices))):
                 # An own region that a bend would not visibly move is none: kept until
-                # `_visible` merged it, the 25 own vertices of a horn found twice were
+                # `visible` merged it, the 25 own vertices of a horn found twice were
                 # missing from the other limb's region (the quadruped at 60 spheres).
                 continue
             early = False
@@ -387,38 +388,6 @@ def _room_to_bend(limbs: list[Limb], region: np.ndarray, vertices, adjacency):
             gone = [k]  # the parent gives its region and its children to its own parent
         for i in sorted(gone, reverse=True):
             limbs, region = merge_limb(limbs, region, i)
-    return limbs, region
-
-
-def _visibly(spine, part, vertices) -> bool:
-    """Whether a bend of the limb (`spine`, its region `part`) would visibly move its region
-    on its own (`_visible`'s test, before any child is cut from it, counting the vertices
-    past its joint only: the ones a bend moves)."""
-    s, points, _ = map(np.asarray, spine_samples(spine))
-    moved = vertices[part.vertices]
-    moved = moved[s[cKDTree(points).query(moved)[1]] > part.joint]
-    far = np.linalg.norm(moved - np.asarray(spine(part.joint)), axis=1).max(initial=0.0)
-    return len(part.vertices) >= FEWEST and float(far) >= VISIBLE * _diagonal(vertices)
-
-
-def _diagonal(vertices) -> float:
-    return float(np.linalg.norm(np.ptp(vertices, axis=0)))
-
-
-def _visible(limbs, region, vertices):
-    """`(limbs, region)` with every limb that a bend would not visibly move merged into its
-    parent: fewer than `FEWEST` vertices, or no vertex of its region or its descendants'
-    farther than `VISIBLE` times the mesh's diagonal from its joint (a 30° bend there moves
-    them by half that distance at most: a bump, a medial mesh's spike)."""
-    diagonal = _diagonal(vertices)
-    k = len(limbs) - 1
-    while k >= 0:  # the deepest first: a limb's merged children count as its own
-        moved = np.isin(region, [k, *descendants(limbs)[k]])
-        joint = np.asarray(limbs[k].spine(limbs[k].joint))
-        far = float(np.max(np.linalg.norm(vertices[moved] - joint, axis=1), initial=0.0))
-        if np.sum(region == k) < FEWEST or far < VISIBLE * diagonal:
-            limbs, region = merge_limb(limbs, region, k)
-        k -= 1
     return limbs, region
 
 

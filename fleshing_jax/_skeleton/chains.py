@@ -104,8 +104,8 @@ def _turning(s, points, at, half) -> np.ndarray:
 def split_chains(limbs, founds, region, centers, radii, vertices, adjacency, margin):
     """Each limb of `limbs` (in topological order, found on the medial graph as `founds`:
     their `LimbPath`s) split into its chain; `region` (n,) the limb of each vertex (−1: the
-    body). Returns `(limbs, region)`: the pieces, still in topological order, and their
-    region."""
+    body). Returns `(limbs, region, tops)`: the pieces, still in topological order, their
+    region, and the index of each limb's first piece (its chain's top)."""
     out: list[Limb] = []
     label = np.full(len(region), -1)
     pieces: list[list[int]] = []  # per original limb: its pieces' indices in `out`
@@ -126,7 +126,7 @@ def split_chains(limbs, founds, region, centers, radii, vertices, adjacency, mar
             out.append(Limb(spine, part.joint, chain[-1]))
             chain.append(len(out) - 1)
         pieces.append(chain)
-    return out, label
+    return out, label, [chain[0] for chain in pieces]
 
 
 def _piece(found: LimbPath, m: int, radii, centers) -> LimbPath:

@@ -9,8 +9,9 @@ of the parent's region that this cuts off from its largest part join the limb. L
 cut from their parents' regions in topological order, children out of their parent's.
 The joint is then the largest arc length of the region's border vertices (at least the cut),
 so that a bend starting there leaves the border still; a limb with less than its radius left
-to bend beyond its joint is none (a knob). Last, a limb's slanted border with the body is
-levelled across its spine (`levelled`): the joint rises to the border's top.
+to bend beyond its joint is none (a knob). Last, a chain's top's slanted border with its
+parent (the body, or a head for an ear) is levelled across its spine (`levelled`): the joint
+rises to the border's top.
 """
 
 from __future__ import annotations
@@ -110,49 +111,63 @@ def limb_region(spine, cut: float, tip: np.ndarray, arc, radius, vertices, adjac
     return LimbRegion(region, joint)
 
 
-def levelled(limbs: list, region: np.ndarray, vertices: np.ndarray, adjacency):
-    """`(limbs, region)` with each limb that leaves the body (`parent == -1`) grown, ring by
-    ring from its border, over the body's vertices that project on its spine past the
-    border's top (its least arc length) within `LEVEL` times the limb's thickness there (its
-    own vertices' largest distance from the spine between the border's top and bottom); its
-    joint then the new border's last arc length.
+def levelled(limbs: list, region: np.ndarray, vertices: np.ndarray, adjacency, tops):
+    """`(limbs, region)` with each limb of `tops` (the top of each chain: a limb that leaves
+    the body or another limb's region, not a piece of a chain below its joint) grown, ring
+    by ring from its border, over its parent's vertices (the body's, or its parent limb's)
+    that project on its spine past the border's top (its least arc length) within `LEVEL`
+    times the limb's thickness there (its own vertices' largest distance from the spine
+    between the border's top and bottom); its joint then the new border's last arc length.
 
     A leg meeting a belly at a slant (spot's front legs: the body runs down the shoulder's
     outer side 60 % of the leg) puts the joint past the border's lowest vertex, so that a
     bend moved only the leg's lower part: "lift the leg" flicked a hoof. The shoulder's
     vertices beside the leg's top join the leg (about 30 on spot), the border runs across
     the spine, and the joint rises (spot's front legs: 59 % and 51 % of the spine → 33 %).
-    Only body vertices move: siblings and children keep their regions. The body keeps its
-    largest connected part (pieces the growth cuts off go with the limb).
+    An ear on a head alike (spot's at seed 0: the head down its side from 18 % to 67 % of
+    its spine, the joint at 67 % → 33 %). Only the parent's vertices move: siblings and
+    children keep their regions. The parent keeps its region's largest connected part
+    (pieces the growth cuts off go with the limb).
     """
     limbs, region = list(limbs), region.copy()
-    for k, limb in enumerate(limbs):
-        if limb.parent != -1:
-            continue
+    for k in sorted(tops):  # (parents first: a limb's region is final when its children grow)
+        limb = limbs[k]
         s, points, _ = map(np.asarray, spine_samples(limb.spine))
         distance, nearest = cKDTree(points).query(vertices)
         along = s[nearest]
-        member, body = region == k, region == -1
-        border = member & (adjacency @ body.astype(float) > 0)
+        member, rest = region == k, region == limb.parent
+        border = member & (adjacency @ rest.astype(float) > 0)
         if not border.any():
             continue
         top, bottom = along[border].min(), along[border].max()
         span = member & (along >= top) & (along <= bottom)
         near = distance <= LEVEL * distance[span].max()
         for _ in range(64):  # (a ring a step; a slanted border is a few rings tall)
-            grow = body & near & (along > top) & (adjacency @ member.astype(float) > 0)
+            grow = rest & near & (along > top) & (adjacency @ member.astype(float) > 0)
             if not grow.any():
                 break
             member |= grow
-            body &= ~grow
-        if not body.any():
-            continue  # (it would take the whole body: no still part left)
-        inside = sparse.diags(body.astype(float))
+            rest &= ~grow
+        if not rest.any():
+            continue  # (it would take its parent's whole region: nothing left)
+        inside = sparse.diags(rest.astype(float))
         _, labels = csgraph.connected_components(inside @ adjacency @ inside, directed=False)
-        body &= labels == np.argmax(np.bincount(labels[body]))
-        border = member & (adjacency @ body.astype(float) > 0)
+        rest &= labels == np.argmax(np.bincount(labels[rest]))
+        border = member & (adjacency @ rest.astype(float) > 0)
         joint = float(along[border].max()) + 1e-9 * float(s[-1])
-        if joint < float(limb.joint):  # kept only where the joint rises
-            region[(region == -1) & ~body] = k
+        grown = region.copy()
+        grown[(region == limb.parent) & ~rest] = k
+        # Kept only where the joint rises and every other region bordering the parent still
+        # does (spot at 60 spheres: an ear's growth enclosed a horn beside it, which then
+        # bordered the ear alone).
+        if joint < float(limb.joint) and _neighbours(grown, limb.parent, adjacency) >= (
+                _neighbours(region, limb.parent, adjacency) - {k}):  # fmt: skip
+            region = grown
             limbs[k] = Limb(limb.spine, joint, limb.parent)
     return limbs, region
+
+
+def _neighbours(region: np.ndarray, k: int, adjacency) -> set:
+    """The regions (limb numbers, −1 the body) other than `k` that border region `k`."""
+    touching = adjacency @ (region == k).astype(float) > 0
+    return set(np.unique(region[touching & (region != k)]).tolist())
