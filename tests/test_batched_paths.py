@@ -57,7 +57,7 @@ def _local_reach_by_definition(spine, samples=96):
     """The bounds of `_fleshing.reach.LocalReach` computed as written, in NumPy float64: for
     each sample `i` and window `w = m h`, the curvature bound within `m + 1` samples and the
     smallest `q_ij` over all samples `j` at least `w − h` away."""
-    lo, hi, jets = _sampled_jets(spine, samples)
+    lo, hi, jets = _reach_bounds(spine, samples)[2]
     lo, hi = float(lo), float(hi)
     h = (hi - lo) / (samples - 1)
     positions, tangents, k = (np.asarray(a, np.float64) for a in jets)
@@ -70,18 +70,19 @@ def _local_reach_by_definition(spine, samples=96):
 
     bounds = []
     for i in range(samples):
+        # q_ij for every sample j at once.
+        delta = positions - positions[i]
+        length = np.linalg.norm(delta, axis=-1)
+        across = np.linalg.norm(delta - (delta @ tangents[i])[:, None] * tangents[i], axis=-1)
+        a = length - h
+        c = across + length * kappa_hat(i, 1) * h + h
+        with np.errstate(divide="ignore", invalid="ignore"):
+            q = np.where(a > 0, np.maximum(a * a / (2 * c), a / 2), 0.0)
         best = 0.0
         m = 2
         while True:
-            far = np.inf
-            for j in range(samples):
-                if abs(j - i) < m - 1:
-                    continue
-                delta = positions[j] - positions[i]
-                across = np.linalg.norm(delta - (delta @ tangents[i]) * tangents[i])
-                a = np.linalg.norm(delta) - h
-                c = across + np.linalg.norm(delta) * kappa_hat(i, 1) * h + h
-                far = min(far, max(a * a / (2 * c), a / 2) if a > 0 else 0.0)
+            far = np.abs(np.arange(samples) - i) >= m - 1
+            far = q[far].min() if far.any() else np.inf
             with np.errstate(divide="ignore"):
                 near = 1 / kappa_hat(i, m) - m * h
             best = max(best, min(near, far))
@@ -92,21 +93,17 @@ def _local_reach_by_definition(spine, samples=96):
     return np.array(bounds)
 
 
-@eqx.filter_jit  # (one program a spine: evaluated eagerly, hundreds of small ones)
-def _sampled_jets(spine, samples):
-    """The search range `(lo, hi)` of `spine` and its jets at `samples` points over it."""
-    spine = spine._prepare()
-    e0, e1 = spine.extension()
-    lo, hi = -e0, spine.length + e1
-    grid = jnp.linspace(lo, hi, samples).astype(spine.length.dtype)
-    return lo, hi, jax.vmap(spine.jet)(grid)
-
-
 @eqx.filter_jit
 def _reach_bounds(spine, samples=REACH_SAMPLES):
-    """`LocalReach(spine, samples)`'s bounds and `reach_lower_bound(spine, samples)`, in one
-    program (built eagerly: hundreds of one-operation programs)."""
-    return LocalReach(spine, samples).bounds, reach_lower_bound(spine, samples)
+    """`LocalReach(spine, samples)`'s bounds, `reach_lower_bound(spine, samples)`, and the
+    spine's search range `(lo, hi)` and jets at `samples` points over it, in one program
+    (built eagerly: hundreds of one-operation programs)."""
+    prepared = spine._prepare()
+    e0, e1 = prepared.extension()
+    lo, hi = -e0, prepared.length + e1
+    grid = jnp.linspace(lo, hi, samples).astype(prepared.length.dtype)
+    sampled = lo, hi, jax.vmap(prepared.jet)(grid)
+    return LocalReach(spine, samples).bounds, reach_lower_bound(spine, samples), sampled
 
 
 # float64 with `-m slow`: the running minima are the same code in both; float32 is posing's.
@@ -116,7 +113,7 @@ def test_local_reach_equals_its_definition(dtype):
     shapes.append(fj.BSpline(U_TURN, degree=3))
     for spine in shapes:
         spine = jax.tree.map(lambda a: a.astype(dtype) if eqx.is_inexact_array(a) else a, spine)
-        bounds, lowest = _reach_bounds(spine, 96)
+        bounds, lowest, _ = _reach_bounds(spine, 96)
         bounds = np.asarray(bounds, np.float64)
         expected = _local_reach_by_definition(spine)
         # (float32: `√(|δ|² − along²)` cancels, a bound is good to about 1e-4 relative, and a
