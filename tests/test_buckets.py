@@ -299,7 +299,7 @@ def test_fleshing_under_eager_transformations_runs_its_compiled_program(monkeypa
     monkeypatch.setattr(pipeline, "apply_point", recording)
     source, target = fj.Line(2.0), fj.Arc(1.5, 2.0)
     fleshing = fj.Fleshing(source, target)
-    points = _points(70)
+    points = _points(100)  # (`flesh`: the programs of the 97–128 bucket, as above)
     images, valid = jax.vmap(fleshing.apply)(points)
     jacobian = jax.jacfwd(fleshing)(points[0])
     assert all(inline), "the one-point map ran operation by operation"
