@@ -151,7 +151,7 @@ def _place(poser, bent, points):
 @eqx.filter_jit
 def _pose_pending(poser, registration, images, valid, index):
     part = jax.tree.map(lambda a: a[index] if jnp.ndim(a) > 0 else a, registration)
-    ok = poser.projects(part)
+    ok = poser.projects(part, images[index])  # (placed by the first phase: pending)
     kept = poser._kept(ok, part)
     images = images.at[index].set(jnp.where(kept[:, None], images[index], part.points))
     return images, valid.at[index].set(ok)
