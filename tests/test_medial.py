@@ -143,18 +143,27 @@ def test_spot_medial_mesh_approximates_it():
     assert to_envelope < 0.05 and to_surface < 0.05
 
 
-def test_fit_brings_a_flat_ellipsoid_within_target():
+@pytest.fixture(scope="module")
+def flat_ellipsoid():
+    """A flat ellipsoid (a slab-like shape), its 30 spheres after the collapses and before
+    any fit (`refine=0`), and their distances both ways on samples the fit did not see:
+    the fit's test and the collapses' test both start from them."""
+    ellipsoid = trimesh.creation.icosphere(3)
+    ellipsoid.vertices *= [2, 1.2, 0.3]
+    before = medial_mesh(ellipsoid, 30, samples=SAMPLES, refine=0, progress=False)
+    return ellipsoid, before, medial_distance(before, ellipsoid, samples=SAMPLES, seed=1,
+                                              resolution=64)  # fmt: skip
+
+
+def test_fit_brings_a_flat_ellipsoid_within_target(flat_ellipsoid):
     """The fit after the collapses (`refine`): 30 spheres for a flat ellipsoid (a slab-like
     shape) end within 1.5 % of the diagonal both ways (2.1 % and 1.7 % without it; 4.4 % and
     2.7 % before the collapses counted the worst uncovered sample) and within 1 % of the
     volume, measured on samples the fit did not see."""
-    ellipsoid = trimesh.creation.icosphere(3)
-    ellipsoid.vertices *= [2, 1.2, 0.3]
-    before = medial_mesh(ellipsoid, 30, samples=SAMPLES, refine=0, progress=False)
+    ellipsoid, before, far = flat_ellipsoid
     after = medial_mesh(ellipsoid, 30, samples=SAMPLES, progress=False)
     assert np.array_equal(before.edges, after.edges) and np.array_equal(before.faces,
                                                                           after.faces)
-    far = medial_distance(before, ellipsoid, samples=SAMPLES, seed=1, resolution=64)
     near = medial_distance(after, ellipsoid, samples=SAMPLES, seed=1, resolution=64)
     assert max(far) > 0.02 and max(near) < 0.015
     assert abs(after.volume() / ellipsoid.volume - 1) < 0.01
@@ -165,18 +174,15 @@ def test_fit_brings_a_flat_ellipsoid_within_target():
     assert (np.asarray(after.radii) - distance).max() < 0.01 * _diagonal(ellipsoid)
 
 
-def test_collapses_count_the_worst_uncovered_sample(monkeypatch):
+def test_collapses_count_the_worst_uncovered_sample(monkeypatch, flat_ellipsoid):
     """Late in the collapses, an edge's cost counts the farthest of its spheres' contact
     samples left outside what remains around them (`simplify._uncovered`, `hausdorff`):
     30 spheres of a flat ellipsoid before any fit end within 2.2 % / 1.8 % of the diagonal,
     4.4 % / 2.7 % without that term (the quadric error is a mean over the contacts)."""
-    ellipsoid = trimesh.creation.icosphere(3)
-    ellipsoid.vertices *= [2, 1.2, 0.3]
-    with_term = medial_mesh(ellipsoid, 30, samples=SAMPLES, refine=0, progress=False)
+    ellipsoid, _, near = flat_ellipsoid  # (the collapses with the term)
     monkeypatch.setattr(construct, "simplify", functools.partial(simplify.simplify,
                                                                  hausdorff=0.0))
     without = medial_mesh(ellipsoid, 30, samples=SAMPLES, refine=0, progress=False)
-    near = medial_distance(with_term, ellipsoid, samples=SAMPLES, seed=1, resolution=64)
     far = medial_distance(without, ellipsoid, samples=SAMPLES, seed=1, resolution=64)
     assert near[0] < 0.025 and far[0] > 0.04 and near[1] < far[1]
 
