@@ -50,8 +50,9 @@ def _check_tips(skeleton, tips, jointed):
 @pytest.fixture(scope="module")
 def biped_rig():
     # At resolution 36 (4,106 vertices) its largest region (the head's, 412 vertices) pads
-    # to 512: programs of its own, as at the default 48 (606 vertices, 45 s of compilation). At 34 and 35 it would pad to the posing tests' tube's
-    # 384, but a 30° bend flags a vertex there (measured): not a smaller test of the same.
+    # to 512: programs of its own, as at the default 48 (606 vertices, 45 s of compilation).
+    # At 34 and 35 it would pad to the posing tests' tube's 384, but a 30° bend flags a
+    # vertex there (measured): not a smaller test of the same.
     mesh = biped(36)
     return (mesh, *_rig(mesh, 120))
 
