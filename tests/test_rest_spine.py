@@ -24,8 +24,8 @@ def _samples(spine, n=200):
     return np.asarray(jax.vmap(spine)(np.linspace(0.0, float(spine.length), n)))
 
 
-def test_capsule_rest_spine_follows_the_axis(capsule):
-    spine = rest_spine(capsule, spheres=40)
+def _follows_the_capsule_axis(spine, capsule):
+    """The assertions on `rest_spine(capsule)`: along the axis, from cap to cap."""
     diagonal = np.linalg.norm(np.ptp(capsule.vertices, axis=0))
     points = _samples(spine)
     assert np.max(np.linalg.norm(points[:, :2], axis=1)) < 0.01 * diagonal
@@ -34,6 +34,27 @@ def test_capsule_rest_spine_follows_the_axis(capsule):
     assert isinstance(spine, fj.BSpline)
     # Exactly arc-length parameterised, as every free-form spine.
     assert float(np.linalg.norm(spine.tangent(1.0))) == pytest.approx(1.0, abs=1e-6)
+
+
+def test_a_mesh_gets_its_medial_mesh_with_the_spheres_and_seed_given(capsule, monkeypatch):
+    # `rest_spine(mesh, spheres=…, seed=…)` builds the mesh's medial mesh with them: here a
+    # stand-in, the capsule's axis as a chain of spheres (the real one is built by the
+    # command's test below, whose rest spine follows the axis too).
+    from fleshing_jax._medial_axis import construct
+
+    z = np.linspace(-1.5, 1.5, 7)
+    edges = np.c_[np.arange(6), 1 + np.arange(6)]
+    chain = MedialMesh(np.c_[0 * z, 0 * z, z], np.full(7, 0.5), edges)
+    calls = []
+
+    def medial_mesh(mesh, **options):
+        calls.append(options)
+        return chain
+
+    monkeypatch.setattr(construct, "medial_mesh", medial_mesh)
+    spine = rest_spine(capsule, spheres=40, seed=3)
+    assert [(c["spheres"], c["seed"]) for c in calls] == [(40, 3)]
+    _follows_the_capsule_axis(spine, capsule)
 
 
 def test_spike_ends_lose_to_the_main_axis():
@@ -87,7 +108,9 @@ def test_deform_without_a_rest_spine_file(tmp_path, capsys, capsule):
     line = next(ln for ln in printed.splitlines() if ln.startswith("rest spine"))
     (tmp_path / "rest.json").write_text(line.split(": ", 1)[1])
     rest = fj.load_spine(tmp_path / "rest.json")
-    assert isinstance(rest, fj.BSpline)
+    # The capsule's rest spine (`rest_spine(capsule)`, 100 spheres) follows its axis: checked
+    # on the one the command found (its medial mesh is most of the time of either).
+    _follows_the_capsule_axis(rest, capsule)
     bent = trimesh.load(str(out), process=False)
     assert len(bent.vertices) == len(capsule.vertices)
     after = next(ln for ln in printed.splitlines() if ln.startswith("volume after"))
