@@ -39,23 +39,16 @@ def _values(spine, s):
     return jnp.concatenate([c, t, k, i, j])
 
 
-@eqx.filter_jit  # (one program a spine: evaluated eagerly, each operation is one)
-def _table_and_spine(spine):
-    """`spine`'s table's range `(lo, hi)`, the spine's length and the table's values
-    (`_values`) less the spine's at 5001 points over the range."""
-    spine = spine._prepare()
-    table = SpineTable(spine, max(128, spine.default_samples()))
-    s = jnp.linspace(table.lo, table.hi, 5001)
-    exact = jax.vmap(lambda t: _values(spine, t))(s)
-    return table.lo, table.hi, spine.length, exact - jax.vmap(lambda t: _values(table, t))(s)
-
-
 @pytest.mark.parametrize("name", sorted(ZOO))
 def test_table_matches_the_spine_over_its_search_range(name):
     # Built in float64, so that what is measured is the interpolation error alone.
-    lo, hi, length, difference = _table_and_spine(ZOO[name])
-    assert float(lo) < 0 and float(hi) > float(length)
-    error = np.abs(np.asarray(difference))
+    spine = ZOO[name]._prepare()
+    table = SpineTable(spine, max(128, spine.default_samples()))
+    assert float(table.lo) < 0 and float(table.hi) > float(spine.length)
+    s = jnp.linspace(table.lo, table.hi, 5001)
+    exact = jax.vmap(lambda t: _values(spine, t))(s)
+    tabulated = jax.vmap(lambda t: _values(table, t))(s)
+    error = np.abs(np.asarray(exact - tabulated))
     # Position, tangent and normals to 1e-7, curvature to 1e-6: below float32's resolution
     # once multiplied by the offsets (≲ the reach, ≲ 1/κ).
     assert error[:, :6].max() < 1e-7 and error[:, 9:].max() < 1e-7, error.max(axis=0)
