@@ -151,7 +151,7 @@ def test_pruned_region_test_agrees_with_the_sampled_test(dtype):
     def tests(margin):
         region = ValidRegion(spine, margin)
         every = jnp.ones(n, bool)
-        batched = clear_where(every, region, lambda one: one, ~every, (points, s))
+        batched = clear_where(every, region, ~every, (points, s))
         return (jax.vmap(region.clear)(points, s), jax.vmap(region.surely_clear)(points, s),
                 batched)
 

@@ -34,7 +34,7 @@ from .eager import pose_eagerly, register_eagerly
 from .ends import EndFrames, aligned_twist, check_beyond, end_band, rigid_beyond, target_ends
 from .maps import BEND, UNBEND, WHOLE
 from .methods import check_method
-from .projection import Registrar, Registration, _same, invalid_past, register_point
+from .projection import Registrar, Registration, invalid_past, register_point
 from .reach import search_range
 from .region import ValidRegion, clear_all, clear_where
 from .target import TargetFrames
@@ -217,7 +217,7 @@ class Poser(eqx.Module):
         if self.region is not None:  # the sampled test, for the images left pending
             # (On this pass's images: bent again in the test's loops, the bend was traced and
             # compiled twice more, half of a bent B-spline limb's posing program.)
-            valid = clear_where(pending, self.region, _same, valid, (image, s1))
+            valid = clear_where(pending, self.region, valid, (image, s1))
         image = jnp.where(self._kept(valid, registration)[:, None], image, registration.points)
         return self.rigid(registration, image, valid)
 
@@ -282,8 +282,7 @@ class Poser(eqx.Module):
         poser placed them. (Bent again in the check's loop, the bend was compiled twice: the
         eager pose's program for its pending points: 17.0 → 4.7 s on the tube's limb bent
         175°, test XLA flags.)"""
-        return clear_all(self.region, _same, (images, target_arc_length(registration,
-                                                                         self.frames)))
+        return clear_all(self.region, (images, target_arc_length(registration, self.frames)))
 
     def _bent_images(self, registration: Registration) -> tuple[Array, Array, Array, Array]:
         """`(images, s₁, certified, pending)`: `s₁` the images' arc lengths on the target;

@@ -274,8 +274,7 @@ class Registrar(eqx.Module):
             region = self.region
             clear = jax.vmap(region.certified)(reg.arc_length, norm(reg.offset))
             if sampled:
-                clear = clear_where(reg.valid & ~clear, region, _same, clear,
-                                    (reg.points, reg.arc_length))
+                clear = clear_where(reg.valid & ~clear, region, clear, (reg.points, reg.arc_length))
             else:
                 unclear = reg.valid & ~clear
         reg = eqx.tree_at(
@@ -286,8 +285,7 @@ class Registrar(eqx.Module):
     def clear_pending(self, registration: Registration, index: Array) -> Registration:
         """`registration` with the sampled test run on the points at `index` (valid before
         `cleared(..., sampled=False)` flagged them)."""
-        clear = clear_all(self.region, _same,
-                          (registration.points[index], registration.arc_length[index]))
+        clear = clear_all(self.region, (registration.points[index], registration.arc_length[index]))
         fields = (registration.valid.at[index].set(clear),
                   registration.discontinuous.at[index].set(~clear))
         return eqx.tree_at(lambda r: (r.valid, r.discontinuous), registration, fields)
@@ -321,10 +319,6 @@ class Registrar(eqx.Module):
         return eqx.tree_at(
             lambda r: (r.length, r.ends), registration, (self.spine.length, EndFrames(self.exact))
         )
-
-
-def _same(inputs):
-    return inputs
 
 
 def _finite_or_zero(points: Array) -> Array:

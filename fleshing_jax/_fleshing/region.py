@@ -45,8 +45,6 @@ Lines (no cut locus) and arcs (the axis, `1 − k·d > δ κ`; wrapping handled 
 
 from __future__ import annotations
 
-from collections.abc import Callable
-
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -155,26 +153,25 @@ class ValidRegion(eqx.Module):
         return c, norm(x - c), i
 
 
-def clear_where(
-    needed: Array, region: ValidRegion, point: Callable, values: Array, inputs: PyTree
-) -> Array:
-    """`values` (n,) bool with entry `i` replaced by `region.clear(*point(inputs[i]))` wherever
-    `needed[i]` (`update_where`): the pruned test first, the sampled one on the points it does
-    not certify only (on spot's head, none of them)."""
+def clear_where(needed: Array, region: ValidRegion, values: Array, inputs: PyTree) -> Array:
+    """`values` (n,) bool with entry `i` replaced by `region.clear(*inputs[i])` wherever
+    `needed[i]` (`update_where`), `inputs` the points' images and their arc lengths on the
+    target (`((n, 3), (n,))`, as they were placed: never bent again here): the pruned test
+    first, the sampled one on the points it does not certify only (on spot's head, none)."""
 
     def surely(one):
-        return region.surely_clear(*point(one))
+        return region.surely_clear(*one)
 
     # Cheap a point: in larger chunks than the sampled test's, fewer trips of the loop.
     sure = update_where(needed, surely, jnp.zeros_like(needed), inputs, chunk=SURE_CHUNK)
-    return update_where(needed & ~sure, lambda one: region.clear(*point(one)), values | sure,
+    return update_where(needed & ~sure, lambda one: region.clear(*one), values | sure,
                         inputs)
 
 
-def clear_all(region: ValidRegion, point: Callable, inputs: PyTree) -> Array:
-    """`region.clear(*point(inputs[i]))` for every `i` (n,): `clear_where` on all of them."""
+def clear_all(region: ValidRegion, inputs: PyTree) -> Array:
+    """`region.clear(*inputs[i])` for every `i` (n,): `clear_where` on all of them."""
     none = jnp.zeros(jax.tree.leaves(inputs)[0].shape[0], bool)
-    return clear_where(~none, region, point, none, inputs)
+    return clear_where(~none, region, none, inputs)
 
 
 def closed_form_clear(offset: Array, curvature: Array, margin: Array) -> Array:
