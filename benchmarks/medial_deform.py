@@ -22,8 +22,9 @@ Prints Markdown tables:
    distance `d` to the bent (or twisted) axis.
 2. Speed (`--speed`: this table only): binding a capsule of about 30k vertices to medial
    meshes of 200 and 300 spheres; one frame (ARAP on about 300 spheres +
-   skin of about 100k vertices, float32, one compiled program) and its parts, medians of 20
-   after compilation.
+   skin of about 100k vertices, float32, one compiled program) and its parts; one frame of
+   spot (2,930 vertices, 200 spheres), ARAP from its first guess or warm from the previous
+   frame; medians of 20 after compilation.
 """
 
 from __future__ import annotations
@@ -221,15 +222,56 @@ def speed():
     for m, seconds in bindings:
         print(f"| binding (`MedialRig`) | {len(mesh.vertices)} vertices, {m.centers.shape[0]} "
               f"spheres, {m.faces.shape[0]} slabs | {seconds:.2f} s |")
+    size = f"{len(centers)} spheres, {len(big.vertices)} vertices"
     for name, (call, argument) in calls.items():
-        jax.block_until_ready(call(argument))
-        times = []
-        for _ in range(20):
-            start = time.perf_counter()
-            jax.block_until_ready(call(argument))
-            times.append(time.perf_counter() - start)
-        print(f"| {name}, float32 | {len(centers)} spheres, {len(big.vertices)} vertices "
-              f"| {1e3 * np.median(times):.1f} ms |", flush=True)
+        _timed(name, size, call, argument)
+    spot_frames()
+
+
+def _timed(name, size, call, *arguments, repeats=20):
+    """Prints the median of `repeats` calls after the first (compilation)."""
+    jax.block_until_ready(call(*arguments))
+    times = []
+    for _ in range(repeats):
+        start = time.perf_counter()
+        jax.block_until_ready(call(*arguments))
+        times.append(time.perf_counter() - start)
+    print(f"| {name}, float32 | {size} | {1e3 * np.median(times):.2f} ms |", flush=True)
+
+
+def spot_frames():
+    """A frame of spot (2,930 vertices, 200 spheres; its head turned 30° about the neck, the
+    rump held, the body between free): ARAP from the first guess (20 iterations) or warm
+    from the previous frame (`start`, 3 iterations), then the skin."""
+    spot = fj.data.spot()
+    medial = fj.medial_mesh(spot, 200, progress=False)
+    rig = fj.MedialRig(spot.vertices, medial, faces=spot.faces)
+    c = np.asarray(medial.centers)
+    head = np.flatnonzero((c[:, 2] < -0.35) & (c[:, 1] > 0.0))
+    handles = np.r_[head, np.setdiff1d(np.flatnonzero(c[:, 2] > 0.6), head)]
+    turn = _rotation([0, 1, 0], np.radians(30))
+    pivot = np.array([0.0, 0.3, -0.3])
+    targets = c[handles].copy()
+    targets[: len(head)] = (c[head] - pivot) @ turn.T + pivot
+    targets = jnp.asarray(targets, jnp.float32)
+    rotations = jnp.asarray(np.stack([turn] * len(head) + [np.eye(3)] * (len(handles)
+                                                                        - len(head))), jnp.float32)
+    previous = fj.arap_medial(medial, handles, targets, rotations=rotations)
+    size = f"spot, {len(c)} spheres, {len(spot.vertices)} vertices"
+
+    def frame(t, r, start=None, iterations=fj.arap_medial.__kwdefaults__["iterations"]):
+        return rig.pose(fj.arap_medial(medial, handles, t, rotations=r, start=start,
+                                       iterations=iterations), "medial")
+
+    _timed("frame: ARAP (20 iterations) + skin (medial, implicit)", size, jax.jit(frame),
+           targets, rotations)
+    _timed("frame: ARAP (warm, 3 iterations) + skin (medial, implicit)", size,
+           jax.jit(lambda t, r, s: frame(t, r, s, 3)), targets, rotations, previous)
+    _timed("ARAP alone (warm, 3 iterations)", size, jax.jit(
+        lambda t, r, s: fj.arap_medial(medial, handles, t, rotations=r, start=s,
+                                       iterations=3).centers), targets, rotations, previous)
+    _timed("skin alone (medial, implicit)", size, jax.jit(lambda p: rig.pose(p, "medial")),
+           previous)
 
 
 if __name__ == "__main__":

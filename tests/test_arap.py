@@ -225,6 +225,25 @@ def test_solvers_reach_the_same_minimum():
     assert np.argmax(gap_local < 1e-4) > 3 * np.argmax(gap_global < 1e-4)
 
 
+def test_warm_start_tracks_a_bend_in_few_iterations():
+    """A bend animated 10° a frame, each frame 3 iterations from the previous one: every
+    frame at least as near its minimum energy as 3 iterations from the first guess, the
+    last under 0.6 times as far (measured: 1.8e-3 against 3.9e-3 of the minimum); a
+    converged pose is a fixed point of the warm start."""
+    pose = fj.arap_medial(CHAIN, ENDS, np.asarray(CHAIN.centers)[ENDS])
+    for angle in np.radians(np.arange(10, 91, 10)):
+        targets, _ = _bend_targets(angle)
+        pose, warm = arap_energies(CHAIN, ENDS, targets, iterations=3, start=pose)
+        cold = arap_energies(CHAIN, ENDS, targets, iterations=3)[1]
+        converged, energies = arap_energies(CHAIN, ENDS, targets, iterations=200)
+        gap_warm, gap_cold = warm[-1] - energies[-1], cold[-1] - energies[-1]
+        assert gap_warm <= gap_cold * (1 + 1e-9)
+    assert gap_warm < 0.6 * gap_cold
+    again = fj.arap_medial(CHAIN, ENDS, targets, iterations=3, start=converged)
+    np.testing.assert_allclose(again.centers, converged.centers, atol=1e-9)
+    np.testing.assert_allclose(again.rotations, converged.rotations, atol=1e-9)
+
+
 def test_colour_table_rows_are_colours():
     # The solver sweeps the colours as rows of one table: every sphere in exactly one row,
     # the padding repeats a sphere of its own row, and no edge joins two spheres of a row.
@@ -340,6 +359,10 @@ def test_bad_input():
     _raises("handles.*component of spheres 10, 11.*has none", split, ENDS[:5], t[:5])
     with pytest.raises(TypeError, match="medial"):
         fj.arap_medial(c, ENDS, t)
+    with pytest.raises(TypeError, match="start.*MedialPose"):
+        fj.arap_medial(CHAIN, ENDS, t, start=np.eye(3))
+    _raises("start.*pose of `medial`", CHAIN, ENDS, t, start=fj.MedialPose(
+        _chain(21), np.asarray(_chain(21).centers), np.broadcast_to(np.eye(3), (21, 3, 3))))
     with pytest.raises(ValueError, match="handles.*concrete"):
         jax.jit(lambda h: fj.arap_medial(CHAIN, h, t))(ENDS)
 

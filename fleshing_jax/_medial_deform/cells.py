@@ -21,11 +21,11 @@ with `t_i` the centroid of cell `i` (rest `t⁰_i`) and `w_ij = smoothness · |c
 
 Everything here depends on the topology, the rest centres and the handles only: the padded
 index arrays of the cells, a colouring of the medial graph (cells of one colour share no edge,
-so their rotations are fitted together, exactly, in a Gauss–Seidel sweep), and the Cholesky
-factors of the two systems the solver meets: the centres' normal equations with the handles
-fixed, and the graph Laplacian that interpolates the handles' rotations (as quaternions) for
-the first guess. Dense factors: fine for the few hundred to few thousand spheres of a medial
-mesh (`MAX_SPHERES`).
+so their rotations are fitted together, exactly, in a Gauss–Seidel sweep), and the solutions
+of the two systems the solver meets, as dense matrices (`_inverse`): the centres' normal
+equations with the handles fixed, and the graph Laplacian that interpolates the handles'
+rotations (as quaternions) for the first guess. Dense: fine for the few hundred to few
+thousand spheres of a medial mesh (`MAX_SPHERES`).
 """
 
 from __future__ import annotations
@@ -67,10 +67,12 @@ class ArapCells(eqx.Module):
       padded with repeats of its first sphere (a sphere fitted twice in one colour gets
       the same rotation twice).
     - `handles`, `free`: `(h,)` and `(f,)` sphere indices.
-    - `factor`, `coupling`: lower Cholesky factor of the centres' system restricted to the
-      free spheres `L_ff` `(f, f)`, and the block `L_fh` `(f, h)`.
-    - `q_factor`, `q_coupling`: the same for the weighted graph Laplacian of the smoothness
-      term (harmonic interpolation of the handles' rotations).
+    - `inverse`, `coupling`: the inverse `L_ff⁻¹` `(f, f)` of the centres' system restricted
+      to the free spheres, and `L_ff⁻¹ L_fh` `(f, h)`, so that the free centres' solve is
+      `inverse @ b_f − coupling @ u_h` (computed in float64, then cast).
+    - `q_coupling`: the same `A_ff⁻¹ A_fh` `(f, h)` of the weighted graph Laplacian `A` of
+      the smoothness term: the harmonic interpolation of the handles' rotations is
+      `−q_coupling @ q_h`.
     """
 
     rest: Float[Array, "n 3"]
@@ -86,9 +88,8 @@ class ArapCells(eqx.Module):
     colours: Int[Array, "C m"]
     handles: Int[Array, " h"]
     free: Int[Array, " f"]
-    factor: Float[Array, "f f"]
+    inverse: Float[Array, "f f"]
     coupling: Float[Array, "f h"]
-    q_factor: Float[Array, "f f"]
     q_coupling: Float[Array, "f h"]
 
 
@@ -149,11 +150,21 @@ def _colour_table(colours: list[np.ndarray]) -> np.ndarray:
     return np.stack([np.r_[c, np.full(width - len(c), c[0])] for c in colours])
 
 
-def _cholesky(matrix: np.ndarray, free: np.ndarray, handles: np.ndarray):
-    """Lower Cholesky factor of `matrix[free, free]` and the block `matrix[free, handles]`."""
+def _inverse(matrix: np.ndarray, free: np.ndarray, handles: np.ndarray):
+    """`A⁻¹` and `A⁻¹ B` for `A = matrix[free, free]` (symmetric positive definite) and
+    `B = matrix[free, handles]`, by a Cholesky factorisation in float64.
+
+    Why an inverse, not the factor: the solver meets the same system at every iteration,
+    with a few right-hand sides; two triangular solves of a 122-row factor (spot at 200
+    spheres) took XLA's CPU backend 77 µs an iteration, a product with the inverse a few,
+    and the inverse rounded once to float32 is as accurate as the solves in float32."""
     block = matrix[np.ix_(free, free)]
-    factor = scipy.linalg.cholesky(block, lower=True) if len(free) else block
-    return factor, matrix[np.ix_(free, handles)]
+    coupling = matrix[np.ix_(free, handles)]
+    if not len(free):
+        return block, coupling
+    factor = scipy.linalg.cho_factor(block, lower=True)
+    return (scipy.linalg.cho_solve(factor, np.eye(len(free))),
+            scipy.linalg.cho_solve(factor, coupling))
 
 
 def arap_cells(rest: np.ndarray, edges: np.ndarray, handles: np.ndarray, smoothness: float,
@@ -211,8 +222,8 @@ def arap_cells(rest: np.ndarray, edges: np.ndarray, handles: np.ndarray, smoothn
     laplacian[np.arange(n), np.arange(n)] += weights.sum(1)
 
     free = np.flatnonzero(~is_handle)
-    factor, coupling = _cholesky(system, free, handles)
-    q_factor, q_coupling = _cholesky(laplacian, free, handles)
+    inverse, coupling = _inverse(system, free, handles)
+    q_coupling = _inverse(laplacian, free, handles)[1]
 
     # NumPy leaves: the cells are cached across calls, also from inside traced functions,
     # and `solve` converts them (a JAX array made here under a trace would leak).
@@ -227,6 +238,6 @@ def arap_cells(rest: np.ndarray, edges: np.ndarray, handles: np.ndarray, smoothn
         handle_offsets=f(handle_offsets), owners=i(owners), owner_offsets=f(owner_offsets),
         neighbours=i(neighbours), weights=f(weights), proximal=f(proximal),
         colours=i(_colour_table(_colouring(adjacency))),
-        handles=i(handles), free=i(free), factor=f(factor), coupling=f(coupling),
-        q_factor=f(q_factor), q_coupling=f(q_coupling),
+        handles=i(handles), free=i(free), inverse=f(inverse), coupling=f(coupling),
+        q_coupling=f(q_coupling),
     )
