@@ -431,3 +431,28 @@ def test_a_skeleton_built_on_its_own_medial_mesh_is_never_refused():
     for k in range(len(skeleton.limbs)):
         n = registration.indices[k].shape[0]
         assert np.asarray(registration.registrations[k].valid)[:n].all(), f"limb {k}"
+
+
+def test_an_arm_hanging_beside_the_torso_bends_from_its_armpit():
+    """An arm hanging down beside the torso, a gap of 0.02 between them below the armpit
+    (cheburashka's arms): the arm's region, within its spine's reach, missed the upper
+    arm's outer side and took part of the flank facing it, so the body ran down the arm to
+    its wrist; levelling the border across the arm then grew over the flank as well, down
+    past the hand, and was refused. The flank faces the arm's spine and stays the body's:
+    the chain's top bends from the armpit (z ≈ 0.62), not halfway down the arm (0.55)."""
+    from fleshing_jax._medial_axis.characters import _Builder
+
+    b = _Builder()  # a torso of radius 0.12 along z, arms of ~0.035 at y = ±0.18
+    torso = b.chain(None, [(0, 0, 0.3, 0.12), (0, 0, 0.5, 0.12), (0, 0, 0.7, 0.12)])
+    for side in (-1, 1):
+        b.chain(torso, [(0, side * 0.13, 0.74, 0.05), (0, side * 0.18, 0.64, 0.04),
+                        (0, side * 0.18, 0.52, 0.036), (0, side * 0.18, 0.4, 0.033),
+                        (0, side * 0.18, 0.3, 0.033)])  # fmt: skip
+    medial = b.medial()
+    mesh = medial.envelope(34)  # 8,686 vertices; the gap 1.1 grid cells
+    skeleton = fj.skeleton(mesh, medial=medial)
+    tops = skeleton.children(-1)
+    assert len(tops) == 2
+    for top in tops:
+        limb = skeleton.limbs[top]
+        assert float(np.asarray(limb.spine(limb.joint))[2]) > 0.58, top

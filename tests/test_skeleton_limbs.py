@@ -116,7 +116,7 @@ def test_a_slanted_border_with_the_body_is_levelled_across_the_limb():
     from _posing_shapes import tube_mesh
 
     import fleshing_jax as fj
-    from fleshing_jax._skeleton.regions import levelled, mesh_adjacency
+    from fleshing_jax._skeleton.regions import levelled, mesh_adjacency, vertex_normals
 
     mesh = tube_mesh()  # radius 0.3, along x from 0 to 6
     vertices = np.asarray(mesh.vertices)
@@ -128,7 +128,8 @@ def test_a_slanted_border_with_the_body_is_levelled_across_the_limb():
     limbs = [fj.Limb(spine, 1.4 + 1e-9, -1),  # the old border's last vertex, x = 4.4
               fj.Limb(fj.Line(0.8, origin=(5.2, 0.0, 0.0)), 0.35, 0)]
     adjacency = mesh_adjacency(vertices, np.asarray(mesh.faces))
-    out_limbs, out_region = levelled(limbs, region, vertices, adjacency, tops=[0])
+    normals = vertex_normals(vertices, np.asarray(mesh.faces))
+    out_limbs, out_region = levelled(limbs, region, vertices, normals, adjacency, tops=[0])
     changed = out_region != region
     assert changed.any() and np.all(region[changed] == -1) and np.all(out_region[changed] == 0)
     assert np.array_equal(out_region == 1, region == 1)
@@ -182,7 +183,7 @@ def test_a_slanted_border_with_a_parent_limb_is_levelled_at_a_chain_s_top_only()
     from _posing_shapes import tube_mesh
 
     import fleshing_jax as fj
-    from fleshing_jax._skeleton.regions import levelled, mesh_adjacency
+    from fleshing_jax._skeleton.regions import levelled, mesh_adjacency, vertex_normals
 
     mesh = tube_mesh()  # radius 0.3, along x from 0 to 6, rings 0.1 apart
     vertices = np.asarray(mesh.vertices)
@@ -193,19 +194,21 @@ def test_a_slanted_border_with_a_parent_limb_is_levelled_at_a_chain_s_top_only()
     limbs = [fj.Limb(fj.Line(5.0, origin=(1.0, 0.0, 0.0)), 1.0 + 1e-9, -1),
              fj.Limb(fj.Line(3.0, origin=(3.0, 0.0, 0.0)), 1.4 + 1e-9, 0)]
     adjacency = mesh_adjacency(vertices, np.asarray(mesh.faces))
-    out_limbs, out_region = levelled(limbs, region, vertices, adjacency, tops=[0, 1])
+    normals = vertex_normals(vertices, np.asarray(mesh.faces))
+    out_limbs, out_region = levelled(limbs, region, vertices, normals, adjacency, tops=[0, 1])
     changed = out_region != region
     assert changed.any() and np.all(region[changed] == 0) and np.all(out_region[changed] == 1)
     assert vertices[out_region == 0][:, 0].max() < 4.0 + 0.11  # across the tube at x = 4
     assert float(out_limbs[1].joint) < 1.0 + 0.21 < float(limbs[1].joint) - 0.15
     assert out_limbs[0] is limbs[0]  # (its border with the body was level already)
     # The same limb as a chain's lower piece: left as it is.
-    out_limbs, out_region = levelled(limbs, region, vertices, adjacency, tops=[0])
+    out_limbs, out_region = levelled(limbs, region, vertices, normals, adjacency, tops=[0])
     assert np.array_equal(out_region, region) and out_limbs[1] is limbs[1]
     # A sibling in the slanted zone (a horn beside an ear, spot at 60 spheres), which the
     # ear's growth would enclose, bordering the ear alone: the ear is left as it is.
     beside = region.copy()
     beside[(np.abs(x - 4.3) < 1e-9) & (y > 0.29)] = 2  # a vertex ringed by the slant zone
     horn = fj.Limb(fj.Line(1.0, origin=(4.3, 0.0, 0.0)), 0.1, 0)
-    out_limbs, out_region = levelled([*limbs, horn], beside, vertices, adjacency, tops=[0, 1])
+    out_limbs, out_region = levelled([*limbs, horn], beside, vertices, normals, adjacency,
+                                     tops=[0, 1])
     assert np.array_equal(out_region, beside) and out_limbs[1] is limbs[1]

@@ -19,7 +19,7 @@ from .fit import nearest_spheres, sphere_gaps, spine_from_unit
 from .given import given_limbs
 from .limb_fit import fit_limb
 from .limbs import ROUTES, find_limbs
-from .regions import levelled, mesh_adjacency, spine_samples
+from .regions import levelled, mesh_adjacency, spine_samples, vertex_normals
 from .skeleton import Limb, Skeleton, descendants, merge_limb
 from .visible import FEWEST, box_diagonal, moves_visibly, visible
 
@@ -200,8 +200,8 @@ def _found_limbs(vertices, faces, medial, spheres, seed, adjacency, margin):
         centers, radii, edges, _ = medial.numpy()
         centers, radii = frame.to_unit(centers), radii / frame.scale
     _check_belongs(centers, radii, unit)
-    limbs, region = _unit_limbs(unit, centers, radii, edges, adjacency,
-                                0.5 * longest_edge(unit, faces))  # fmt: skip
+    limbs, region = _unit_limbs(unit, vertex_normals(unit, faces), centers, radii, edges,
+                                adjacency, 0.5 * longest_edge(unit, faces))  # fmt: skip
     return [_from_unit(limb, frame) for limb in limbs], region
 
 
@@ -211,8 +211,9 @@ def _from_unit(limb: Limb, frame: UnitFrame) -> Limb:
     return Limb(spine_from_unit(limb.spine, frame), frame.scale * float(limb.joint), limb.parent)
 
 
-def _unit_limbs(vertices, centers, radii, edges, adjacency, margin):
-    """`_found_limbs`'s limbs and region, in the unit frame."""
+def _unit_limbs(vertices, normals, centers, radii, edges, adjacency, margin):
+    """`_found_limbs`'s limbs and region, in the unit frame (`normals`: (n, 3), the vertices'
+    outward normals)."""
     found_limbs = find_limbs(centers, radii, edges)
     nearest = nearest_spheres(vertices, centers, radii)
     empty = _Fitted(np.full(len(vertices), -1), [], {}, [], set())
@@ -251,7 +252,7 @@ def _unit_limbs(vertices, centers, radii, edges, adjacency, margin):
     # Levelled first: a bend moves what lies past the joint, which a slanted border put far
     # out (spot's ear at seed 0: 27 vertices past its joint at 67 % of its spine, within 3.8 %
     # of the diagonal from it; levelled, at 33 %).
-    limbs, region = levelled(limbs, region, vertices, adjacency, tops)
+    limbs, region = levelled(limbs, region, vertices, normals, adjacency, tops)
     limbs, region = visible(limbs, region, vertices)
     return _room_to_bend(limbs, region, vertices, adjacency)
 

@@ -11,7 +11,8 @@ The joint is then the largest arc length of the region's border vertices (at lea
 so that a bend starting there leaves the border still; a limb with less than its radius left
 to bend beyond its joint is none (a knob). Last, a chain's top's slanted border with its
 parent (the body, or a head for an ear) is levelled across its spine (`levelled`): the joint
-rises to the border's top.
+rises to the border's top, over the parent's vertices that face away from the spine (the
+limb's own outer side, not a flank across a gap from it).
 """
 
 from __future__ import annotations
@@ -111,13 +112,25 @@ def limb_region(spine, cut: float, tip: np.ndarray, arc, radius, vertices, adjac
     return LimbRegion(region, joint)
 
 
-def levelled(limbs: list, region: np.ndarray, vertices: np.ndarray, adjacency, tops):
+def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """(n, 3) unit normals of a mesh's vertices (its faces' normals weighted by their areas;
+    outwards for faces oriented outwards, as `closed_mesh_arrays` gives them)."""
+    face = np.cross(vertices[faces[:, 1]] - vertices[faces[:, 0]],
+                    vertices[faces[:, 2]] - vertices[faces[:, 0]])  # fmt: skip
+    summed = np.stack([sum(np.bincount(faces[:, c], face[:, d], len(vertices)) for c in range(3))
+                       for d in range(3)], axis=1)  # fmt: skip
+    return summed / np.maximum(np.linalg.norm(summed, axis=1, keepdims=True), 1e-300)
+
+
+def levelled(limbs: list, region: np.ndarray, vertices: np.ndarray, normals: np.ndarray,
+             adjacency, tops):
     """`(limbs, region)` with each limb of `tops` (the top of each chain: a limb that leaves
     the body or another limb's region, not a piece of a chain below its joint) grown, ring
     by ring from its border, over its parent's vertices (the body's, or its parent limb's)
     that project on its spine past the border's top (its least arc length) within `LEVEL`
     times the limb's thickness there (its own vertices' largest distance from the spine
-    between the border's top and bottom); its joint then the new border's last arc length.
+    between the border's top and bottom) and face away from the spine (`normals`: (n, 3),
+    the vertices' outward normals); its joint then the new border's last arc length.
 
     A leg meeting a belly at a slant (spot's front legs: the body runs down the shoulder's
     outer side 60 % of the leg) puts the joint past the border's lowest vertex, so that a
@@ -128,6 +141,15 @@ def levelled(limbs: list, region: np.ndarray, vertices: np.ndarray, adjacency, t
     its spine, the joint at 67 % → 33 %). Only the parent's vertices move: siblings and
     children keep their regions. The parent keeps its region's largest connected part
     (pieces the growth cuts off go with the limb).
+
+    A vertex facing the spine lies across a gap from the limb, on a neighbouring surface,
+    and is the parent's: the limb's own such vertices (touching no third region) go back to
+    it first, ring by ring from it, and the growth passes over none. An arm hanging beside
+    the torso (cheburashka's) lies within reach of the flank, which faces it: the arm's
+    region, within `REACH` medial radii of its spine, missed the upper arm's outer side (the
+    body ran down it to 66 % of the spine) and took flank vertices (bordering the body at
+    49 %); levelled over the flank too, the border ran down past the hand and was refused,
+    and the arm bent from the wrist. Now from the armpit: 66 % → 39 %, 44 % → 31 %.
     """
     limbs, region = list(limbs), region.copy()
     for k in sorted(tops):  # (parents first: a limb's region is final when its children grow)
@@ -141,7 +163,19 @@ def levelled(limbs: list, region: np.ndarray, vertices: np.ndarray, adjacency, t
             continue
         top, bottom = along[border].min(), along[border].max()
         span = member & (along >= top) & (along <= bottom)
-        near = distance <= LEVEL * distance[span].max()
+        outwards = np.einsum("ij,ij->i", normals, vertices - points[nearest]) > 0
+        near = (distance <= LEVEL * distance[span].max()) & outwards
+        # Its own vertices facing the spine past the border's top (the flank's within its
+        # spine's reach) go back to the parent, ring by ring from it; not those touching a
+        # third region (a child's: it would border the parent, before the limb's joint).
+        others = adjacency @ ((region != k) & (region != limb.parent)).astype(float) > 0
+        for _ in range(64):
+            back = (member & ~outwards & ~others & (along > top)
+                    & (adjacency @ rest.astype(float) > 0))  # fmt: skip
+            if not back.any():
+                break
+            member &= ~back
+            rest |= back
         for _ in range(64):  # (a ring a step; a slanted border is a few rings tall)
             grow = rest & near & (along > top) & (adjacency @ member.astype(float) > 0)
             if not grow.any():
@@ -157,6 +191,7 @@ def levelled(limbs: list, region: np.ndarray, vertices: np.ndarray, adjacency, t
         joint = float(along[border].max()) + 1e-9 * float(s[-1])
         grown = region.copy()
         grown[(region == limb.parent) & ~rest] = k
+        grown[(region == k) & rest] = limb.parent
         # Kept only where the joint rises and every other region bordering the parent still
         # does (spot at 60 spheres: an ear's growth enclosed a horn beside it, which then
         # bordered the ear alone).
