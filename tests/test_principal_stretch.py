@@ -24,8 +24,11 @@ def test_the_singular_values_of_the_map_s_jacobian():
     fleshing = fj.Fleshing(BASE, BENT)
     stretch = np.asarray(fj.principal_stretch(fleshing, POINTS))
     assert np.all(np.isfinite(stretch)) and stretch.max() > 1.15  # a real bend squeezes
+    # The differences of the same map without its projection check, which only flags points
+    # (these are valid): a one-point program of half the size (compiled in 2.7 s, not 5.6).
+    unchecked = fj.Fleshing(BASE, BENT, check_projection=False)
     for i in range(0, 24, 6):
-        assert stretch[i] == pytest.approx(_finite_difference_stretch(fleshing, POINTS[i]),
+        assert stretch[i] == pytest.approx(_finite_difference_stretch(unchecked, POINTS[i]),
                                            rel=1e-6)
     # The map's own squeezing grows with the bend; a spine onto itself does not squeeze.
     sharper = fj.BentSpine(BASE, joint=0.5, bend=2.0, direction=0.3, twist=0.2)
