@@ -6,6 +6,9 @@ vertices, a chain of 9 spheres) and the pose programs few (one per method and im
 shared across tests), so that the file runs in well under a minute.
 """
 
+import dataclasses
+
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -20,6 +23,7 @@ from fleshing_jax._medial_deform.footprint import segment_footprint, slab_footpr
 from fleshing_jax._medial_deform.implicit import cone_field, cone_table, slab_field, slab_table
 from fleshing_jax._medial_deform.pose import MedialPose
 from fleshing_jax._medial_deform.rig import METHODS, MedialRig
+from fleshing_jax._medial_deform.still import SIZE, still_blocks
 
 RADIUS, LENGTH, SPHERES = 0.5, 4.0, 9
 
@@ -168,6 +172,30 @@ def test_rest_and_rigid_poses(capsule, method, implicit):
                        jnp.asarray(np.broadcast_to(rotation, (SPHERES, 3, 3))))
     x, _ = rig.pose(posed, method, implicit=implicit)
     assert np.abs(np.asarray(x) - (v @ rotation.T + shift)).max() <= 1e-4
+
+
+def test_still_blocks_keep_their_skinned_vertices(capsule):
+    """Spheres 0-6 held at rest, 7-8 turned about sphere 7 as one body: the blocks whose
+    spheres all move as one (`still`) keep their skinned vertices, where the full correction
+    (a rig without blocks) moves them by round-off only; the others are corrected."""
+    mesh, medial, rig = capsule
+    c = np.asarray(medial.centers)
+    turn = rot_y(0.6)
+    centers = np.concatenate([c[:7], (c[7:] - c[7]) @ turn.T + c[7]])
+    posed = MedialPose(medial, jnp.asarray(centers),
+                       jnp.asarray(np.stack([np.eye(3)] * 7 + [turn] * 2)))
+    still = np.asarray(still_blocks(rig.correction.blocks, rig.rest_centers, posed.centers,
+                                    posed.rotations))
+    assert still.any() and not still.all()
+    kept = still[np.asarray(rig.correction.rank)[np.asarray(rig.welded)] // SIZE]
+    skinned = np.asarray(rig.pose(posed, "medial", implicit=False)[0])
+    x = np.asarray(rig.pose(posed, "medial")[0])
+    np.testing.assert_array_equal(x[kept], skinned[kept])
+    full = eqx.tree_at(lambda r: r.correction, rig,
+                       dataclasses.replace(rig.correction, blocks=None))
+    np.testing.assert_allclose(x, full.pose(posed, "medial")[0], rtol=0,
+                               atol=1e-12 * diagonal(mesh.vertices))
+    assert np.abs(x - skinned)[~kept].max() > 1e-4 * diagonal(mesh.vertices)
 
 
 @pytest.mark.parametrize("angle", [np.pi / 2, np.pi])

@@ -32,9 +32,10 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, Float, Int
+from jaxtyping import Array, Bool, Float, Int
 
 from .._numerics import dot, norm, safe_divide, safe_sqrt, weighted_sum
+from .still import SIZE
 
 BLOCK = 1024  # vertices per block of the field's evaluation (see `correct`)
 
@@ -257,6 +258,9 @@ class Correction(eqx.Module):
     ring: Int[Array, "n w"] | None
     ring_weights: Float[Array, "n w"] | None
     laplacian: Float[Array, "n 3"] | None
+    order: Int[Array, " n"] | None = None
+    rank: Int[Array, " n"] | None = None
+    blocks: Int[Array, "b s"] | None = None
 
 
 def correct(
@@ -272,10 +276,13 @@ def correct(
     relax_iterations: int,
     relax_step: float,
     contact_angle: float,
+    still: Bool[Array, " b"] | None = None,
 ) -> tuple[Array, Array]:
     """Implicit-skinning correction of skinned vertices on the posed envelope
-    `(centers, radii)`. **Returns:** `(vertices (n, 3), contact (n,))`, `contact` where a
-    vertex was stopped by the gradient test."""
+    `(centers, radii)`. `still`: optional `(b,)` flags of the blocks of `data.blocks` whose
+    spheres move as one rigid body (`still.still_blocks`): their vertices are left as
+    skinned (the correction would move them by round-off). **Returns:** `(vertices (n, 3),
+    contact (n,))`, `contact` where a vertex was stopped by the gradient test."""
     # The per-primitive tables are small (a few hundred rows), packed into one array each
     # (`pack_rows`) and gathered inside each evaluation, where XLA fuses the gathers with the
     # arithmetic (as fast as gathering the (vertices, candidates) rows once, measured,
@@ -292,25 +299,44 @@ def correct(
         return field(p, width, jax.tree.map(lambda a: a[:kc], rows),
                      jax.tree.map(lambda a: a[kc:], rows), slabs, slots)
 
+    n = skinned.shape[0]
+    skipping = still is not None and data.blocks is not None
     # The vertices padded to whole blocks (copies of the last one, dropped from the output):
     # `lax.map` then runs one traced block, where a remainder traced and compiled the field a
-    # second time.
-    n = skinned.shape[0]
-    block = min(BLOCK, n)
+    # second time. Skipping still blocks, the vertices are taken in their blocks' order.
+    block = SIZE if skipping else min(BLOCK, n)
     pad = -n % block
 
     def padded(a):
+        a = a[data.order] if skipping else a
         return jnp.concatenate([a, jnp.broadcast_to(a[-1:], (pad, *a.shape[1:]))]) if pad else a
 
-    per_vertex = [padded(a) for a in (data.width, data.field_cones, data.edge_cones,
-                                      data.field_slabs, data.edge_slots)]
+    def blocked(a):
+        return padded(a).reshape((n + pad) // block, block, *a.shape[1:])
 
-    def evaluate(x):
+    per_vertex = [blocked(a) for a in (data.width, data.field_cones, data.edge_cones,
+                                       data.field_slabs, data.edge_slots)]
+    if skipping:
+        iso = blocked(data.iso)
+        fixed = still[data.rank // block]  # each vertex's block is still
+
+    def evaluate(x, g_prev):
         # In blocks of vertices (a loop, each block vectorised): the (block, candidates)
         # temporaries XLA materialises between its fused kernels then stay in cache, where
         # over all vertices at once they go through memory (measured in benchmarks/README.md).
-        f, g = jax.lax.map(lambda a: one(*a), (padded(x), *per_vertex), batch_size=block)
-        return f[:n], g[:n]
+        if not skipping:
+            f, g = jax.lax.map(lambda a: jax.vmap(one)(*a), (blocked(x), *per_vertex))
+            return f.reshape(-1)[:n], g.reshape(-1, 3)[:n]
+
+        # A still block keeps its vertices: its field is their iso-value, its gradient the
+        # previous one (no Newton step, no turn for the angle test).
+        def one_block(a):
+            skip, f_still, g_still, *rest = a
+            return jax.lax.cond(skip, lambda: (f_still, g_still),
+                                lambda: jax.vmap(one)(*rest))
+
+        f, g = jax.lax.map(one_block, (still, iso, blocked(g_prev), blocked(x), *per_vertex))
+        return f.reshape(-1)[data.rank], g.reshape(-1, 3)[data.rank]
 
     cos_max = jnp.cos(jnp.deg2rad(contact_angle)).astype(skinned.dtype)
     relaxing = data.ring is not None and relax_iterations > 0
@@ -323,7 +349,7 @@ def correct(
     g, tested_first = jnp.zeros_like(x), False
     if relaxing:
         if newton_steps == 0:
-            (_, g), tested_first = evaluate(x), True
+            (_, g), tested_first = evaluate(x, g), True
         # (Explicit sums of products, not `einsum` or `jnp.sum` over the short axes: see
         # `weighted_sum`.)
         delta = dot(rotations, data.laplacian[:, None, :])
@@ -336,8 +362,11 @@ def correct(
             ring = jax.vmap(weighted_sum)(data.ring_weights, x[data.ring])
             move = ring + delta - x
             move = move - dot(move, g_prev)[:, None] * g_prev
-            x = jnp.where((active & (k >= newton_steps))[:, None], x + relax_step * move, x)
-        f, g = evaluate(x)
+            moving = active & (k >= newton_steps)
+            if skipping:
+                moving = moving & ~fixed
+            x = jnp.where(moving[:, None], x + relax_step * move, x)
+        f, g = evaluate(x, g_prev)
         # The angle test of Vaillant et al. on unit gradients; a smooth union's gradient can
         # be short where two primitives' gradients oppose, so the step's denominator is kept
         # away from 0 (it is 1 wherever one primitive dominates).

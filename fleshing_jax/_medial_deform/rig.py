@@ -55,6 +55,7 @@ from .implicit import Correction, correct
 from .pose import MedialPose
 from .quaternions import matrix_from_quaternion
 from .skin import blend_quaternion, dqs_vertex, lbs_vertex, medial_vertex, sphere_motions
+from .still import block_spheres, morton_order, still_blocks
 
 METHODS = ("medial", "lbs", "dqs")
 RING = 8  # neighbours per vertex in the relaxation's one-ring table
@@ -289,9 +290,16 @@ class MedialRig(eqx.Module):
         self.spheres, self.beta, self.offset = i_(b.spheres), f_(b.beta), f_(b.offset)
         self.rotation_spheres, self.rotation_weights = i_(idx), f_(weights)
         self.cones, self.medial_faces = i_(b.cones), i_(mfaces)
+        # The spheres each point reads, for the correction's skip of still blocks (`still`).
+        reads = np.concatenate([b.spheres, idx, b.cones[b.field_cones].reshape(m, -1),
+                                b.cones[b.edge_cones].reshape(m, -1),
+                                mfaces[b.field_slabs].reshape(m, -1)], axis=1)
+        order = morton_order(rest)
         self.correction = Correction(i_(b.field_cones), i_(b.edge_cones), i_(b.field_slabs),
                                      i_(b.edge_slots), f_(b.iso), f_(b.width), i_(table),
-                                     f_(table_weights), f_(laplacian))
+                                     f_(table_weights), f_(laplacian), i_(order),
+                                     i_(np.argsort(order)),
+                                     i_(block_spheres(order, reads, table)))
         self.faces = i_(f)
         self.medial_key = np.frombuffer(bytes.fromhex(medial.fingerprint()), np.uint8).copy()
         self.n_spheres = len(centers)
@@ -361,9 +369,13 @@ def _pose(rig: MedialRig, centers, rotations, method, implicit):
             x = jax.vmap(dqs_vertex)(dual[k], w, rig.points)
         r = jax.vmap(lambda a, b: matrix_from_quaternion(blend_quaternion(a, b)))(q, w)
     if implicit:
+        # Blocks whose spheres all move as one rigid body keep their skinned vertices (`still`).
+        still = None if rig.correction.blocks is None else still_blocks(
+            rig.correction.blocks, rig.rest_centers, centers, rotations)
         x, _ = correct(x, r, centers, rig.radii, rig.cones, rig.medial_faces, rig.correction,
                        newton_steps=rig.newton_steps, relax_iterations=rig.relax_iterations,
-                       relax_step=rig.relax_step, contact_angle=rig.contact_angle)
+                       relax_step=rig.relax_step, contact_angle=rig.contact_angle,
+                       still=still)
     # A vertex whose image is not finite (a pose far beyond the dtype's range, a traced pose
     # that was not checked) is invalid and stays at rest: never a NaN flagged valid.
     x = x[rig.welded]

@@ -1,0 +1,76 @@
+"""Where the implicit correction has nothing to do: blocks of vertices whose spheres all move
+as one rigid body.
+
+The correction (`implicit.correct`) moves each skinned vertex back to its rest iso-value of
+the posed envelope's field and relaxes it towards its rest one-ring. Where every sphere that
+a vertex reads (its footprint's and rotation weights' spheres, the spheres of its field's
+candidate cones and slabs) and every sphere its one-ring neighbours read move by the same
+rigid motion, the skinned vertex, its field and its neighbours move by that motion too, so
+the Newton step and the relaxation move it by round-off only: the correction can be skipped.
+
+Our own shortcut (not in Vaillant et al. 2013 or Lan et al. 2017): a pose that turns a head
+and holds the body (spot's cases in `benchmarks/medial_deform.py`) leaves most of the
+surface rigid. The test is per block of `SIZE` vertices in a spatial (Morton) order, so that
+a block's vertices share most of their spheres: on spot (2,930 vertices, 200 spheres) a
+block of 256 reads 67 spheres on average (123 in the vertices' own order), and with its head
+turned 30° about the neck and its core held, 6 of its 12 blocks are still (none in the
+vertices' order). Per frame the test compares the spheres' rotations and translations,
+`(blocks, spheres a block reads)` numbers, where the field's evaluation costs
+`(vertices, candidates)` closed forms.
+"""
+
+from __future__ import annotations
+
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Bool, Float, Int
+
+SIZE = 256  # vertices a block
+TOLERANCE = 16  # how far from one rigid motion a still block's spheres may be, in eps
+
+
+def morton_order(points: np.ndarray, bits: int = 10) -> np.ndarray:
+    """A permutation `(m,)` of `points (m, 3)` along a Morton (Z-order) curve over their
+    bounding box, `2^bits` cells a side: consecutive points are near each other."""
+    if not len(points):
+        return np.zeros(0, np.int64)
+    lo, size = points.min(axis=0), max(float(np.ptp(points, axis=0).max()), 1e-300)
+    cell = np.clip(((points - lo) / size * (2**bits - 1)).astype(np.int64), 0, 2**bits - 1)
+    code = np.zeros(len(points), np.int64)
+    for bit in range(bits):
+        for axis in range(3):
+            code |= ((cell[:, axis] >> bit) & 1) << (3 * bit + axis)
+    return np.argsort(code, kind="stable")
+
+
+def block_spheres(order: np.ndarray, spheres: np.ndarray, ring: np.ndarray | None,
+                  size: int = SIZE) -> np.ndarray:
+    """The spheres each block reads: `(blocks, s)` int array, each row the distinct spheres
+    of the block's vertices and of their one-ring neighbours, padded by its first.
+
+    **Arguments:** `order (m,)` the vertices in block order (`morton_order`); `spheres
+    (m, k)` the spheres each vertex reads; `ring (m, w)` its one-ring neighbours (itself as
+    padding), or None."""
+    reads = spheres if ring is None else np.concatenate(
+        [spheres, spheres[ring].reshape(len(spheres), -1)], axis=1)
+    rows = [np.unique(reads[order[start:start + size]])
+            for start in range(0, len(order), size)]
+    width = max(len(row) for row in rows)
+    return np.stack([np.r_[row, np.full(width - len(row), row[0])] for row in rows])
+
+
+def still_blocks(table: Int[Array, "b s"], rest_centers: Float[Array, "n 3"],
+                 centers: Float[Array, "n 3"], rotations: Float[Array, "n 3 3"]
+                 ) -> Bool[Array, " b"]:
+    """Whether each block's spheres (`table`, `block_spheres`) move by one rigid motion: their
+    rotations and translations `c̃ − R c` within `TOLERANCE` eps of the block's first sphere's
+    (translations relative to the rest centres' extent: conservative for a pose far from
+    them, whose translations round off more, and never at the scale of a pose beyond the
+    dtype's range, where the correction must flag its overflowing vertices)."""
+    eps = TOLERANCE * jnp.finfo(centers.dtype).eps
+    translations = centers - jnp.einsum("nab,nb->na", rotations, rest_centers)
+    extent = jnp.max(jnp.abs(rest_centers))
+    r, t = rotations[table], translations[table]  # (b, s, 3, 3), (b, s, 3)
+    turn = jnp.max(jnp.abs(r - r[:, :1]), axis=(1, 2, 3))
+    shift = jnp.max(jnp.abs(t - t[:, :1]), axis=(1, 2))
+    return (turn <= eps) & (shift <= eps * extent)
