@@ -23,7 +23,7 @@ from fleshing_jax._medial_deform.footprint import segment_footprint, slab_footpr
 from fleshing_jax._medial_deform.implicit import cone_field, cone_table, slab_field, slab_table
 from fleshing_jax._medial_deform.pose import MedialPose
 from fleshing_jax._medial_deform.rig import METHODS, MedialRig
-from fleshing_jax._medial_deform.still import SIZE, still_blocks
+from fleshing_jax._medial_deform.still import still_blocks
 
 RADIUS, LENGTH, SPHERES = 0.5, 4.0, 9
 
@@ -187,7 +187,7 @@ def test_still_blocks_keep_their_skinned_vertices(capsule):
     still = np.asarray(still_blocks(rig.correction.blocks, rig.rest_centers, posed.centers,
                                     posed.rotations))
     assert still.any() and not still.all()
-    kept = still[np.asarray(rig.correction.rank)[np.asarray(rig.welded)] // SIZE]
+    kept = still[np.asarray(rig.correction.rank)[np.asarray(rig.welded)] // rig.correction.block]
     skinned = np.asarray(rig.pose(posed, "medial", implicit=False)[0])
     x = np.asarray(rig.pose(posed, "medial")[0])
     np.testing.assert_array_equal(x[kept], skinned[kept])

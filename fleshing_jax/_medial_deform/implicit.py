@@ -35,7 +35,6 @@ import numpy as np
 from jaxtyping import Array, Bool, Float, Int
 
 from .._numerics import dot, norm, safe_divide, safe_sqrt, weighted_sum
-from .still import SIZE
 
 BLOCK = 1024  # vertices per block of the field's evaluation (see `correct`)
 
@@ -261,6 +260,7 @@ class Correction(eqx.Module):
     order: Int[Array, " n"] | None = None
     rank: Int[Array, " n"] | None = None
     blocks: Int[Array, "b s"] | None = None
+    block: int = eqx.field(static=True, default=0)
 
 
 def correct(
@@ -304,7 +304,7 @@ def correct(
     # The vertices padded to whole blocks (copies of the last one, dropped from the output):
     # `lax.map` then runs one traced block, where a remainder traced and compiled the field a
     # second time. Skipping still blocks, the vertices are taken in their blocks' order.
-    block = SIZE if skipping else min(BLOCK, n)
+    block = data.block if skipping else min(BLOCK, n)
     pad = -n % block
 
     def padded(a):

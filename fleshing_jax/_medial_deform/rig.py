@@ -24,6 +24,9 @@ footprint sphere of its nearest primitive (`footprint.py`). Our own choices:
   on top of dual-quaternion skinning); the baselines' comparisons use `implicit=False`. Its
   contact test only sees each vertex's candidate primitives (the nearest at rest), so two
   parts far apart at rest that press together after a pose are not detected.
+- **Still blocks.** On rigs of up to `still.VERTICES` vertices, the correction skips the
+  blocks of vertices whose spheres all move as one rigid body (`still.py`): it would move
+  them by round-off only.
 
 Volumes measured (capsule radius 0.5, cylinder 4, 1762 vertices, chain of 17 spheres, `ΔV/V`,
 medial+implicit / medial / LBS / DQS): bent 90° onto an arc of its length −0.05 / −0.09 /
@@ -55,7 +58,7 @@ from .implicit import Correction, correct
 from .pose import MedialPose
 from .quaternions import matrix_from_quaternion
 from .skin import blend_quaternion, dqs_vertex, lbs_vertex, medial_vertex, sphere_motions
-from .still import block_spheres, morton_order, still_blocks
+from .still import VERTICES as STILL_VERTICES, block_size, block_spheres, morton_order, still_blocks
 
 METHODS = ("medial", "lbs", "dqs")
 RING = 8  # neighbours per vertex in the relaxation's one-ring table
@@ -290,16 +293,19 @@ class MedialRig(eqx.Module):
         self.spheres, self.beta, self.offset = i_(b.spheres), f_(b.beta), f_(b.offset)
         self.rotation_spheres, self.rotation_weights = i_(idx), f_(weights)
         self.cones, self.medial_faces = i_(b.cones), i_(mfaces)
-        # The spheres each point reads, for the correction's skip of still blocks (`still`).
-        reads = np.concatenate([b.spheres, idx, b.cones[b.field_cones].reshape(m, -1),
-                                b.cones[b.edge_cones].reshape(m, -1),
-                                mfaces[b.field_slabs].reshape(m, -1)], axis=1)
-        order = morton_order(rest)
+        order = rank = blocks = None
+        size = block_size(m)
+        if m <= STILL_VERTICES:
+            # The spheres each point reads, for the correction's skip of still blocks.
+            reads = np.concatenate([b.spheres, idx, b.cones[b.field_cones].reshape(m, -1),
+                                    b.cones[b.edge_cones].reshape(m, -1),
+                                    mfaces[b.field_slabs].reshape(m, -1)], axis=1)
+            order = morton_order(rest)
+            rank, blocks = np.argsort(order), block_spheres(order, reads, table, size)
         self.correction = Correction(i_(b.field_cones), i_(b.edge_cones), i_(b.field_slabs),
                                      i_(b.edge_slots), f_(b.iso), f_(b.width), i_(table),
-                                     f_(table_weights), f_(laplacian), i_(order),
-                                     i_(np.argsort(order)),
-                                     i_(block_spheres(order, reads, table)))
+                                     f_(table_weights), f_(laplacian), i_(order), i_(rank),
+                                     i_(blocks), size)
         self.faces = i_(f)
         self.medial_key = np.frombuffer(bytes.fromhex(medial.fingerprint()), np.uint8).copy()
         self.n_spheres = len(centers)

@@ -10,13 +10,18 @@ the Newton step and the relaxation move it by round-off only: the correction can
 
 Our own shortcut (not in Vaillant et al. 2013 or Lan et al. 2017): a pose that turns a head
 and holds the body (spot's cases in `benchmarks/medial_deform.py`) leaves most of the
-surface rigid. The test is per block of `SIZE` vertices in a spatial (Morton) order, so that
+surface rigid. The test is per block of vertices (`block_size`) in a spatial (Morton) order, so that
 a block's vertices share most of their spheres: on spot (2,930 vertices, 200 spheres) a
 block of 256 reads 67 spheres on average (123 in the vertices' own order), and with its head
 turned 30° about the neck and its core held, 6 of its 12 blocks are still (none in the
 vertices' order). Per frame the test compares the spheres' rotations and translations,
 `(blocks, spheres a block reads)` numbers, where the field's evaluation costs
 `(vertices, candidates)` closed forms.
+
+Only rigs of at most `VERTICES` vertices skip: taking the vertices in block order costs
+gathers of every per-vertex array at every evaluation, which on the 107,786-vertex capsule
+bent 90° (a quarter of its blocks still) made a pose 41 → 47 ms of CPU (with blocks of
+1024; 59 ms with blocks of 256), where on spot the skip took the skin from 1.13 to 0.74 ms.
 """
 
 from __future__ import annotations
@@ -25,7 +30,9 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float, Int
 
-SIZE = 256  # vertices a block
+SIZE = 256  # the fewest vertices a block (see `block_size`)
+MOST = 1024  # the most (`implicit.BLOCK`: larger blocks' temporaries leave the cache)
+VERTICES = 16_384  # the most vertices a rig skips still blocks for (see below)
 TOLERANCE = 16  # how far from one rigid motion a still block's spheres may be, in eps
 
 
@@ -43,10 +50,19 @@ def morton_order(points: np.ndarray, bits: int = 10) -> np.ndarray:
     return np.argsort(code, kind="stable")
 
 
+def block_size(m: int) -> int:
+    """Vertices a block for `m` vertices: a sixteenth of them, as a power of two in
+    `[SIZE, MOST]`. Each block is one iteration of the correction's loop, whose overhead
+    (tens of µs) made blocks of 256 a third slower than 1024 on 107,786 vertices (59 against
+    41 ms of CPU a pose); spot's 2,930 vertices make 12 blocks of 256."""
+    return int(min(max(SIZE, 2 ** int(np.ceil(np.log2(max(m / 16, 1))))), MOST))
+
+
 def block_spheres(order: np.ndarray, spheres: np.ndarray, ring: np.ndarray | None,
-                  size: int = SIZE) -> np.ndarray:
-    """The spheres each block reads: `(blocks, s)` int array, each row the distinct spheres
-    of the block's vertices and of their one-ring neighbours, padded by its first.
+                  size: int) -> np.ndarray:
+    """The spheres each block of `size` vertices reads: `(blocks, s)` int array, each row the
+    distinct spheres of the block's vertices and of their one-ring neighbours, padded by its
+    first.
 
     **Arguments:** `order (m,)` the vertices in block order (`morton_order`); `spheres
     (m, k)` the spheres each vertex reads; `ring (m, w)` its one-ring neighbours (itself as
