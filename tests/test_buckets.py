@@ -74,7 +74,7 @@ def test_many_sizes_reuse_the_programs_of_their_bucket(traces):
         assert all(len(o) == n for o in outputs)
     assert sum(traces.values()) == 0, f"sizes of one bucket traced again: {dict(traces)}"
     _run_all(points[:150], source, target)  # a new bucket: new programs (the counter works)
-    assert traces["_register_start"] == 1 and traces["_measured"] == 1
+    assert traces["_register_start"] == 1 and traces["_jacobians"] == 1
 
 
 def test_padding_does_not_change_the_results():
