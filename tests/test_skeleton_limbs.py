@@ -129,7 +129,7 @@ def test_a_slanted_border_with_the_body_is_levelled_across_the_limb():
               fj.Limb(fj.Line(0.8, origin=(5.2, 0.0, 0.0)), 0.35, 0)]
     adjacency = mesh_adjacency(vertices, np.asarray(mesh.faces))
     normals = vertex_normals(vertices, np.asarray(mesh.faces))
-    out_limbs, out_region = levelled(limbs, region, vertices, normals, adjacency, tops=[0])
+    out_limbs, out_region = levelled(limbs, region, vertices, normals, adjacency, [0], 0.05)
     changed = out_region != region
     assert changed.any() and np.all(region[changed] == -1) and np.all(out_region[changed] == 0)
     assert np.array_equal(out_region == 1, region == 1)
@@ -139,6 +139,37 @@ def test_a_slanted_border_with_the_body_is_levelled_across_the_limb():
     # (The border's vertices lie a ring or two past the body's last: rings 0.1 apart.)
     assert float(out_limbs[0].joint) < 1.0 + 0.21 < float(limbs[0].joint) - 0.15
     assert out_limbs[1] is limbs[1]
+
+
+def test_levelling_passes_over_no_vertex_facing_its_spine_nor_beyond_its_reach():
+    """The slanted border above, its body vertices past the border's top facing the spine (a
+    flank across a gap from the limb: cheburashka's torso beside its hanging arm), is left
+    as it is; so is one whose vertices lie beyond the spine's reach with the margin (a
+    nearly straight spine, radius of curvature 20, with a margin of 20: posing would flag
+    them, and `register_skeleton` refused the border's meaningless arc lengths)."""
+    from _posing_shapes import tube_mesh
+
+    import fleshing_jax as fj
+    from fleshing_jax._skeleton.regions import levelled, mesh_adjacency, vertex_normals
+
+    mesh = tube_mesh()  # radius 0.3, along x from 0 to 6
+    vertices = np.asarray(mesh.vertices)
+    x, y = vertices[:, 0], vertices[:, 1]
+    region = np.where(x > 4.0 + 0.4 * (y > 0), 0, -1)
+    adjacency = mesh_adjacency(vertices, np.asarray(mesh.faces))
+    normals = vertex_normals(vertices, np.asarray(mesh.faces))
+    line = [fj.Limb(fj.Line(3.0, origin=(3.0, 0.0, 0.0)), 1.4 + 1e-9, -1)]
+    out_limbs, out_region = levelled(line, region, vertices, normals, adjacency, [0], 0.05)
+    assert float(out_limbs[0].joint) < 1.3  # (levelled, as above)
+    flank = (region == -1) & (x > 4.0 + 1e-9) & (y > 0)
+    facing = np.where(flank[:, None], -normals, normals)
+    out_limbs, out_region = levelled(line, region, vertices, facing, adjacency, [0], 0.05)
+    assert np.array_equal(out_region, region) and out_limbs[0] is line[0]
+    arc = [fj.Limb(fj.Arc(20.0, 3.0, origin=(3.0, 0.0, 0.0)), 1.4 + 1e-9, -1)]
+    out_limbs, out_region = levelled(arc, region, vertices, normals, adjacency, [0], 0.05)
+    assert float(out_limbs[0].joint) < 1.3  # (in reach with a small margin: levelled)
+    out_limbs, out_region = levelled(arc, region, vertices, normals, adjacency, [0], 20.0)
+    assert np.array_equal(out_region, region) and out_limbs[0] is arc[0]
 
 
 def test_a_limb_whose_vertices_past_its_joint_barely_move_joins_its_parent():
@@ -195,14 +226,14 @@ def test_a_slanted_border_with_a_parent_limb_is_levelled_at_a_chain_s_top_only()
              fj.Limb(fj.Line(3.0, origin=(3.0, 0.0, 0.0)), 1.4 + 1e-9, 0)]
     adjacency = mesh_adjacency(vertices, np.asarray(mesh.faces))
     normals = vertex_normals(vertices, np.asarray(mesh.faces))
-    out_limbs, out_region = levelled(limbs, region, vertices, normals, adjacency, tops=[0, 1])
+    out_limbs, out_region = levelled(limbs, region, vertices, normals, adjacency, [0, 1], 0.05)
     changed = out_region != region
     assert changed.any() and np.all(region[changed] == 0) and np.all(out_region[changed] == 1)
     assert vertices[out_region == 0][:, 0].max() < 4.0 + 0.11  # across the tube at x = 4
     assert float(out_limbs[1].joint) < 1.0 + 0.21 < float(limbs[1].joint) - 0.15
     assert out_limbs[0] is limbs[0]  # (its border with the body was level already)
     # The same limb as a chain's lower piece: left as it is.
-    out_limbs, out_region = levelled(limbs, region, vertices, normals, adjacency, tops=[0])
+    out_limbs, out_region = levelled(limbs, region, vertices, normals, adjacency, [0], 0.05)
     assert np.array_equal(out_region, region) and out_limbs[1] is limbs[1]
     # A sibling in the slanted zone (a horn beside an ear, spot at 60 spheres), which the
     # ear's growth would enclose, bordering the ear alone: the ear is left as it is.
@@ -210,5 +241,5 @@ def test_a_slanted_border_with_a_parent_limb_is_levelled_at_a_chain_s_top_only()
     beside[(np.abs(x - 4.3) < 1e-9) & (y > 0.29)] = 2  # a vertex ringed by the slant zone
     horn = fj.Limb(fj.Line(1.0, origin=(4.3, 0.0, 0.0)), 0.1, 0)
     out_limbs, out_region = levelled([*limbs, horn], beside, vertices, normals, adjacency,
-                                     tops=[0, 1])
+                                     [0, 1], 0.05)
     assert np.array_equal(out_region, beside) and out_limbs[1] is limbs[1]

@@ -252,7 +252,7 @@ def _unit_limbs(vertices, normals, centers, radii, edges, adjacency, margin):
     # Levelled first: a bend moves what lies past the joint, which a slanted border put far
     # out (spot's ear at seed 0: 27 vertices past its joint at 67 % of its spine, within 3.8 %
     # of the diagonal from it; levelled, at 33 %).
-    limbs, region = levelled(limbs, region, vertices, normals, adjacency, tops)
+    limbs, region = levelled(limbs, region, vertices, normals, adjacency, tops, margin)
     limbs, region = visible(limbs, region, vertices)
     return _room_to_bend(limbs, region, vertices, adjacency)
 

@@ -9,7 +9,7 @@ import numpy as np
 
 from .fit import extend_beyond, fit_bspline
 from .limbs import LimbPath
-from .regions import REACH, limb_region, spine_samples
+from .regions import REACH, in_reach, limb_region, spine_samples
 
 # Every limb's spine has one static structure (count of control points, subdivisions per
 # span), so that one compiled program serves all (here and when posing them).
@@ -83,14 +83,8 @@ def reach_needed(spine, part, vertices, arc, margin, chunk=2048):
     around the foot). Else (k,) the largest distance of the region's vertices to the spine
     points near them, around the arc lengths `arc` (for a straighter fit)."""
     s, points, curvature = map(np.asarray, spine_samples(spine))
-    far, short = np.zeros(len(s)), False
-    for start in range(0, len(part.vertices), chunk):
-        x = vertices[part.vertices[start : start + chunk]]
-        distance = np.linalg.norm(x[:, None] - points[None], axis=-1)  # (m, samples)
-        near = distance < distance.min(axis=1, keepdims=True) + 2 * margin
-        short |= bool(np.any(near & (curvature * (distance + margin) >= 1.0)))
-        far = np.maximum(far, np.max(np.where(near, distance, 0.0), axis=0))
-    if not short:
+    within, far = in_reach(vertices[part.vertices], points, curvature, margin, chunk)
+    if within.all():
         return None
     # Over a window of arc lengths: the refitted spine's feet move a little.
     window = len(s) // 16

@@ -112,6 +112,23 @@ def limb_region(spine, cut: float, tip: np.ndarray, arc, radius, vertices, adjac
     return LimbRegion(region, joint)
 
 
+def in_reach(points: np.ndarray, samples: np.ndarray, curvature: np.ndarray, margin: float,
+             chunk: int = 2048):
+    """Whether each of `points` (m, 3) lies within the reach of a spine (sampled: `samples`
+    (k, 3), their `curvature` (k,)) with the `margin` `δ` around it: `κ(t) (|X − C(t)| + δ)
+    < 1` at every sample `C(t)` nearer than the point's nearest plus `2δ` (the points the
+    valid region's test reads around the foot). Returns `(within (m,) bool, far (k,))`, `far`
+    the largest distance to each sample of the points it is near."""
+    within, far = np.ones(len(points), bool), np.zeros(len(samples))
+    for start in range(0, len(points), chunk):
+        distance = np.linalg.norm(points[start : start + chunk, None] - samples[None], axis=-1)
+        near = distance < distance.min(axis=1, keepdims=True) + 2 * margin
+        within[start : start + chunk] = ~np.any(near & (curvature * (distance + margin) >= 1.0),
+                                                axis=1)  # fmt: skip
+        far = np.maximum(far, np.max(np.where(near, distance, 0.0), axis=0))
+    return within, far
+
+
 def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     """(n, 3) unit normals of a mesh's vertices (its faces' normals weighted by their areas;
     outwards for faces oriented outwards, as `closed_mesh_arrays` gives them)."""
@@ -123,14 +140,16 @@ def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
 
 
 def levelled(limbs: list, region: np.ndarray, vertices: np.ndarray, normals: np.ndarray,
-             adjacency, tops):
+             adjacency, tops, margin: float):
     """`(limbs, region)` with each limb of `tops` (the top of each chain: a limb that leaves
     the body or another limb's region, not a piece of a chain below its joint) grown, ring
     by ring from its border, over its parent's vertices (the body's, or its parent limb's)
     that project on its spine past the border's top (its least arc length) within `LEVEL`
     times the limb's thickness there (its own vertices' largest distance from the spine
-    between the border's top and bottom) and face away from the spine (`normals`: (n, 3),
-    the vertices' outward normals); its joint then the new border's last arc length.
+    between the border's top and bottom), face away from the spine (`normals`: (n, 3),
+    the vertices' outward normals) and lie within its reach with the valid region's `margin`
+    (`in_reach`: a vertex beyond it, which posing would flag, would also give the border an
+    arc length of no meaning); its joint then the new border's last arc length.
 
     A leg meeting a belly at a slant (spot's front legs: the body runs down the shoulder's
     outer side 60 % of the leg) puts the joint past the border's lowest vertex, so that a
@@ -149,12 +168,14 @@ def levelled(limbs: list, region: np.ndarray, vertices: np.ndarray, normals: np.
     region, within `REACH` medial radii of its spine, missed the upper arm's outer side (the
     body ran down it to 66 % of the spine) and took flank vertices (bordering the body at
     49 %); levelled over the flank too, the border ran down past the hand and was refused,
-    and the arm bent from the wrist. Now from the armpit: 66 % → 39 %, 44 % → 31 %.
+    and the arm bent from the wrist (66 % of its spine; now 42 %). Its other arm keeps 44 %:
+    its spine turns down at the shoulder with a radius of curvature (0.026) below the
+    shoulder's distance from it (0.03–0.04), beyond its reach.
     """
     limbs, region = list(limbs), region.copy()
     for k in sorted(tops):  # (parents first: a limb's region is final when its children grow)
         limb = limbs[k]
-        s, points, _ = map(np.asarray, spine_samples(limb.spine))
+        s, points, curvature = map(np.asarray, spine_samples(limb.spine))
         distance, nearest = cKDTree(points).query(vertices)
         along = s[nearest]
         member, rest = region == k, region == limb.parent
@@ -165,6 +186,8 @@ def levelled(limbs: list, region: np.ndarray, vertices: np.ndarray, normals: np.
         span = member & (along >= top) & (along <= bottom)
         outwards = np.einsum("ij,ij->i", normals, vertices - points[nearest]) > 0
         near = (distance <= LEVEL * distance[span].max()) & outwards
+        candidates = np.flatnonzero(near & rest & (along > top))
+        near[candidates] = in_reach(vertices[candidates], points, curvature, margin)[0]
         # Its own vertices facing the spine past the border's top (the flank's within its
         # spine's reach) go back to the parent, ring by ring from it; not those touching a
         # third region (a child's: it would border the parent, before the limb's joint).
