@@ -231,8 +231,10 @@ def prune(candidates: Candidates, union: UnionPrimitives, params, n_points: int,
     pts, prim, value = candidates.pts, candidates.prim, candidates.value
     change = _primitive_moves(union, moved)[prim]
     upper = np.full(n_points, np.inf) if upper is None else upper.copy()
-    solid = np.flatnonzero(union.kind[prim] != 2)
-    np.minimum.at(upper, pts.take(solid), value.take(solid) + change.take(solid))
+    # The spheres and cones: the pairs before the first slab's (the primitives ascend, kinds
+    # in order), a slice rather than a selection (the same pairs, no copies).
+    solid = np.searchsorted(prim, np.searchsorted(union.kind, 2))
+    np.minimum.at(upper, pts[:solid], value[:solid] + change[:solid])
     keep = np.flatnonzero(value - change <= upper[pts] + tolerance)
     return pts.take(keep), prim.take(keep)
 
