@@ -179,7 +179,7 @@ class Poser(eqx.Module):
 
     def __init__(
         self, target, method, twist, check_projection=True, margin=0.0, start=None,
-        beyond="continue", fallback=False,
+        beyond="continue", fallback=False, checked_on=None,
     ):
         """`start`: the source's `EndFrames`, from which the target's first normal is carried
         (`ends.aligned_twist`; `None`: the target's own, for callers that align the twist
@@ -188,7 +188,11 @@ class Poser(eqx.Module):
         map's formulas continued past their conditions, continuous in the point and the target
         (the radial map compresses its concave side towards the centre past `k·d* =
         WHOLE_FROM`, flagged from there, never across it: `maps.radial_bend_whole`), where
-        otherwise they are left where they were."""
+        otherwise they are left where they were. `checked_on`: a spine with a table of its
+        own (`_table`) that equals `target` far within the projection check's resolution (its
+        samples' spacing), on which the check's valid region is built instead (a bent limb
+        read from its rest spine's table, in double precision: `_skeleton.posing`); the
+        points are still bent on `target` exactly."""
         self.fallback = fallback
         target = target._prepare()  # once: each preparation is traced again
         if start is not None:
@@ -202,7 +206,8 @@ class Poser(eqx.Module):
         self.frames = TargetFrames(self.target, twist, tabulate=tabulates(target))
         self.method, self.check_projection = method, check_projection
         use = check_projection and not closed
-        self.region = ValidRegion(self.target, margin) if use else None
+        checked = self.target if checked_on is None else _own_table(checked_on)
+        self.region = ValidRegion(checked, margin) if use else None
 
     @property
     def fused(self) -> bool:
@@ -310,6 +315,14 @@ class Poser(eqx.Module):
         """`pose` for any number of registered points: in chunks (`map_chunks`) with exact
         frames, whole with tabulated ones."""
         return map_chunks(self.pose, registration, whole=self.fused)
+
+
+def _own_table(spine: AbstractSpine) -> SpineTable:
+    """The table `spine` makes of itself (`Poser`'s `checked_on`), or `ValueError`."""
+    table = spine._prepare()._table()
+    if table is None:
+        raise ValueError(f"a spine checked on must have a table of its own, got {type(spine)}.")
+    return table
 
 
 class Bent(NamedTuple):
@@ -567,17 +580,19 @@ def prepare_target(
     start: EndFrames | None = None,
     beyond: str = "continue",
     fallback: bool = False,
+    checked_on: AbstractSpine | None = None,
 ) -> Poser:
     """`target` prepared once for posing points of `dtype` (`pose` = `pose_prepared` of this):
     a compiled call of its own, which `_mesh.overlap` may run beside the registration.
     `start`: the source's `EndFrames` (`Registration.ends`, or `EndFrames(source)`), from
-    which the target's first normal is carried; `beyond` as for `Fleshing`; `fallback` as
-    for `Poser`."""
+    which the target's first normal is carried; `beyond` as for `Fleshing`; `fallback` and
+    `checked_on` as for `Poser`."""
     _check_spine(target, "target")
-    target, twist, start = cast_floats((target, as_twist(twist, dtype), start), dtype)
+    target, twist, start, checked_on = cast_floats(
+        (target, as_twist(twist, dtype), start, checked_on), dtype)
     margin = as_margin(margin, dtype)
     options = (check_method(method), twist, bool(check_projection), margin, start,
-               check_beyond(beyond), bool(fallback))
+               check_beyond(beyond), bool(fallback), checked_on)
     return _poser(target._bucketed(), *options)
 
 
@@ -595,9 +610,10 @@ def pose_prepared(registration: Registration, poser: Poser) -> tuple[Array, Arra
 
 @eqx.filter_jit
 def _poser(target, method, twist, check_projection, margin=0.0, start=None, beyond="continue",
-           fallback=False):
+           fallback=False, checked_on=None):
     # (compiled apart, as `_registrar`)
-    return Poser(target, method, twist, check_projection, margin, start, beyond, fallback)
+    return Poser(target, method, twist, check_projection, margin, start, beyond, fallback,
+                 checked_on)
 
 
 @eqx.filter_jit

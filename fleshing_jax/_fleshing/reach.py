@@ -62,11 +62,25 @@ def held(values, h: Array):
                         lambda v: jax.tree.map(jnp.zeros_like, v), values)
 
 
-def _around(values: Array, radius: int) -> Array:
-    """The largest of `values` (S,) within `radius` indices of each index."""
-    window = (2 * radius + 1,)
-    padding = ((radius, radius),)
-    return jax.lax.reduce_window(values, -jnp.inf, jax.lax.max, window, (1,), padding)
+def _window_maxima(values: Array, radii) -> list[Array]:
+    """For each radius `r` of `radii` (static ints), the largest of `values` (S,) within `r`
+    indices of each index: from the maxima over runs of `2^e` values (each level two runs of
+    the one below), a window of `2 r + 1` being two overlapping runs of the longest such length
+    in it. Exact (a maximum is), in O(S log S): as one `reduce_window` a radius, XLA's CPU
+    backend swept the whole window at every index (the radii reach the whole range)."""
+    count, widest = values.shape[0], max(radii)
+    low = jnp.full(widest, -jnp.inf, values.dtype)
+    runs = [jnp.concatenate([low, values, low])]  # runs[e][i]: the largest of 2^e from i
+    while 2 ** len(runs) <= 2 * widest + 1:
+        half = 2 ** (len(runs) - 1)
+        last = runs[-1]
+        runs.append(jnp.maximum(last, jnp.concatenate([last[half:], low[:half]])))
+    out = []
+    for r in radii:
+        e = (2 * r + 1).bit_length() - 1  # 2^e ≤ 2r + 1 < 2^(e + 1)
+        start, end = widest - r, widest + r + 1 - 2**e  # the two runs' starts at index 0
+        out.append(jnp.maximum(runs[e][start: start + count], runs[e][end: end + count]))
+    return out
 
 
 def _running_min(values: Array, reverse: bool = False) -> Array:
@@ -83,12 +97,22 @@ def _running_min(values: Array, reverse: bool = False) -> Array:
     return jax.lax.scan(step, start, values.T, reverse=reverse)[1].T
 
 
+def sampled_jets(spine: AbstractSpine, samples: int) -> tuple[Array, Array, Array]:
+    """`(C, T, k)` (S, 3) each of a prepared `spine` at `samples` arc lengths evenly spread
+    over its search range, `held` (computed once): what `LocalReach` and the valid region
+    (`region`) are built from, evaluated once for both (on an exact spine, a bent limb's in
+    float64, each evaluation is a quadrature)."""
+    lo, hi = search_range(spine)
+    return held(jax.vmap(spine.jet)(jnp.linspace(lo, hi, samples)), (hi - lo) / (samples - 1))
+
+
 class LocalReach(eqx.Module):
     """Lower bounds of a spine's reach around each of its samples, as a function of the arc
     length of a foot (`__call__`, one point).
 
     **Fields:** `lo`, `h`: the first sample and the spacing; `bounds`: (S,) the bound `ρ_i` for
-    feet within `h/2` of sample `i` (`inf` on a straight spine).
+    feet within `h/2` of sample `i` (`inf` on a straight spine). Argument `jets`: the spine's
+    `sampled_jets`, where the caller has them.
 
     With a `margin` `δ > 0`, the bounds are lowered so that the whole ball of radius `δ` around
     a point inside them has a unique foot near `s` (`region`): the near condition becomes
@@ -100,19 +124,23 @@ class LocalReach(eqx.Module):
     h: Array
     bounds: Array
 
-    def __init__(self, spine: AbstractSpine, samples: int = REACH_SAMPLES, margin=0.0):
+    def __init__(self, spine: AbstractSpine, samples: int = REACH_SAMPLES, margin=0.0,
+                 jets=None):
         spine = jax.lax.stop_gradient(spine._prepare())
         margin = jnp.asarray(margin, spine.length.dtype)
         lo, hi = search_range(spine)
-        grid = jnp.linspace(lo, hi, samples)
         h = (hi - lo) / (samples - 1)
         self.lo, self.h = lo, h
-        positions, tangents, k = held(jax.vmap(spine.jet)(grid), h)
+        # (`jets`: the caller's `sampled_jets` of the spine, where it has them: `region`.)
+        positions, tangents, k = sampled_jets(spine, samples) if jets is None else jets
         kappa = norm(k)
         jumps = jnp.abs(jnp.diff(kappa, append=kappa[-1:]))
-
-        def kappa_hat(m):  # κ̂ over the spine within m + 1 samples of each sample
-            return _around(kappa, m + 1) + _around(jumps, m + 1)
+        # Windows w = m h, m = 2, 4, …, up to the whole range (no far points).
+        windows = [2**e for e in range(1, math.ceil(math.log2(samples + 1)) + 1)]
+        # κ̂ over the spine within m + 1 samples of each sample, for m = 1 and each window.
+        radii = [m + 1 for m in [1, *windows]]
+        kappa_hat = [a + b for a, b in zip(_window_maxima(kappa, radii),
+                                            _window_maxima(jumps, radii))]
 
         # q_ij: far points near sample j stay farther than r from X when r < q_ij (see above).
         # δ_ij = P_j − P_i one coordinate at a time (sums over a minor axis of 3 are slow on
@@ -122,23 +150,21 @@ class LocalReach(eqx.Module):
         length = jnp.sqrt(sum(d * d for d in delta))
         across = jnp.sqrt(jnp.maximum(length**2 - along**2, 0))
         a = length - h
-        c = across + length * kappa_hat(1)[:, None] * h + h
+        c = across + length * kappa_hat[0][:, None] * h + h
         # With a margin δ (`region`): far points stay farther than `r + 2δ` from X.
         two = 2 * margin
         q = jnp.where(a > two, jnp.maximum((a**2 - two**2) / (2 * c + 2 * two), (a - two) / 2), 0)
-        # Row-wise running minima: the smallest q_ij over samples j at least n indices away
-        # from i on either side is read off them (one (S, S) pass for all windows).
-        upto, onward = _running_min(q), _running_min(q, reverse=True)
+        # The smallest q_ij over samples j at least w − h away (m − 1 indices) from i, on
+        # either side (those after i: the rows reversed, column j read as S − 1 − j).
         index, last = jnp.arange(samples), samples - 1
+        upto, onward = _running_min(q), _running_min(q, reverse=True)
         inf = jnp.asarray(jnp.inf, q.dtype)
         bounds = []
-        # Windows w = m h, m = 2, 4, …, up to the whole range (no far points).
-        for m in (2**e for e in range(1, math.ceil(math.log2(samples + 1)) + 1)):
+        for m, hat in zip(windows, kappa_hat[1:]):
             left, right = index - (m - 1), index + (m - 1)  # far: at least w − h away
             before = jnp.where(left >= 0, upto[index, jnp.maximum(left, 0)], inf)
             after = jnp.where(right <= last, onward[index, jnp.minimum(right, last)], inf)
-            near = 1 / kappa_hat(m) - m * h - margin
-            bounds.append(jnp.minimum(near, jnp.minimum(before, after)))
+            bounds.append(jnp.minimum(1 / hat - m * h - margin, jnp.minimum(before, after)))
         # A reduction, so that XLA materialises the bounds (their elementwise last steps would
         # otherwise be fused into every point's lookup, 2× slower `pose`).
         self.bounds = jnp.maximum(jnp.max(jnp.stack(bounds, axis=1), axis=1), 0)

@@ -54,7 +54,7 @@ from .._batching.compact import update_where
 from .._numerics import dot, norm
 from .._spines.spine import AbstractSpine
 from .blocks import SampleBlocks
-from .reach import REACH_SAMPLES, LocalReach, search_range
+from .reach import REACH_SAMPLES, LocalReach, sampled_jets, search_range
 
 RUN = 16  # samples a run of the pruned test (`blocks`)
 SURE_CHUNK = 256  # points a trip of `clear_where`'s pruned test
@@ -86,10 +86,11 @@ class ValidRegion(eqx.Module):
         spine = jax.lax.stop_gradient(spine._prepare())
         self.spine = spine
         self.margin = jax.lax.stop_gradient(jnp.asarray(margin, spine.length.dtype))
-        self.reach = LocalReach(spine, samples, self.margin)
+        jets = sampled_jets(spine, samples)  # (the reach bounds' samples too: evaluated once)
+        self.reach = LocalReach(spine, samples, self.margin, jets)
         lo, hi = search_range(spine)
         self.lo, self.h = lo, (hi - lo) / (samples - 1)
-        positions, _, k = jax.vmap(spine.jet)(jnp.linspace(lo, hi, samples))
+        positions, _, k = jets
         self.positions, self.curvature = positions.T, k.T
         # Within h of a sample, the curvature vector moves by at most about twice the largest
         # change to a neighbour (a Lipschitz margin for the curvature between samples).

@@ -60,7 +60,10 @@ class SkeletonRegistration(eqx.Module):
     so that eager poses of any limb share compiled programs, `_batching.buckets`; a traced pose
     takes each limb's first rows, to its own bucket size: `posed_limbs`); `rests`: the rest
     spines, in the vertices' dtype and padded alike (in float32 read from a table, with its
-    values where bent spines read them: `LookedUpSpine`); `indices` (n_k,) int32:
+    values where bent spines read them: `LookedUpSpine`; in float64 prepared: exact); `checks`:
+    in float64, the rest spines read from their tables (`LookedUpSpine`, `None` for a spine
+    without one), on which a bent limb's projection check is built (`limb_check`; `None`s
+    in float32, where `rests` are those tables); `indices` (n_k,) int32:
     the region's vertices; `joints`, `stops`: scalars, where each limb's bend may start and
     must be complete (see the module's docstring); `vertices` (n, 3): the rest vertices;
     `margin`: scalar; `zones`: each limb's `JointZone`, where a bend of a given angle is
@@ -71,6 +74,7 @@ class SkeletonRegistration(eqx.Module):
 
     registrations: tuple[Registration, ...]
     rests: tuple[AbstractSpine, ...]
+    checks: tuple[AbstractSpine | None, ...]
     indices: tuple[Array, ...]
     joints: tuple[Array, ...]
     stops: tuple[Array, ...]
@@ -150,7 +154,7 @@ def register_skeleton(mesh, skeleton: Skeleton, *, margin: float | None = None,
     region = np.asarray(skeleton.region)
     lineage = descendants(skeleton.limbs)
     edges = _edges(faces)
-    registrations, rests, indices, joints, stops, zones = [], [], [], [], [], []
+    registrations, rests, checks, indices, joints, stops, zones = [], [], [], [], [], [], []
     # Every limb's region padded to the largest's bucket: one compiled program for all.
     size = bucket(max([int(np.sum(region == k)) for k in range(len(skeleton.limbs))], default=0))
     for k, limb in enumerate(skeleton.limbs):
@@ -172,7 +176,7 @@ def register_skeleton(mesh, skeleton: Skeleton, *, margin: float | None = None,
                 f"`skeleton`: limb {k}'s region meets its child limbs (arc length {stop:.4g}) "
                 f"before it leaves its parent ({joint:.4g}): there is no room to bend it."
             )
-        rest = _looked_up(spine) if tabulates(spine) else spine
+        rest = _looked_up(spine) if tabulates(spine) else _prepared_rest(spine)
         # (All rows, padded ones invalid: every limb's zone has the same shapes.)
         at = np.where(np.asarray(reg.valid), np.asarray(reg.arc_length), joint)
         (_, *frames), axes = _frames_at(rest, jnp.asarray(at, points.dtype),
@@ -182,12 +186,14 @@ def register_skeleton(mesh, skeleton: Skeleton, *, margin: float | None = None,
             frames=frames, axes=axes))
         registrations.append(reg)
         rests.append(rest)
+        checks.append(_looked_up(spine) if not tabulates(spine) and _tabled(spine) else None)
         indices.append(jnp.asarray(ids, jnp.int32))
         joints.append(jnp.asarray(joint, points.dtype))
         # (Rounded to the dtype, the stop may fall an ulp past the rest spine's own length,
         # which a bent spine refuses: its table's length, in float32, rounds its own way.)
         stops.append(jnp.minimum(jnp.asarray(stop, points.dtype), rest.length))
-    return SkeletonRegistration(tuple(registrations), tuple(rests), tuple(indices), tuple(joints),
+    return SkeletonRegistration(tuple(registrations), tuple(rests), tuple(checks),
+                                tuple(indices), tuple(joints),
                                 tuple(stops), points, margin, tuple(zones), fingerprint(skeleton))
 
 
@@ -456,8 +462,8 @@ def posed_limbs(registration: SkeletonRegistration, poses: dict, method: str, ch
     # largest limb's it is padded to for the eager calls' shared programs: on spot's 100k
     # vertices a leg's 4.9k vertices were posed as 24.6k.
     own = not (stacked or is_concrete(poses))
-    pairs = {k: (_limb_registration(registration, k, own), target)
-             for k, target in targets.items()}
+    pairs = {k: (_limb_registration(registration, k, own), target,
+                 limb_check(registration, k, poses[k])) for k, target in targets.items()}
     if not stacked or len(pairs) < 2:
         # Eagerly, each limb is posed by one compiled program, shared by every limb of a
         # bucket and every angle: the sampled fallback of the projection check is in it
@@ -465,7 +471,8 @@ def posed_limbs(registration: SkeletonRegistration, poses: dict, method: str, ch
         # eager pipeline instead (`_fleshing.eager`), a new angle that left a point pending
         # compiled that fallback on the spot: the tube bent 60° then 90°, 0.09 s then 30 s.
         pose_limb = _pose_limb if not is_concrete(poses) else _pose_limb_eagerly
-        return {k: pose_limb(*pair, method, check) for k, pair in pairs.items()}
+        return {k: pose_limb(reg, target, method, check, on)
+                for k, (reg, target, on) in pairs.items()}
     groups: dict = {}  # limbs by the structure and shapes of their (registration, target)
     for k, pair in pairs.items():
         leaves, structure = jax.tree.flatten(pair)
@@ -473,7 +480,7 @@ def posed_limbs(registration: SkeletonRegistration, poses: dict, method: str, ch
     moved = {}
     for ks in groups.values():
         batch = jax.tree.map(lambda *x: jnp.stack(x), *(pairs[k] for k in ks))
-        out = jax.vmap(lambda pair: _pose_limb(*pair, method, check))(batch)
+        out = jax.vmap(lambda p: _pose_limb(p[0], p[1], method, check, p[2]))(batch)
         moved.update({k: jax.tree.map(lambda x, i=i: x[i], out) for i, k in enumerate(ks)})
     return moved
 
@@ -492,6 +499,19 @@ def limb_target(registration: SkeletonRegistration, k: int, pose) -> AbstractSpi
         return pose
     return pose.spine(registration.rests[k], registration.joints[k],
                       bend_stop(registration, k, pose))
+
+
+def limb_check(registration: SkeletonRegistration, k: int, pose) -> AbstractSpine | None:
+    """What limb `k`'s projection check is built on (`Poser`'s `checked_on`), or `None` (on
+    the target itself): in float64, the `LimbPose`'s bent spine read from the rest spine's
+    table (`checks`). The check samples the bent spine at 384 arc lengths, each exactly a
+    quadrature of the rest spine's tangent: two thirds of a float64 frame of spot's leg. The
+    table's error (1e-9 relative, `_spines.table`) is far below the check's resolution
+    (the samples' spacing, `region`); the points are still bent on the exact spine."""
+    table = registration.checks[k]
+    if table is None or not isinstance(pose, LimbPose):
+        return None
+    return pose.spine(table, registration.joints[k], bend_stop(registration, k, pose))
 
 
 def bend_stop(registration: SkeletonRegistration, k: int, pose: LimbPose) -> Array:
@@ -533,22 +553,22 @@ def _check_limb_spine(registration: SkeletonRegistration, k: int, spine: Abstrac
 
 
 def limb_poser(registration: Registration, target: AbstractSpine, method: str,
-               check: bool = True) -> Poser:
+               check: bool = True, checked_on: AbstractSpine | None = None) -> Poser:
     """`target` prepared for posing a limb's region (`registration`): the points past the end
     move rigidly, those not validly bent keep their continued image (`Poser`'s `fallback`),
     and the images are checked to project back onto it with no margin (the
     margin keeps edges whole on the rest side, the registration's: with the margin on the
     bent spine too, the region's bounds on a bend's changing curvature flagged most of a thin
-    leg bent 60°)."""
+    leg bent 60°). `checked_on`: see `limb_check`."""
     return prepare_target(target, registration.points.dtype, method=method,
                           check_projection=check, margin=0.0, start=registration.ends,
-                          beyond="rigid", fallback=True)
+                          beyond="rigid", fallback=True, checked_on=checked_on)
 
 
-def _pose_limb(registration, target, method, check=True):
+def _pose_limb(registration, target, method, check=True, checked_on=None):
     """One limb's region posed onto `target`: `(images, valid, end motion)`, traced in a
     caller's program (eagerly: `_pose_limb_eagerly`)."""
-    return _posed_by(registration, limb_poser(registration, target, method, check))
+    return _posed_by(registration, limb_poser(registration, target, method, check, checked_on))
 
 
 def _posed_by(registration, poser):
@@ -559,14 +579,15 @@ def _posed_by(registration, poser):
     return images, ok, motion_between(registration.ends, poser.ends)
 
 
-def _pose_limb_eagerly(registration, target, method, check=True):
+def _pose_limb_eagerly(registration, target, method, check=True, checked_on=None):
     """`_pose_limb` called eagerly: two compiled programs, each shared by every limb of a
     bucket and every angle: the target's preparation (`limb_poser`: the program
     `pose_stretch` prepares its targets with too), and the pose, the projection check's
     sampled fallback inside (run only where points are pending). (As one program, the
     preparation was compiled into it, and again on its own for `pose_stretch`: 4 s of CPU
     on the tube's float64 limb.)"""
-    return _posed_by_program(registration, limb_poser(registration, target, method, check))
+    return _posed_by_program(registration,
+                             limb_poser(registration, target, method, check, checked_on))
 
 
 _posed_by_program = eqx.filter_jit(_posed_by)
@@ -575,6 +596,15 @@ _posed_by_program = eqx.filter_jit(_posed_by)
 # In single precision a limb's bent spines read its rest spine from a table made once here
 # (`_spines.looked_up`): preparing a frame's target 3× faster on spot.
 _looked_up = Program(LookedUpSpine)  # (once per registration: compiled quickly)
+# In double precision they evaluate it exactly, from its tables (a free-form spine's lengths,
+# coefficients and frame nodes), made once here too: each frame built them again (the frame
+# nodes' propagation is a loop), about a third of a float64 frame of spot's leg.
+_prepared_rest = Program(lambda spine: spine._prepare())
+
+
+def _tabled(spine: AbstractSpine) -> bool:
+    """Whether `spine` is read from a table in float32 (`tabulates`, whatever its dtype)."""
+    return spine._tabulable() and not spine._is_cheap()
 
 
 def limb_causes(registration: SkeletonRegistration, skeleton: Skeleton, poses: dict,
