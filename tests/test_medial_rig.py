@@ -125,16 +125,18 @@ def test_jax_field_matches_the_numpy_union_distance():
     faces = np.array([[0, 1, 2]])
     points = rng.normal(size=(300, 3)) * 1.5
     expected = union_distance(points, centers, radii, edges, faces, cutoff=100.0)
-    cones = cone_table(jnp.asarray(centers), jnp.asarray(radii), jnp.asarray(edges))
-    slabs = slab_table(jnp.asarray(centers), jnp.asarray(radii), jnp.asarray(faces))
-    cv, cg = jax.vmap(jax.vmap(cone_field, (None, 0)), (0, None))(jnp.asarray(points), cones)
+    # Jitted: eagerly, each of the tables' and fields' operations would compile on its own.
+    cones = jax.jit(cone_table)(jnp.asarray(centers), jnp.asarray(radii), jnp.asarray(edges))
+    slabs = jax.jit(slab_table)(jnp.asarray(centers), jnp.asarray(radii), jnp.asarray(faces))
+    cv, cg = jax.jit(jax.vmap(jax.vmap(cone_field, (None, 0)), (0, None)))(jnp.asarray(points),
+                                                                        cones)
     # The slab's edges (0, 1), (1, 2), (0, 2) are cones 0, 1, 2.
-    sv, sg = jax.vmap(jax.vmap(slab_field, (None, 0, None, None)), (0, None, 0, 0))(
+    sv, sg = jax.jit(jax.vmap(jax.vmap(slab_field, (None, 0, None, None)), (0, None, 0, 0)))(
         jnp.asarray(points), slabs, cv[:, :3], cg[:, :3])
     ours = np.minimum(np.asarray(cv).min(1), np.asarray(sv).min(1))
     assert np.allclose(ours, expected, atol=1e-9)
     # The gradients are the distance's: unit vectors, equal to finite differences.
-    value = jax.vmap(lambda q: jnp.min(jax.vmap(cone_field, (None, 0))(q, cones)[0]))
+    value = jax.jit(jax.vmap(lambda q: jnp.min(jax.vmap(cone_field, (None, 0))(q, cones)[0])))
     h = np.array([1e-6, 0, 0])
     fd = value(jnp.asarray(points + h)) - value(jnp.asarray(points - h))
     nearest = np.argmin(np.asarray(cv), axis=1)
