@@ -67,9 +67,10 @@ class SkeletonRegistration(eqx.Module):
     the region's vertices; `joints`, `stops`: scalars, where each limb's bend may start and
     must be complete (see the module's docstring); `vertices` (n, 3): the rest vertices;
     `margin`: scalar; `zones`: each limb's `JointZone`, where a bend of a given angle is
-    concentrated past the joint (`joint_zone`); `skeleton_id`: the skeleton's `fingerprint`
-    (its limbs and regions, its mesh, its spines and joints), so that a pose with another
-    skeleton is refused, saying which part differs.
+    concentrated past the joint (`joint_zone`); `triangles` (T, 3) int32: the mesh's faces
+    fanned into triangles (the surface a shape fit measures distances to); `skeleton_id`: the
+    skeleton's `fingerprint` (its limbs and regions, its mesh, its spines and joints), so that
+    a pose with another skeleton is refused, saying which part differs.
     """
 
     registrations: tuple[Registration, ...]
@@ -81,6 +82,7 @@ class SkeletonRegistration(eqx.Module):
     vertices: Array
     margin: Array
     zones: tuple[JointZone, ...]
+    triangles: Array  # (T, 3) int32: the mesh's faces as triangles (a shape fit's surface)
     skeleton_id: tuple[int, ...] = eqx.field(static=True)  # `fingerprint` of its skeleton
 
 
@@ -194,7 +196,16 @@ def register_skeleton(mesh, skeleton: Skeleton, *, margin: float | None = None,
         stops.append(jnp.minimum(jnp.asarray(stop, points.dtype), rest.length))
     return SkeletonRegistration(tuple(registrations), tuple(rests), tuple(checks),
                                 tuple(indices), tuple(joints),
-                                tuple(stops), points, margin, tuple(zones), fingerprint(skeleton))
+                                tuple(stops), points, margin, tuple(zones),
+                                jnp.asarray(_triangles(faces), jnp.int32), fingerprint(skeleton))
+
+
+def _triangles(faces: np.ndarray) -> np.ndarray:
+    """The polygons `faces` (F, k) as triangles (F (k − 2), 3), each fanned from its first
+    corner."""
+    faces = np.asarray(faces, np.int64).reshape(len(faces), -1)
+    fans = [faces[:, [0, i, i + 1]] for i in range(1, faces.shape[1] - 1)]
+    return np.concatenate(fans, axis=0) if fans else np.zeros((0, 3), np.int64)
 
 
 @eqx.filter_jit
