@@ -311,3 +311,36 @@ def test_the_angle_spread_is_the_sandwich_standard_error():
     message = _undetermined(spread)
     assert "limb 7 ±" in message and "limb 4" not in message and "markers" in message
     assert _undetermined({4: spread[4]}) == ""
+
+
+def test_the_distance_to_a_surface_is_to_its_closest_triangle_point():
+    # A shape fit measures the target to the posed triangles (`_fit.surface`): the closest
+    # point of a triangle against a dense sample of it, and a sphere's distances against
+    # trimesh's, with finite gradients in the vertices.
+    import jax
+    import jax.numpy as jnp
+    import trimesh
+
+    from fleshing_jax._fit.surface import closest_weights, rings, to_surface
+
+    rng = np.random.default_rng(0)
+    u = rng.uniform(size=(20000, 2))
+    u = u[u.sum(axis=1) <= 1]
+    nearest = jax.jit(jax.vmap(closest_weights))
+    triangles, points = rng.normal(size=(50, 3, 3)), 2 * rng.normal(size=(50, 3))
+    weights = np.asarray(nearest(points, *np.moveaxis(triangles, 1, 0)))
+    assert np.all(weights >= -1e-12) and np.allclose(weights.sum(axis=1), 1)
+    for tri, y, w in zip(triangles, points, weights):
+        dense = np.concatenate([tri, tri[0] + u @ (tri[1:] - tri[0])])  # corners too
+        best = np.sqrt(np.min(np.sum((dense - y) ** 2, axis=1)))
+        assert best - 0.05 <= np.linalg.norm(y - w @ tri) <= best + 1e-12
+    ball = trimesh.creation.icosphere(2)
+    faces = jnp.asarray(ball.faces)
+    ring = jnp.asarray(rings(ball.faces, len(ball.vertices)))
+    y = rng.normal(size=(40, 3))
+    d = to_surface(jnp.asarray(y), jnp.asarray(ball.vertices), faces, ring)
+    _, expected, _ = trimesh.proximity.closest_point_naive(ball, y)
+    np.testing.assert_allclose(np.linalg.norm(np.asarray(d), axis=1), expected, atol=1e-12)
+    grad = jax.grad(lambda v: jnp.sum(to_surface(jnp.asarray(y), v, faces, ring) ** 2))(
+        jnp.asarray(ball.vertices))
+    assert np.isfinite(np.asarray(grad)).all() and np.any(np.asarray(grad) != 0)

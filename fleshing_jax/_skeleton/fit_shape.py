@@ -51,6 +51,7 @@ from scipy.spatial import cKDTree
 from .._fit.budget import budgeted
 from .._fit.chamfer import _nearest
 from .._fit.problem import check_cloud
+from .._fit.surface import rings, to_surface
 from .._fit.uncertainty import block_spread, covariance
 from .fit_pose import SkeletonFit, _solve, parameters_of, pose_of, restricted
 from .limb_pose import LimbPose
@@ -58,8 +59,10 @@ from .posing import SkeletonRegistration, pose_skeleton, posed
 from .skeleton import Skeleton, descendants
 
 TARGET_POINTS = 5000  # a larger cloud (or a mesh's surface) is sampled down to this many
-MOVING_PER_LIMB = 96  # posed vertices sampled from each moving limb's region
-STILL_POINTS = 1024  # vertices sampled from the parts no pose moves (the body)
+# Of the parts no pose moves (the body), the solve's surface keeps at most this many vertices
+# (sampled past it, with every vertex of the triangles touching a moving limb). Every vertex of
+# the moving limbs is posed: the target is measured to the posed triangles.
+STILL_POINTS = 2048
 SOLVE_POINTS = 1500  # of the target, in the solve (the check of the result reads them all)
 # The continuation's stages: (Cauchy scale σ as a fraction of the target's diagonal, weight of
 # the posed-to-target term, weight of the differences' tangential part). The coarse stage
@@ -67,11 +70,13 @@ SOLVE_POINTS = 1500  # of the target, in the solve (the check of the result read
 # match on the right pose, even for a partial scan) point to point; the later ones are
 # symmetric and point to plane (the target's normals): neither the vertices' nor the samples'
 # spacing biases the angles.
-STAGES = ((0.1, 0.0, 1.0), (0.03, 1.0, 0.0), (0.01, 1.0, 0.0))
+STAGES = ((0.1, 0.0, 1.0), (0.03, 0.0, 0.0), (0.01, 0.0, 0.0))
 COARSE_STEPS = 16  # the stages before the last only bring the pose near
 # The solver's default tolerances: the neighbours change with the pose, so the loss is only
 # piecewise smooth and far tighter tolerances spend steps on round-off-sized moves (1e-6 rad).
 SHAPE_TOLERANCE = 1e-6
+RESTART = np.deg2rad(15.0)  # how much more and less bent each limb is tried from (`_starts`)
+IMPROVED = 1e-9  # the relative decrease of the loss for which another start is kept
 EXPLAINED = 0.98  # the fraction of the target that must lie near the fit
 # How much more of a limb's posed vertices than of the body's may lie away from the target: a
 # thin part leaves a few per cent at the true pose (spot's ear, 5.5 % against the body's 1.1 %
@@ -141,6 +146,8 @@ class ShapeProblem(eqx.Module):
     twists: Array  # (L,) radians: the fitted limbs' twists when they are held
     moving: Array  # (m,) rows of the moving sample in the restricted registration
     still: Array  # (s, 3) vertices no pose moves
+    faces: Array  # (F, 3) the surface's triangles: rows of `moving` then of `still`
+    rings: Array  # (m + s, R) each surface vertex's faces (`_fit.surface.rings`)
     cloud: Array  # (K, 3)
     normals: Array  # (K, 3) the cloud's
     stage: Array  # (3,): σ, the posed-to-target weight, the tangential weight (`STAGES`)
@@ -175,14 +182,47 @@ class ShapeProblem(eqx.Module):
         everywhere = jnp.ones(self.cloud.shape[0], bool)
         near = _nearest(surface, self.cloud, everywhere)
         forward = self._robust(surface - self.cloud[near], self.normals[near])
-        back = _nearest(self.cloud, surface, jnp.ones(surface.shape[0], bool))
-        backward = self._robust(self.cloud - surface[back], self.normals)
-        weight = jnp.sqrt(self.stage[1] / surface.shape[0])
-        out = (weight * forward.reshape(-1), backward.reshape(-1) / np.sqrt(self.cloud.shape[0]))
+        # The target to the posed surface itself (its triangles), not to its vertices: zero at
+        # the true pose, however far apart the vertices (`_fit.surface`).
+        backward = _cauchy(to_surface(self.cloud, surface, self.faces, self.rings),
+                           self.stage[0])
+        # In units of σ: the loss is then on one scale whatever the mesh's size, and so are
+        # the solver's tolerances on its decrease (in the mesh's units, a mean squared
+        # distance of 1e-7 met any absolute tolerance: the solve stopped on a slope).
+        weight = jnp.sqrt(self.stage[1] / surface.shape[0]) / self.stage[0]
+        out = (weight * forward.reshape(-1),
+               backward.reshape(-1) / (np.sqrt(self.cloud.shape[0]) * self.stage[0]))
         if self.markers.shape[0]:
             diff = vertices[self.markers] - self.marker_targets
-            out = (*out, diff.reshape(-1) / np.sqrt(self.markers.shape[0]))
+            out = (*out, diff.reshape(-1) / (np.sqrt(self.markers.shape[0]) * self.stage[0]))
         return out
+
+
+def _still(triangles: np.ndarray, region: np.ndarray, moving_limbs: list[int], rng):
+    """The vertices of the surface that no fitted pose moves, in the solve: all of them up to
+    `STILL_POINTS`; past it those of the triangles that touch a moving limb (where a target
+    point may lie between the body and a limb) and a sample of the others."""
+    still = np.flatnonzero(~np.isin(region, moving_limbs))
+    if len(still) <= STILL_POINTS:
+        return still
+    touching = np.isin(region[triangles], moving_limbs).any(axis=1)
+    band = np.intersect1d(np.unique(triangles[touching]), still)
+    rest = np.setdiff1d(still, band)
+    return np.union1d(band, _sample(rest, max(STILL_POINTS - len(band), 0), rng))
+
+
+def surface_of(triangles: np.ndarray, kept: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The surface of the vertices `kept` (m,) (indices into the mesh): the triangles of
+    `triangles` (T, 3) with every corner kept, as rows of `kept` (T', 3), and each row's faces
+    (m, R) (`_fit.surface.rings`). A kept vertex on no such triangle (a sampled one) is a
+    triangle of its own, collapsed to that point."""
+    position = np.full(int(max(triangles.max(initial=-1), kept.max(initial=-1))) + 1, -1)
+    position[kept] = np.arange(len(kept))
+    mapped = position[triangles]
+    faces = mapped[(mapped >= 0).all(axis=1)]
+    alone = np.setdiff1d(np.arange(len(kept)), faces)
+    faces = np.concatenate([faces, np.repeat(alone[:, None], 3, axis=1)])
+    return faces, rings(faces, len(kept))
 
 
 def _moving_limbs(skeleton: Skeleton, posed_limbs) -> list[int]:
@@ -203,9 +243,10 @@ def fit_to_shape(registration: SkeletonRegistration, skeleton: Skeleton, target,
     rng = np.random.default_rng(0)
     held = {k: v for k, v in init.items() if k not in limbs}
     moving_limbs = _moving_limbs(skeleton, [*limbs, *held])
-    moving = np.concatenate([_sample(np.flatnonzero(region == k), MOVING_PER_LIMB, rng)
-                             for k in moving_limbs])
-    still = _sample(np.flatnonzero(~np.isin(region, moving_limbs)), STILL_POINTS, rng)
+    triangles = np.asarray(registration.triangles)
+    moving = np.flatnonzero(np.isin(region, moving_limbs))
+    still = _still(triangles, region, moving_limbs, rng)
+    faces, ring = surface_of(triangles, np.concatenate([moving, still]))
     markers = np.zeros(0, np.int64) if ids is None else ids
     small, rows = restricted(registration, np.concatenate([moving, markers]))
     marker_targets = (jnp.zeros((0, 3), dtype) if targets is None
@@ -216,7 +257,7 @@ def fit_to_shape(registration: SkeletonRegistration, skeleton: Skeleton, target,
     starts = jnp.stack([parameters_of(init.get(k, LimbPose()), dtype) for k in limbs])
     problem = ShapeProblem(
         small, skeleton, held, starts[:, 2], rows[: len(moving)], jnp.asarray(rest[still]),
-        jnp.asarray(cloud[solved]), jnp.asarray(normals[solved], dtype),
+        jnp.asarray(faces), jnp.asarray(ring), jnp.asarray(cloud[solved]), jnp.asarray(normals[solved], dtype),
         jnp.zeros(3, dtype), rows[len(moving):], marker_targets, limbs, method)
     y = starts if fit_twist else starts[:, :2]
     steps = 0
@@ -229,6 +270,12 @@ def fit_to_shape(registration: SkeletonRegistration, skeleton: Skeleton, target,
         budget = budgeted(solver, max_steps if last else min(max_steps, COARSE_STEPS))
         y, _, result, stats, linear = _solve(problem, budget, y, max_steps, throw and last,
                                              True)
+        steps += int(stats["num_steps"])
+    y, tried = _restarted(problem, solver, y, linear, max_steps)
+    steps += tried
+    if tried:
+        y, _, result, stats, linear = _solve(problem, budgeted(solver, max_steps), y,
+                                             max_steps, throw, True)
         steps += int(stats["num_steps"])
     poses = dict(sorted(problem.poses(y).items()))
     whole = pose_skeleton(registration, skeleton, poses, method=method)
@@ -248,10 +295,11 @@ def fit_to_shape(registration: SkeletonRegistration, skeleton: Skeleton, target,
     ahead = np.abs(np.sum((vertices - cloud[nearest_to]) * normals[nearest_to], axis=-1))
     spread = _spreads(linear, limbs, y.shape[-1])
     stats = {**stats, "angle_spread": spread}
-    message = ""
-    if successful:
-        message = (_unexplained(off, noise, rest, owner, moving_limbs, ahead, region)
-                   or _undetermined(spread))
+    # A target the fit does not explain is said so even when the solve stopped short (a ball
+    # fitted with spot: its limbs tried far from rest, out of steps).
+    message = _unexplained(off, noise, rest, owner, moving_limbs, ahead, region)
+    if successful and not message:
+        message = _undetermined(spread)
     return SkeletonFit(
         poses=poses,
         rms=jnp.sqrt(jnp.asarray(loss, dtype)),
@@ -263,6 +311,39 @@ def fit_to_shape(registration: SkeletonRegistration, skeleton: Skeleton, target,
         stats=stats,
         stalled=message,
     )
+
+
+def _loss(linear) -> float:
+    return float(jnp.sum(linear[1] ** 2))
+
+
+def _starts(b: np.ndarray) -> list[np.ndarray]:
+    """Other starts for one limb's bend vector `b` (2,) (radians): half and all of `RESTART`
+    more and less bent in its direction, or, for a limb barely bent, bent by `RESTART` in four
+    directions."""
+    size = float(np.hypot(*b))
+    if size < RESTART / 3:
+        return [RESTART * np.array([np.cos(a), np.sin(a)]) for a in np.arange(4) * np.pi / 2]
+    return [b * (size + d) / size for d in RESTART * np.array([0.5, 1, -0.5, -1])
+            if size + d > 0]
+
+
+def _restarted(problem: ShapeProblem, solver, y: Array, linear, max_steps: int):
+    """`y` improved limb by limb from other starts (`_starts`, the other limbs held where they
+    are, each tried for `COARSE_STEPS` steps of the last stage): a short, thick limb's bend
+    has local minima where its bending zone grows with the angle (spot's hind leg bent 30°
+    stopped at 15° from the rest pose, where the target's distance to the posed surface has a
+    minimum of its own). `(y, steps taken)`; the best start's solve is to be continued."""
+    best, taken = _loss(linear), 0
+    short = budgeted(solver, min(max_steps, COARSE_STEPS))
+    for i in range(y.shape[0]):
+        for start in _starts(np.asarray(y[i, :2])):
+            trial, _, _, stats, out = _solve(problem, short, y.at[i, :2].set(start), max_steps,
+                                             False, True)
+            taken += int(stats["num_steps"])
+            if _loss(out) < best * (1 - IMPROVED):
+                y, best = trial, _loss(out)
+    return y, taken
 
 
 def _unexplained(distances: np.ndarray, noise: float, rest: np.ndarray, owner: np.ndarray,
