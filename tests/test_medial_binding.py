@@ -7,6 +7,7 @@ A sheet of 4 × 3 spheres of equal radii (18 slabs, exact ties between primitive
 a sphere) with a chain of cones hanging off it and a lone sphere; 1500 points around it.
 """
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
@@ -102,13 +103,23 @@ def test_packed_tables_unpack_to_the_tables(medial_and_points, dtype):
     c, r = jnp.asarray(centers, dtype), jnp.asarray(radii, dtype)
     faces = np.r_[faces, [[0, 1, 2]]]  # a degenerate slab: its `ok` is False
     c = c.at[2].set(2 * c[1] - c[0])  # (spheres 0, 1, 2 collinear)
-    for table in (cone_table(c, r, jnp.asarray(edges)), slab_table(c, r, jnp.asarray(faces))):
-        rows, layout = pack_rows(table)
+
+    @jax.jit  # (eagerly, each operation would compile on its own)
+    def round_trips(c, r):
+        """Per table: its packed rows, the rows at `index` unpacked, the table at `index`."""
+        out = []
+        for table in (cone_table(c, r, jnp.asarray(edges)), slab_table(c, r, jnp.asarray(faces))):
+            rows, layout = pack_rows(table)
+            index = jnp.array([3, 0, 3, len(rows) - 1])
+            out.append((rows, unpack_rows(rows[index], layout),
+                        jax.tree.map(lambda a: a[index], table)))
+        return out
+
+    trips = round_trips(c, r)
+    for rows, back, table in trips:
         assert rows.dtype == dtype
-        index = jnp.array([3, 0, 3, len(rows) - 1])
-        back = unpack_rows(rows[index], layout)
         for name in table.__dataclass_fields__:
-            want, got = getattr(table, name)[index], getattr(back, name)
+            want, got = getattr(table, name), getattr(back, name)
             assert got.dtype == want.dtype and got.shape == want.shape, name
             np.testing.assert_array_equal(got, want, err_msg=name)
-    assert not bool(slab_table(c, r, jnp.asarray(faces)).ok[-1])
+    assert not bool(trips[1][2].ok[-1])  # (the slab table at its last row)
