@@ -182,8 +182,8 @@ def test_correction_loop_is_its_steps_in_turn(newton_steps, relax_iterations):
     rng = np.random.default_rng(5)
     centers = jnp.asarray(CENTERS + rng.normal(scale=0.1, size=CENTERS.shape))
     skinned = jnp.asarray(points + rng.normal(scale=0.05, size=points.shape))
-    turn = jnp.asarray(np.linalg.qr(rng.normal(size=(len(points), 3, 3)))[0])
-    turn = turn * jnp.sign(jnp.linalg.det(turn))[:, None, None]  # rotations
+    turn = np.linalg.qr(rng.normal(size=(len(points), 3, 3)))[0]
+    turn = jnp.asarray(turn * np.sign(np.linalg.det(turn))[:, None, None])  # rotations
     d, cos_max = rig.correction, np.cos(np.radians(55.0))
 
     @jax.jit

@@ -186,8 +186,8 @@ def test_still_blocks_keep_their_skinned_vertices(capsule):
     centers = np.concatenate([c[:7], (c[7:] - c[7]) @ turn.T + c[7]])
     posed = MedialPose(medial, jnp.asarray(centers),
                        jnp.asarray(np.stack([np.eye(3)] * 7 + [turn] * 2)))
-    still = np.asarray(still_blocks(rig.correction.blocks, rig.rest_centers, posed.centers,
-                                    posed.rotations))
+    still = np.asarray(jax.jit(still_blocks)(rig.correction.blocks, rig.rest_centers,
+                                             posed.centers, posed.rotations))
     assert still.any() and not still.all()
     kept = still[np.asarray(rig.correction.rank)[np.asarray(rig.welded)] // rig.correction.block]
     skinned = np.asarray(rig.pose(posed, "medial", implicit=False)[0])
