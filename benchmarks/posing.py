@@ -112,7 +112,8 @@ SPOT_LIMBS = (LEG, HEAD, 5, 6, 7, 1, 2, 3, 4)  # posed in this order: 1, 3 or al
 
 
 def frame_table(mesh, skeleton, dtype, counts=(1, 3, 9), frames=50, order=SPOT_LIMBS):
-    """Rows `(dtype, limbs posed, first call (s), per frame (ms, median), recompilations)`:
+    """Rows `(dtype, limbs posed, first call (s), per frame (ms, median), its CPU time (ms,
+    median: all threads; steadier than the wall time on a loaded machine), recompilations)`:
     `mesh` registered once in `dtype`, then `jax.jit(lambda poses: fj.pose_skeleton(...))`
     a frame, each frame a new bend (10° + 0.2° a frame, the direction and twist fixed) of the
     first `count` limbs of `order`; recompilations: the programs the jitted frame gained
@@ -129,13 +130,14 @@ def frame_table(mesh, skeleton, dtype, counts=(1, 3, 9), frames=50, order=SPOT_L
         start = time.perf_counter()
         frame(poses(0)).block_until_ready()
         first, programs = time.perf_counter() - start, frame._cache_size()
-        times = []
+        times, cpu = [], []
         for i in range(1, frames + 1):
-            start = time.perf_counter()
+            start, used = time.perf_counter(), time.process_time()
             frame(poses(i)).block_until_ready()
             times.append(time.perf_counter() - start)
+            cpu.append(time.process_time() - used)
         rows.append((np.dtype(dtype).name, count, first, 1e3 * float(np.median(times)),
-                     frame._cache_size() - programs))
+                     1e3 * float(np.median(cpu)), frame._cache_size() - programs))
     return rows
 
 
@@ -361,12 +363,13 @@ def main():
             print(f"| {name} | {first:.1f} | {ms:.2f} |")
     if args.only_frames or args.spot_frames:
         print(f"\nspot, {len(spot.vertices):,} vertices, jitted frames\n")
-        print("| dtype | limbs posed | first call (s) | per frame (ms, median) | "
-              "recompilations |\n|---|---:|---:|---:|---:|")
+        print("| dtype | limbs posed | first call (s) | per frame (ms, median) | CPU (ms) | "
+              "recompilations |\n|---|---:|---:|---:|---:|---:|")
         for dtype, counts in ((np.float32, (1, 3, 9)), (np.float64, args.float64_limbs)):
-            for name, count, first, ms, again in frame_table(spot, skeleton, dtype, counts,
-                                                             args.frames):
-                print(f"| {name} | {count} | {first:.1f} | {ms:.2f} | {again} |", flush=True)
+            for name, count, first, ms, cpu, again in frame_table(spot, skeleton, dtype, counts,
+                                                                  args.frames):
+                print(f"| {name} | {count} | {first:.1f} | {ms:.2f} | {cpu:.2f} | {again} |",
+                      flush=True)
         return
     medial = fj.medial_mesh(spot, 200, progress=False)
     turns = (0.0, 90.0, 180.0, 270.0)  # the bends' directions turned: the same angles

@@ -153,6 +153,11 @@ def test_float32_posing_reads_its_rest_spines_from_tables(tube, skeleton, regist
     poses = {0: fj.LimbPose(60, 90, 30), 1: fj.LimbPose(30, 180), 2: fj.LimbPose(50, 0)}
     single = fj.register_skeleton(tube, skeleton, margin=0.06, dtype=jnp.float32)
     assert all(isinstance(rest, fj.LookedUpSpine) for rest in single.rests)
+    # In float64 the rest spines are exact, and tabulated only for the projection check.
+    assert all(check is None for check in single.checks)
+    assert all(isinstance(check, fj.LookedUpSpine) and check.length.dtype == jnp.float64
+               for check in registration.checks)
+    assert not any(isinstance(rest, fj.LookedUpSpine) for rest in registration.rests)
     # A looked-up rest spine is its spine, continuation included, to single precision.
     s = jnp.linspace(-0.3, 2.8, 32, dtype=jnp.float32)
     reference = jax.jit(jax.vmap(skeleton.limbs[0].spine.jet_and_normals))(s.astype(jnp.float64))
