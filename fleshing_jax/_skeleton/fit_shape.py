@@ -77,6 +77,9 @@ COARSE_STEPS = 16  # the stages before the last only bring the pose near
 SHAPE_TOLERANCE = 1e-6
 RESTART = np.deg2rad(15.0)  # how much more and less bent each limb is tried from (`_starts`)
 IMPROVED = 1e-9  # the relative decrease of the loss for which another start is kept
+# A limb is tried from other starts when its part of the target's mean squared residual (in σ²)
+# exceeds the body's this many times, plus the floor.
+STUCK, STUCK_FLOOR = 4.0, 1e-4
 EXPLAINED = 0.98  # the fraction of the target that must lie near the fit
 # How much more of a limb's posed vertices than of the body's may lie away from the target: a
 # thin part leaves a few per cent at the true pose (spot's ear, 5.5 % against the body's 1.1 %
@@ -271,7 +274,11 @@ def fit_to_shape(registration: SkeletonRegistration, skeleton: Skeleton, target,
         y, _, result, stats, linear = _solve(problem, budget, y, max_steps, throw and last,
                                              True)
         steps += int(stats["num_steps"])
-    y, tried = _restarted(problem, solver, y, linear, max_steps)
+    kept = np.concatenate([moving, still])
+    # (The whole mesh posed eagerly, by the programs that pose the result below.)
+    whole = pose_skeleton(registration, skeleton, problem.poses(y), method=method)
+    y, tried = _restarted(problem, solver, y, linear, max_steps,
+                          np.asarray(whole.vertices)[kept], region[kept])
     steps += tried
     if tried:
         y, _, result, stats, linear = _solve(problem, budgeted(solver, max_steps), y,
@@ -282,8 +289,12 @@ def fit_to_shape(registration: SkeletonRegistration, skeleton: Skeleton, target,
     vertices = np.asarray(whole.vertices)
     backward, nearest = cKDTree(vertices).query(cloud)
     forward, nearest_to = cKDTree(cloud).query(vertices)
-    # Along the target's normals: a target point between two vertices is not unexplained.
-    off = np.abs(np.sum((cloud - vertices[nearest]) * normals, axis=-1))
+    # To the posed triangles: a target point between vertices is not unexplained (along the
+    # target's normals to the nearest vertex, a thin ear's sides seen from one side were).
+    off = np.linalg.norm(np.asarray(_distances(jnp.asarray(cloud), whole.vertices,
+                                               registration.triangles,
+                                               jnp.asarray(rings(triangles, len(vertices))))),
+                         axis=-1)
     loss = (np.mean(forward**2) + np.mean(backward**2)) / 2
     if ids is not None:
         loss = loss + np.mean(np.sum((vertices[ids] - np.asarray(targets)) ** 2, axis=-1))
@@ -297,7 +308,7 @@ def fit_to_shape(registration: SkeletonRegistration, skeleton: Skeleton, target,
     stats = {**stats, "angle_spread": spread}
     # A target the fit does not explain is said so even when the solve stopped short (a ball
     # fitted with spot: its limbs tried far from rest, out of steps).
-    message = _unexplained(off, noise, rest, owner, moving_limbs, ahead, region)
+    message = _unexplained(off, noise, rest, owner, moving_limbs, ahead, region, limbs)
     if successful and not message:
         message = _undetermined(spread)
     return SkeletonFit(
@@ -311,6 +322,9 @@ def fit_to_shape(registration: SkeletonRegistration, skeleton: Skeleton, target,
         stats=stats,
         stalled=message,
     )
+
+
+_distances = eqx.filter_jit(to_surface)
 
 
 def _loss(linear) -> float:
@@ -328,15 +342,17 @@ def _starts(b: np.ndarray) -> list[np.ndarray]:
             if size + d > 0]
 
 
-def _restarted(problem: ShapeProblem, solver, y: Array, linear, max_steps: int):
+def _restarted(problem: ShapeProblem, solver, y: Array, linear, max_steps: int,
+               surface: np.ndarray, region: np.ndarray):
     """`y` improved limb by limb from other starts (`_starts`, the other limbs held where they
     are, each tried for `COARSE_STEPS` steps of the last stage): a short, thick limb's bend
     has local minima where its bending zone grows with the angle (spot's hind leg bent 30°
     stopped at 15° from the rest pose, where the target's distance to the posed surface has a
-    minimum of its own). `(y, steps taken)`; the best start's solve is to be continued."""
+    minimum of its own). Only the limbs whose part of the target stays unexplained
+    (`_stuck`). `(y, steps taken)`; the best start's solve is to be continued."""
     best, taken = _loss(linear), 0
     short = budgeted(solver, min(max_steps, COARSE_STEPS))
-    for i in range(y.shape[0]):
+    for i in _stuck(problem, linear, surface, region):
         for start in _starts(np.asarray(y[i, :2])):
             trial, _, _, stats, out = _solve(problem, short, y.at[i, :2].set(start), max_steps,
                                              False, True)
@@ -346,9 +362,25 @@ def _restarted(problem: ShapeProblem, solver, y: Array, linear, max_steps: int):
     return y, taken
 
 
+def _stuck(problem: ShapeProblem, linear, surface: np.ndarray, region: np.ndarray) -> list[int]:
+    """The positions in `problem.limbs` of the fitted limbs whose part of the solve's target
+    (its points nearest to their posed vertices) lies farther from the posed surface than the
+    body's part does (`STUCK` times its mean squared residual, plus `STUCK_FLOOR` σ²): a limb
+    at a minimum of its own. A noisy target's parts are all at its noise: none. `surface`
+    (m + s, 3): the solve's surface vertices posed; `region` (m + s,): their limbs."""
+    cloud = np.asarray(problem.cloud)
+    owner = region[cKDTree(surface).query(cloud)[1]]
+    forward = 3 * surface.shape[0]
+    backward = np.asarray(linear[1])[forward: forward + 3 * len(cloud)].reshape(-1, 3)
+    squared = len(cloud) * np.sum(backward**2, axis=1)  # (the residuals are over √K)
+    body = float(np.mean(squared[owner < 0])) if (owner < 0).any() else 0.0
+    return [i for i, k in enumerate(problem.limbs) if (owner == k).any()
+            and float(np.mean(squared[owner == k])) > STUCK * body + STUCK_FLOOR]
+
+
 def _unexplained(distances: np.ndarray, noise: float, rest: np.ndarray, owner: np.ndarray,
                  limbs: list[int], ahead: np.ndarray | None = None,
-                 region: np.ndarray | None = None) -> str:
+                 region: np.ndarray | None = None, fitted=None) -> str:
     """"" when the posed surface explains the target both ways, else what is left unexplained
     and what to try.
 
@@ -385,7 +417,9 @@ def _unexplained(distances: np.ndarray, noise: float, rest: np.ndarray, owner: n
         return ""
     body = region < 0
     unseen = float(np.mean(ahead[body] > reach)) if body.any() else 0.0
-    for k in limbs:
+    # (The fitted limbs only (`fitted`, default `limbs`): a limb carried by a fitted one
+    # follows it, and a one-sided scan may show none of it, as none of spot's far ear.)
+    for k in limbs if fitted is None else fitted:
         away = float(np.mean(ahead[region == k] > reach)) if (region == k).any() else 0.0
         if away > unseen + AWAY:
             return (
