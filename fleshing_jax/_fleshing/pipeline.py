@@ -206,7 +206,7 @@ class Poser(eqx.Module):
         self.frames = TargetFrames(self.target, twist, tabulate=tabulates(target))
         self.method, self.check_projection = method, check_projection
         use = check_projection and not closed
-        checked = self.target if checked_on is None else _own_table(checked_on)
+        checked = self.target if checked_on is None or not use else _own_table(checked_on)
         self.region = ValidRegion(checked, margin) if use else None
 
     @property

@@ -473,8 +473,10 @@ def posed_limbs(registration: SkeletonRegistration, poses: dict, method: str, ch
     # largest limb's it is padded to for the eager calls' shared programs: on spot's 100k
     # vertices a leg's 4.9k vertices were posed as 24.6k.
     own = not (stacked or is_concrete(poses))
+    # (Unchecked, no spine to check on: nor in the batches' structure, a fit's limbs grouped.)
     pairs = {k: (_limb_registration(registration, k, own), target,
-                 limb_check(registration, k, poses[k])) for k, target in targets.items()}
+                 limb_check(registration, k, poses[k]) if check else None)
+             for k, target in targets.items()}
     if not stacked or len(pairs) < 2:
         # Eagerly, each limb is posed by one compiled program, shared by every limb of a
         # bucket and every angle: the sampled fallback of the projection check is in it
