@@ -4,23 +4,29 @@
 The limbs' angles that bring the posed surface onto a target point cloud (a scan, another
 pose's vertices, samples of a mesh), from the rest pose:
 
-- **Objective.** A robust symmetric Chamfer distance between a sample of the posed vertices
-  `{xᵢ}` (N) and the target `{yⱼ}` (K), each nearest-neighbour difference `d` weighted by the
-  Cauchy loss `ρ(|d|²) = σ² log(1 + |d|²/σ²)`:
-  `(1/N) Σᵢ ρ(|xᵢ − y_nn(i)|²) + (1/K) Σⱼ ρ(|yⱼ − x_nn(j)|²)`, as residuals `d √(ρ/|d|²)`
-  (their squares sum to the loss, so Levenberg–Marquardt minimises exactly it). The
-  neighbours are chosen on stopped gradients (`_fit.chamfer`): everything else is differentiated
-  through the posing, end to end. Cauchy's influence falls off as `1/|d|`: a stray scan point,
-  or a posed point the scan does not see (a partial scan), pulls ever less the farther it is.
+- **Objective.** A robust distance from each target point `yⱼ` (K) to the posed surface:
+  to the closest point of the posed triangles around its nearest posed vertex (`_fit.surface`;
+  to the vertices alone, a short leg's bend hid under the vertices' spacing), each difference
+  `d` weighted by the Cauchy loss `ρ(|d|²) = σ² log(1 + |d|²/σ²)`, as residuals `d √(ρ/|d|²)`
+  over `σ √K` (their squares sum to the loss over σ², so Levenberg–Marquardt minimises exactly
+  it). A posed-to-target term (each posed vertex to its nearest target point's plane) is in
+  the residuals with the weight `STAGES` gives it (0 in every stage today: along the target's
+  sampled normals its curvature floor biased short, thick legs). The choices are made on
+  stopped gradients: everything else is differentiated through the posing, end to end.
+  Cauchy's influence falls off as `1/|d|`: a stray scan point pulls ever less the farther it
+  is; a partial scan simply has no points on its unseen side.
 - **Continuation in σ.** From the rest pose a limb may lie a fifth of the diagonal from its
   target, where a small σ would see only outliers. The solve runs at σ = 10 %, 3 % and 1 % of
   the target's diagonal in turn, each stage from the last (one compiled program: the stage
-  and its step budget are leaves, `STAGES`), point to point first, then point to plane along
-  the target's normals.
+  and its step budget are leaves, `STAGES`).
+- **Other starts.** A short, thick limb's bend has minima of its own (spot's hind leg bent
+  30° stopped at 15°, where its bending zone grows with the angle): a fitted limb whose part
+  of the target stays unexplained (`_stuck`) is tried from half and all of `RESTART` more and
+  less bent, the lowest loss kept (`_restarted`), and the last stage run again.
 - **Twist.** The surface of a round limb barely changes when it turns about its own axis: the
   twists are held at `init`'s unless `fit_twist=True`.
 - **Honest convergence.** The fit explains the target when nearly every target point
-  (`EXPLAINED`) lies within `3 σ̂ + h/4` of the posed surface, along its normal: `σ̂` the
+  (`EXPLAINED`) lies within `3 σ̂ + h/4` of the posed triangles: `σ̂` the
   target's own noise (the rms distance of its points from the planes through their
   neighbours) and `h` the mesh's vertex spacing. Otherwise `converged` is False with a
   message (a solve that stalled leaves the target unexplained too). The same, per fitted limb,
@@ -65,11 +71,9 @@ TARGET_POINTS = 5000  # a larger cloud (or a mesh's surface) is sampled down to 
 STILL_POINTS = 2048
 SOLVE_POINTS = 1500  # of the target, in the solve (the check of the result reads them all)
 # The continuation's stages: (Cauchy scale σ as a fraction of the target's diagonal, weight of
-# the posed-to-target term, weight of the differences' tangential part). The coarse stage
-# pulls the limbs from afar with the target-to-posed term alone (every target point has a
-# match on the right pose, even for a partial scan) point to point; the later ones are
-# symmetric and point to plane (the target's normals): neither the vertices' nor the samples'
-# spacing biases the angles.
+# the posed-to-target term, weight of that term's tangential part). The posed-to-target term is
+# off: point to plane along the target's sampled normals, its floor (their curvature between
+# samples) pulled spot's short legs 5-15° off; the target to the posed triangles has none.
 STAGES = ((0.1, 0.0, 1.0), (0.03, 0.0, 0.0), (0.01, 0.0, 0.0))
 COARSE_STEPS = 16  # the stages before the last only bring the pose near
 # The solver's default tolerances: the neighbours change with the pose, so the loss is only
