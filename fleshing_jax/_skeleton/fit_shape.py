@@ -264,7 +264,8 @@ def fit_to_shape(registration: SkeletonRegistration, skeleton: Skeleton, target,
     starts = jnp.stack([parameters_of(init.get(k, LimbPose()), dtype) for k in limbs])
     problem = ShapeProblem(
         small, skeleton, held, starts[:, 2], rows[: len(moving)], jnp.asarray(rest[still]),
-        jnp.asarray(faces), jnp.asarray(ring), jnp.asarray(cloud[solved]), jnp.asarray(normals[solved], dtype),
+        jnp.asarray(faces), jnp.asarray(ring), jnp.asarray(cloud[solved]),
+        jnp.asarray(normals[solved], dtype),
         jnp.zeros(3, dtype), rows[len(moving):], marker_targets, limbs, method)
     y = starts if fit_twist else starts[:, :2]
     steps = 0
