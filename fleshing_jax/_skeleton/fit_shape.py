@@ -9,16 +9,17 @@ pose's vertices, samples of a mesh), from the rest pose:
   to the vertices alone, a short leg's bend hid under the vertices' spacing), each difference
   `d` weighted by the Cauchy loss `ρ(|d|²) = σ² log(1 + |d|²/σ²)`, as residuals `d √(ρ/|d|²)`
   over `σ √K` (their squares sum to the loss over σ², so Levenberg–Marquardt minimises exactly
-  it). A posed-to-target term (each posed vertex to its nearest target point's plane) is in
-  the residuals with the weight `STAGES` gives it (0 in every stage today: along the target's
-  sampled normals its curvature floor biased short, thick legs). The choices are made on
-  stopped gradients: everything else is differentiated through the posing, end to end.
+  it). No posed-to-target term in the solve: each posed vertex to its nearest target point's
+  plane (along the target's sampled normals) has a floor, their curvature between samples,
+  that pulled spot's short legs 5–15° off; the result's check still reads that direction. The
+  choices are made on stopped gradients: everything else is differentiated through the
+  posing, end to end.
   Cauchy's influence falls off as `1/|d|`: a stray scan point pulls ever less the farther it
   is; a partial scan simply has no points on its unseen side.
 - **Continuation in σ.** From the rest pose a limb may lie a fifth of the diagonal from its
   target, where a small σ would see only outliers. The solve runs at σ = 10 %, 3 % and 1 % of
-  the target's diagonal in turn, each stage from the last (one compiled program: the stage
-  and its step budget are leaves, `STAGES`).
+  the target's diagonal in turn, each stage from the last (one compiled program: σ and the
+  step budget are leaves, `STAGES`).
 - **Other starts.** A short, thick limb's bend has minima of its own (spot's hind leg bent
   30° stopped at 15°, where its bending zone grows with the angle): a fitted limb whose part
   of the target stays unexplained (`_stuck`) is tried from half and all of `RESTART` more and
@@ -36,10 +37,10 @@ pose's vertices, samples of a mesh), from the rest pose:
   stage's Jacobian, `_fit.uncertainty`; `stats["angle_spread"]`): a short, thick limb (spot's
   legs) fitted 15° off explains the target as well as at its true bend.
 
-Nearest neighbours by brute force in JAX (`_fit.chamfer`'s `_nearest`), not a k-d tree: the
+Nearest vertices by brute force in JAX (`_fit.surface.to_surface`), not a k-d tree: the
 search then runs inside the solve, so every Levenberg–Marquardt step sees its own neighbours
-(the true Chamfer gradient, no outer ICP loop of separate solves with host round trips), and
-at the sizes used (a few hundred moving vertices against at most `TARGET_POINTS`) one pass is a
+(the true gradient, no outer ICP loop of separate solves with host round trips), and at the
+sizes used (`SOLVE_POINTS` target points against a few thousand surface vertices) one pass is a
 few million distances, a few milliseconds. scipy's `cKDTree` serves only the one-off checks
 outside the solve (the noise level and the final distances).
 """
@@ -55,7 +56,6 @@ from jaxtyping import Array
 from scipy.spatial import cKDTree
 
 from .._fit.budget import budgeted
-from .._fit.chamfer import _nearest
 from .._fit.problem import check_cloud
 from .._fit.surface import rings, to_surface
 from .._fit.uncertainty import block_spread, covariance
@@ -70,11 +70,8 @@ TARGET_POINTS = 5000  # a larger cloud (or a mesh's surface) is sampled down to 
 # the moving limbs is posed: the target is measured to the posed triangles.
 STILL_POINTS = 2048
 SOLVE_POINTS = 1500  # of the target, in the solve (the check of the result reads them all)
-# The continuation's stages: (Cauchy scale σ as a fraction of the target's diagonal, weight of
-# the posed-to-target term, weight of that term's tangential part). The posed-to-target term is
-# off: point to plane along the target's sampled normals, its floor (their curvature between
-# samples) pulled spot's short legs 5-15° off; the target to the posed triangles has none.
-STAGES = ((0.1, 0.0, 1.0), (0.03, 0.0, 0.0), (0.01, 0.0, 0.0))
+# The continuation's stages: the Cauchy scale σ as a fraction of the target's diagonal.
+STAGES = (0.1, 0.03, 0.01)
 COARSE_STEPS = 16  # the stages before the last only bring the pose near
 # The solver's default tolerances: the neighbours change with the pose, so the loss is only
 # piecewise smooth and far tighter tolerances spend steps on round-off-sized moves (1e-6 rad).
@@ -156,8 +153,7 @@ class ShapeProblem(eqx.Module):
     faces: Array  # (F, 3) the surface's triangles: rows of `moving` then of `still`
     rings: Array  # (m + s, R) each surface vertex's faces (`_fit.surface.rings`)
     cloud: Array  # (K, 3)
-    normals: Array  # (K, 3) the cloud's
-    stage: Array  # (3,): σ, the posed-to-target weight, the tangential weight (`STAGES`)
+    sigma: Array  # (): the Cauchy scale of the stage (`STAGES`)
     markers: Array  # (k,) rows of the marker vertices (k = 0: none)
     marker_targets: Array  # (k, 3)
     limbs: tuple[int, ...] = eqx.field(static=True)
@@ -173,35 +169,23 @@ class ShapeProblem(eqx.Module):
         full = self.parameters(y)
         return {**self.held, **{k: pose_of(full[i]) for i, k in enumerate(self.limbs)}}
 
-    def _robust(self, d: Array, nearest: Array) -> Array:
-        """`d` (…, 3), each with its target point's normal (…, 3): its tangential part
-        weighted, then the Cauchy loss."""
-        sigma, _, tangential = self.stage
-        along = jnp.sum(d * nearest, axis=-1, keepdims=True) * nearest
-        return _cauchy(along + tangential * (d - along), sigma)
-
     def __call__(self, y, args=None):
         # Without the global projection check (as the markers' fit): the result's validity is
         # checked on the whole mesh afterwards.
         vertices = posed(self.registration, self.skeleton, self.poses(y), self.method, False,
                          stacked=True).vertices
         surface = jnp.concatenate([vertices[self.moving], self.still])
-        everywhere = jnp.ones(self.cloud.shape[0], bool)
-        near = _nearest(surface, self.cloud, everywhere)
-        forward = self._robust(surface - self.cloud[near], self.normals[near])
         # The target to the posed surface itself (its triangles), not to its vertices: zero at
         # the true pose, however far apart the vertices (`_fit.surface`).
         backward = _cauchy(to_surface(self.cloud, surface, self.faces, self.rings),
-                           self.stage[0])
+                           self.sigma)
         # In units of σ: the loss is then on one scale whatever the mesh's size, and so are
         # the solver's tolerances on its decrease (in the mesh's units, a mean squared
         # distance of 1e-7 met any absolute tolerance: the solve stopped on a slope).
-        weight = jnp.sqrt(self.stage[1] / surface.shape[0]) / self.stage[0]
-        out = (weight * forward.reshape(-1),
-               backward.reshape(-1) / (np.sqrt(self.cloud.shape[0]) * self.stage[0]))
+        out = (backward.reshape(-1) / (np.sqrt(self.cloud.shape[0]) * self.sigma),)
         if self.markers.shape[0]:
             diff = vertices[self.markers] - self.marker_targets
-            out = (*out, diff.reshape(-1) / (np.sqrt(self.markers.shape[0]) * self.stage[0]))
+            out = (*out, diff.reshape(-1) / (np.sqrt(self.markers.shape[0]) * self.sigma))
         return out
 
 
@@ -265,13 +249,11 @@ def fit_to_shape(registration: SkeletonRegistration, skeleton: Skeleton, target,
     problem = ShapeProblem(
         small, skeleton, held, starts[:, 2], rows[: len(moving)], jnp.asarray(rest[still]),
         jnp.asarray(faces), jnp.asarray(ring), jnp.asarray(cloud[solved]),
-        jnp.asarray(normals[solved], dtype),
-        jnp.zeros(3, dtype), rows[len(moving):], marker_targets, limbs, method)
+        jnp.zeros((), dtype), rows[len(moving):], marker_targets, limbs, method)
     y = starts if fit_twist else starts[:, :2]
     steps = 0
-    for i, (sigma, forward, tangential) in enumerate(STAGES):
-        stage = jnp.asarray([sigma * diagonal, forward, tangential], dtype)
-        problem = eqx.tree_at(lambda p: p.stage, problem, stage)
+    for i, sigma in enumerate(STAGES):
+        problem = eqx.tree_at(lambda p: p.sigma, problem, jnp.asarray(sigma * diagonal, dtype))
         last = i == len(STAGES) - 1
         # Each stage's step budget is a value (`_fit.budget`): the stages share one compiled
         # solve (two, with `throw`: the last stage's own).
@@ -375,8 +357,7 @@ def _stuck(problem: ShapeProblem, linear, surface: np.ndarray, region: np.ndarra
     (m + s, 3): the solve's surface vertices posed; `region` (m + s,): their limbs."""
     cloud = np.asarray(problem.cloud)
     owner = region[cKDTree(surface).query(cloud)[1]]
-    forward = 3 * surface.shape[0]
-    backward = np.asarray(linear[1])[forward: forward + 3 * len(cloud)].reshape(-1, 3)
+    backward = np.asarray(linear[1])[: 3 * len(cloud)].reshape(-1, 3)
     squared = len(cloud) * np.sum(backward**2, axis=1)  # (the residuals are over √K)
     body = float(np.mean(squared[owner < 0])) if (owner < 0).any() else 0.0
     return [i for i, k in enumerate(problem.limbs) if (owner == k).any()
