@@ -46,7 +46,7 @@ from .._mesh.deform import longest_edge, polygon_mesh
 from .._numerics import cast_floats
 from .._spines.looked_up import LookedUpSpine
 from .._spines.spine import AbstractSpine
-from .._spines.table import tabulates
+from .._spines.table import tabulable, tabulates
 from .joint_zone import JointZone, joint_zone
 from .limb_pose import LimbPose, sane_angles
 from .skeleton import Skeleton, descendants
@@ -188,7 +188,7 @@ def register_skeleton(mesh, skeleton: Skeleton, *, margin: float | None = None,
             frames=frames, axes=axes))
         registrations.append(reg)
         rests.append(rest)
-        checks.append(_looked_up(spine) if not tabulates(spine) and _tabled(spine) else None)
+        checks.append(_looked_up(spine) if not tabulates(spine) and tabulable(spine) else None)
         indices.append(jnp.asarray(ids, jnp.int32))
         joints.append(jnp.asarray(joint, points.dtype))
         # (Rounded to the dtype, the stop may fall an ulp past the rest spine's own length,
@@ -613,11 +613,6 @@ _looked_up = Program(LookedUpSpine)  # (once per registration: compiled quickly)
 # coefficients and frame nodes), made once here too: each frame built them again (the frame
 # nodes' propagation is a loop), about a third of a float64 frame of spot's leg.
 _prepared_rest = Program(lambda spine: spine._prepare())
-
-
-def _tabled(spine: AbstractSpine) -> bool:
-    """Whether `spine` is read from a table in float32 (`tabulates`, whatever its dtype)."""
-    return spine._tabulable() and not spine._is_cheap()
 
 
 def limb_causes(registration: SkeletonRegistration, skeleton: Skeleton, poses: dict,

@@ -277,7 +277,13 @@ def _dot(x: Array, values: list[Array]) -> Array:
 def tabulates(spine: AbstractSpine) -> bool:
     """Whether the batched paths evaluate `spine` through tables: in single precision, and for
     smooth spines that are not cheaper exactly (static)."""
-    return jnp.finfo(spine.length.dtype).bits <= 32 and spine._tabulable() and not spine._is_cheap()
+    return jnp.finfo(spine.length.dtype).bits <= 32 and tabulable(spine)
+
+
+def tabulable(spine: AbstractSpine) -> bool:
+    """Whether `spine` has a table worth reading, whatever its dtype: smooth and not cheaper
+    exactly (static; `tabulates` in single precision)."""
+    return spine._tabulable() and not spine._is_cheap()
 
 
 def runs_whole(spine: AbstractSpine | SpineTable) -> bool:
