@@ -344,3 +344,36 @@ def test_the_distance_to_a_surface_is_to_its_closest_triangle_point():
     grad = jax.grad(lambda v: jnp.sum(to_surface(jnp.asarray(y), v, faces, ring) ** 2))(
         jnp.asarray(ball.vertices))
     assert np.isfinite(np.asarray(grad)).all() and np.any(np.asarray(grad) != 0)
+
+
+def test_only_a_limb_left_unexplained_is_tried_from_other_starts():
+    # A short, thick limb can stop at a minimum of its own (spot's hind leg at 15° for 30°):
+    # the limbs whose part of the target stays farther from the posed surface than the body's
+    # are tried again (`_stuck`), from more and less bent starts in their direction, or in
+    # four directions when barely bent (`_starts`). Noise everywhere alike tries none.
+    from types import SimpleNamespace
+
+    from fleshing_jax._skeleton.fit_shape import RESTART, _starts, _stuck
+
+    surface = np.array([[0.0, 0, 0], [1, 0, 0], [2, 0, 0], [3, 0, 0]])
+    region = np.array([-1, -1, 4, 7])  # the body, then limbs 4 and 7
+    cloud = surface + [0, 0.01, 0]  # each target point nearest its own vertex
+    problem = SimpleNamespace(cloud=cloud, limbs=(4, 7))
+
+    def linear(off):  # residuals as the solve lays them out: the target's, over √K
+        return None, np.concatenate([off.reshape(-1) / np.sqrt(len(cloud)), [0.0, 0.0]])
+
+    body_level = np.array([[0, 0.01, 0]] * 4)
+    assert _stuck(problem, linear(body_level), surface, region) == []
+    leg_off = body_level.copy()
+    leg_off[3] = [0, 0.3, 0]  # limb 7's part left far from the posed surface
+    assert _stuck(problem, linear(leg_off), surface, region) == [1]
+
+    b = np.deg2rad(30.0) * np.array([0.6, 0.8])
+    starts = np.array(_starts(b))
+    np.testing.assert_allclose(np.hypot(*starts.T), np.deg2rad(30) + RESTART * np.array(
+        [0.5, 1, -0.5, -1]))
+    np.testing.assert_allclose(starts / np.hypot(*starts.T)[:, None], [[0.6, 0.8]] * 4)
+    barely = np.array(_starts(np.array([1e-3, 0.0])))
+    np.testing.assert_allclose(np.hypot(*barely.T), RESTART)
+    assert len({tuple(np.round(s / RESTART, 6)) for s in barely}) == 4
