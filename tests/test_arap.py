@@ -13,7 +13,7 @@ from jax.test_util import check_grads
 
 import fleshing_jax as fj
 from fleshing_jax._medial_axis.medial_mesh import face_edges
-from fleshing_jax._medial_deform.arap import arap_energies, fit_rotation
+from fleshing_jax._medial_deform.arap import arap_energies, fit_rotation, fit_rotations
 from fleshing_jax._medial_deform.cells import arap_cells
 from fleshing_jax._medial_deform.quaternions import matrix_from_quaternion, quaternion_from_matrix
 
@@ -86,7 +86,8 @@ def test_fit_rotation_matches_svd_with_reflections_fixed():
     m[:8] = m[:8] @ np.diag([1.0, 1e-3, 1e-6])  # ill-conditioned
     m[8:12] = np.eye(3) * [1, 1, -1]  # reflection with a double singular value
     # Jitted: eagerly, each of the fit's operations would compile on its own.
-    r = np.asarray(jax.jit(jax.vmap(fit_rotation))(jnp.asarray(m)))
+    fit = jax.jit(jax.vmap(fit_rotation))
+    r = np.asarray(fit(jnp.asarray(m)))
     expected = np.stack([_svd_rotation(x) for x in m])
     assert (np.linalg.det(m) < 0).sum() > 20
     np.testing.assert_allclose(np.linalg.det(r), 1, atol=1e-12)
@@ -94,6 +95,12 @@ def test_fit_rotation_matches_svd_with_reflections_fixed():
     np.testing.assert_allclose(r[12:], expected[12:], atol=1e-8)
     np.testing.assert_allclose(np.einsum("nab,nab->n", r[:12], m[:12]),
                                np.einsum("nab,nab->n", expected[:12], m[:12]), rtol=1e-9)
+    # The batched fit skips the reflection's fix only where no matrix needs it (none once the
+    # reflected ones are negated): the same rotations either way.
+    positive = jnp.asarray(np.where(np.linalg.det(m)[:, None, None] < 0, -m, m))
+    batched = jax.jit(fit_rotations)
+    np.testing.assert_array_equal(batched(jnp.asarray(m)), r)
+    np.testing.assert_array_equal(batched(positive), fit(positive))
 
 
 def test_fit_rotation_derivatives():
