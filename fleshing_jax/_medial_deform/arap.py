@@ -292,7 +292,10 @@ def solve(cells: ArapCells, targets, prescribed, iterations: int, solver: str, s
         r = jnp.einsum("nab,ncb,ncd->nad", r, before, rotations)
     # The local solver starts from the same first guess as the global one (the exact
     # centres of the first-guess rotations), so that the two differ only in their updates.
-    c = _global_centres(cells, r, shift)
+    # The global one's first step computes those centres itself: computed here, they would
+    # only be read without an iteration.
+    c = (_global_centres(cells, r, shift) if solver == "local" or iterations == 0
+         else cells.rest)
 
     def step(state, _):
         c, r = state
