@@ -27,13 +27,20 @@ from .._batching.quick import QUICK_BATCH, Program
 from .projection import Registrar, Registration
 
 MINIMUM_BATCH = 64  # the smallest batch of pending points (then 128, 256, …)
+# Batches of up to this many points run their pending points as a batch of their own size:
+# one fallback program a batch size whatever the count (a skeleton's limbs, all padded to one
+# size, share it; each count's program compiled ~0.5 s to run for a millisecond).
+WHOLE_BATCH = 1024
 
 
 def pending_index(pending: Array) -> np.ndarray:
-    """Indices of the pending points, padded to a power of two ≥ `MINIMUM_BATCH` with copies
-    of the last one (recomputed identically, so that writing them back twice is harmless)."""
+    """Indices of the pending points, padded with copies of the last one (recomputed
+    identically, so that writing them back twice is harmless) to the batch's size for a
+    batch of at most `WHOLE_BATCH` points, else to a power of two ≥ `MINIMUM_BATCH`."""
     index = np.flatnonzero(np.asarray(pending)).astype(np.int32)
     size = max(MINIMUM_BATCH, 1 << max(len(index) - 1, 0).bit_length())
+    if pending.shape[0] <= WHOLE_BATCH:
+        size = pending.shape[0]
     return np.pad(index, (0, size - len(index)), mode="edge")
 
 

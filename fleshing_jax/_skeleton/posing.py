@@ -159,10 +159,12 @@ def register_skeleton(mesh, skeleton: Skeleton, *, margin: float | None = None,
     registrations, rests, checks, indices, joints, stops, zones = [], [], [], [], [], [], []
     # Every limb's region padded to the largest's bucket: one compiled program for all.
     size = bucket(max([int(np.sum(region == k)) for k in range(len(skeleton.limbs))], default=0))
+    # (Each limb's rows gathered on the host: on the device, one program per region size.)
+    rows = np.asarray(points)
     for k, limb in enumerate(skeleton.limbs):
-        ids = np.flatnonzero(region == k)
+        ids = np.flatnonzero(region == k).astype(np.int32)
         spine = cast_floats(limb.spine, points.dtype)._bucketed()
-        reg = invalid_past(register(pad_batch(points[ids], size), spine, margin=margin), len(ids))
+        reg = invalid_past(register(pad_batch(rows[ids], size), spine, margin=margin), len(ids))
         arc = np.full(len(vertices), np.nan)
         arc[ids] = np.asarray(reg.arc_length)[: len(ids)]
         # The bend starts past the border with the parent (or any region not below this limb).
@@ -189,7 +191,7 @@ def register_skeleton(mesh, skeleton: Skeleton, *, margin: float | None = None,
         registrations.append(reg)
         rests.append(rest)
         checks.append(_looked_up(spine) if not tabulates(spine) and tabulable(spine) else None)
-        indices.append(jnp.asarray(ids, jnp.int32))
+        indices.append(jax.device_put(ids))
         joints.append(jnp.asarray(joint, points.dtype))
         # (Rounded to the dtype, the stop may fall an ulp past the rest spine's own length,
         # which a bent spine refuses: its table's length, in float32, rounds its own way.)
