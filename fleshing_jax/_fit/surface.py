@@ -12,6 +12,12 @@ vertex but for sliver-shaped neighbourhoods, where the next is hardly farther). 
 the closest point's barycentric weights are made on stopped gradients: the residual
 `y − Σ wᵢ vᵢ` then has the derivative of the distance itself in the vertices (the weights
 minimise it: their own derivative drops out), and its square sums to the squared distance.
+
+The nearest vertex is found by a k-d tree on the host (`nearest_vertices`, a callback from
+the traced program: the choice is on stopped gradients, so nothing differentiates through
+it). Built on the surface as it is at each evaluation, it keeps every step of a solve on its
+own neighbours; at a shape fit's sizes (1,500 target points, 2,930 posed vertices) it took
+11 ms where the brute-force search took 128 ms (load 9), most of a step's residuals.
 """
 
 from __future__ import annotations
@@ -19,7 +25,8 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array
+from jaxtyping import Array, Int
+from scipy.spatial import cKDTree
 
 
 def rings(faces: np.ndarray, count: int) -> np.ndarray:
@@ -66,14 +73,25 @@ def closest_weights(y: Array, a: Array, b: Array, c: Array) -> Array:
     return jnp.where(inside, jnp.stack([1 - v - w, v, w]), edges[jnp.argmin(gaps)])
 
 
+def _query(points: np.ndarray, vertices: np.ndarray) -> np.ndarray:
+    return cKDTree(vertices).query(points)[1].astype(np.int32)
+
+
+def nearest_vertices(points: Array, vertices: Array) -> Int[Array, " K"]:
+    """Each of `points`' (K, 3) nearest of `vertices` (V, 3), as indices (K,) (a k-d tree on
+    the host: traceable, on stopped gradients; batched one call per member)."""
+    return jax.pure_callback(_query, jax.ShapeDtypeStruct(points.shape[:1], jnp.int32),
+                             jax.lax.stop_gradient(points), jax.lax.stop_gradient(vertices),
+                             vmap_method="sequential")
+
+
 def to_surface(points: Array, vertices: Array, faces: Array, ring: Array) -> Array:
     """The difference vectors (K, 3) from the closest points of the surface `(vertices (V, 3),
     faces (F, 3))` to `points` (K, 3), their squared norms the squared distances; `ring`
     (V, R): `rings(faces, V)`. Differentiable in both `points` and `vertices` (the module's
     docstring)."""
     fixed = jax.lax.stop_gradient(vertices)
-    gap = jnp.sum((jax.lax.stop_gradient(points)[:, None, :] - fixed[None, :, :]) ** 2, -1)
-    candidates = ring[jnp.argmin(gap, axis=1)]  # (K, R) faces, -1 padding
+    candidates = ring[nearest_vertices(points, fixed)]  # (K, R) faces, -1 padding
 
     def nearest(y, around):
         corners = fixed[faces[jnp.maximum(around, 0)]]  # (R, 3 corners, 3)

@@ -37,12 +37,12 @@ pose's vertices, samples of a mesh), from the rest pose:
   stage's Jacobian, `_fit.uncertainty`; `stats["angle_spread"]`): a short, thick limb (spot's
   legs) fitted 15° off explains the target as well as at its true bend.
 
-Nearest vertices by brute force in JAX (`_fit.surface.to_surface`), not a k-d tree: the
-search then runs inside the solve, so every Levenberg–Marquardt step sees its own neighbours
-(the true gradient, no outer ICP loop of separate solves with host round trips), and at the
-sizes used (`SOLVE_POINTS` target points against a few thousand surface vertices) one pass is a
-few million distances, a few milliseconds. scipy's `cKDTree` serves only the one-off checks
-outside the solve (the noise level and the final distances).
+Nearest vertices by a k-d tree on the host, called from inside the solve
+(`_fit.surface.nearest_vertices`): every Levenberg–Marquardt step sees its own neighbours
+(the true gradient, no outer ICP loop of separate solves), and the tree, rebuilt on the posed
+surface at each evaluation, costs a tenth of the brute-force search it replaced. scipy's
+`cKDTree` also serves the one-off checks outside the solve (the noise level and the final
+distances).
 """
 
 from __future__ import annotations
