@@ -12,11 +12,11 @@ Our own shortcut (not in Vaillant et al. 2013 or Lan et al. 2017): a pose that t
 and holds the body (spot's cases in `benchmarks/medial_deform.py`) leaves most of the
 surface rigid. The test is per block of vertices (`block_size`) in a spatial (Morton) order, so that
 a block's vertices share most of their spheres: on spot (2,930 vertices, 200 spheres) a
-block of 256 reads 67 spheres on average (123 in the vertices' own order), and with its head
-turned 30° about the neck and its core held, 6 of its 12 blocks are still (none in the
-vertices' order). Per frame the test compares the spheres' rotations and translations,
-`(blocks, spheres a block reads)` numbers, where the field's evaluation costs
-`(vertices, candidates)` closed forms.
+block of 512 reads 83 spheres on average (155 in the vertices' own order; blocks of 256: 67
+and 123), and with its head turned 30° about the neck and its core held, 3 of its 6 blocks
+are still (none in the vertices' order). Per frame the test compares the spheres' rotations
+and translations, `(blocks, spheres a block reads)` numbers, where the field's evaluation
+costs `(vertices, candidates)` closed forms.
 
 Only rigs of at most `VERTICES` vertices skip: taking the vertices in block order costs
 gathers of every per-vertex array at every evaluation, which on the 107,786-vertex capsule
@@ -51,11 +51,14 @@ def morton_order(points: np.ndarray, bits: int = 10) -> np.ndarray:
 
 
 def block_size(m: int) -> int:
-    """Vertices a block for `m` vertices: a sixteenth of them, as a power of two in
-    `[SIZE, MOST]`. Each block is one iteration of the correction's loop, whose overhead
-    (tens of µs) made blocks of 256 a third slower than 1024 on 107,786 vertices (59 against
-    41 ms of CPU a pose); spot's 2,930 vertices make 12 blocks of 256."""
-    return int(min(max(SIZE, 2 ** int(np.ceil(np.log2(max(m / 16, 1))))), MOST))
+    """Vertices a block for `m` vertices: an eighth of them, as a power of two in
+    `[SIZE, MOST]`. Each block is one iteration of the correction's loop (and a `lax.cond`),
+    whose overhead (tens of µs) made blocks of 256 a third slower than 1024 on 107,786
+    vertices (59 against 41 ms of CPU a pose). Spot's 2,930 vertices make 6 blocks of 512,
+    the same still vertices as 12 of 256 (head turned, core held) and a faster skin: its
+    fastest 0.92 → 0.76 ms, with the body free (no block still) 1.29 → 1.23 ms (medians
+    over rounds of the fastest of 50: 1.03 → 0.98, 1.58 → 1.37 ms; load 9)."""
+    return int(min(max(SIZE, 2 ** int(np.ceil(np.log2(max(m / 8, 1))))), MOST))
 
 
 def block_spheres(order: np.ndarray, spheres: np.ndarray, ring: np.ndarray | None,
