@@ -164,7 +164,10 @@ def register_skeleton(mesh, skeleton: Skeleton, *, margin: float | None = None,
     for k, limb in enumerate(skeleton.limbs):
         ids = np.flatnonzero(region == k).astype(np.int32)
         spine = cast_floats(limb.spine, points.dtype)._bucketed()
-        reg = invalid_past(register(pad_batch(rows[ids], size), spine, margin=margin), len(ids))
+        # Its tables made once, for the registration and the rest spines (`_prepared_rest`).
+        prepared = _prepared_rest(spine)
+        reg = invalid_past(register(pad_batch(rows[ids], size), prepared, margin=margin),
+                           len(ids))
         arc = np.full(len(vertices), np.nan)
         arc[ids] = np.asarray(reg.arc_length)[: len(ids)]
         # The bend starts past the border with the parent (or any region not below this limb).
@@ -173,14 +176,15 @@ def register_skeleton(mesh, skeleton: Skeleton, *, margin: float | None = None,
         joint = max(float(limb.joint), float(np.max(arc[border], initial=-np.inf)))
         # It is complete before the borders with the children.
         inner = np.isin(region, lineage[k])
-        stop = min(float(spine.length), float(np.min(arc[_border(edges, region == k, inner)],
-                                                      initial=np.inf)))
+        stop = min(float(prepared.length), float(np.min(arc[_border(edges, region == k, inner)],
+                                                         initial=np.inf)))
         if not joint < stop:
             raise ValueError(
                 f"`skeleton`: limb {k}'s region meets its child limbs (arc length {stop:.4g}) "
                 f"before it leaves its parent ({joint:.4g}): there is no room to bend it."
             )
-        rest = _looked_up(spine) if tabulates(spine) else _prepared_rest(spine)
+        tabled = tabulates(spine, points.dtype)  # (its length not computed again)
+        rest = _looked_up(prepared) if tabled else prepared
         # (All rows, padded ones invalid: every limb's zone has the same shapes.)
         at = np.where(np.asarray(reg.valid), np.asarray(reg.arc_length), joint)
         (_, *frames), axes = _frames_at(rest, jnp.asarray(at, points.dtype),
@@ -190,7 +194,7 @@ def register_skeleton(mesh, skeleton: Skeleton, *, margin: float | None = None,
             frames=frames, axes=axes))
         registrations.append(reg)
         rests.append(rest)
-        checks.append(_looked_up(spine) if not tabulates(spine) and tabulable(spine) else None)
+        checks.append(_looked_up(prepared) if not tabled and tabulable(spine) else None)
         indices.append(jax.device_put(ids))
         joints.append(jnp.asarray(joint, points.dtype))
         # (Rounded to the dtype, the stop may fall an ulp past the rest spine's own length,
@@ -613,7 +617,9 @@ _posed_by_program = eqx.filter_jit(_posed_by)
 _looked_up = Program(LookedUpSpine)  # (once per registration: compiled quickly)
 # In double precision they evaluate it exactly, from its tables (a free-form spine's lengths,
 # coefficients and frame nodes), made once here too: each frame built them again (the frame
-# nodes' propagation is a loop), about a third of a float64 frame of spot's leg.
+# nodes' propagation is a loop), about a third of a float64 frame of spot's leg. The limb's
+# registration and its table (float32) start from them too: each of those programs built them
+# again, and compiled them again.
 _prepared_rest = Program(lambda spine: spine._prepare())
 
 

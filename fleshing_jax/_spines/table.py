@@ -274,10 +274,12 @@ def _dot(x: Array, values: list[Array]) -> Array:
     return x[0] * values[0] + x[1] * values[1] + x[2] * values[2]
 
 
-def tabulates(spine: AbstractSpine) -> bool:
+def tabulates(spine: AbstractSpine, dtype=None) -> bool:
     """Whether the batched paths evaluate `spine` through tables: in single precision, and for
-    smooth spines that are not cheaper exactly (static)."""
-    return jnp.finfo(spine.length.dtype).bits <= 32 and tabulable(spine)
+    smooth spines that are not cheaper exactly (static). `dtype`: the spine's floats', where
+    the caller knows it (a free-form spine's `length` is computed from its tables)."""
+    dtype = spine.length.dtype if dtype is None else dtype
+    return jnp.finfo(dtype).bits <= 32 and tabulable(spine)
 
 
 def tabulable(spine: AbstractSpine) -> bool:
