@@ -2,14 +2,16 @@
 (fresh process, empty compilation cache) and warm (fresh process, cache filled by the previous
 call). Issues 19 (command line) and 31 (library).
 
-    python benchmarks/startup.py [--repeats 3] [--skip-demo] [--library-only]
+    python benchmarks/startup.py [--repeats 3] [--skip-demo] [--library-only] [--only WORD]
 
 The library's first calls run in a fresh Python process that asks for the cache with
 `fj.compilation_cache_settings()` (as the notebooks do) and times the call itself (not the
 imports): the first `flesh` of a point cloud on a B-spline (line → B-spline), the first
 `fit_spine` of a free B-spline to a shape bent onto an arc (issue 31's case), and the first
 `deform_medial` of spot (its head turned; the medial mesh read from a `.ma` file written
-before, so that its construction is not counted).
+before, so that its construction is not counted), and the first `register_skeleton` of spot
+in float32 (its skeleton read from a file written before). `--only WORD` runs the library
+calls whose name holds WORD.
 
 Each figure is the wall time of a whole `fleshing-jax` process (median of `--repeats`), so it
 includes Python's start, the imports, reading and writing the mesh, tracing and compiling (or
@@ -93,18 +95,31 @@ started = time.perf_counter()
 out = fj.deform_medial(spot, medial, np.r_[head, core], targets)
 print(time.perf_counter() - started)
 """,
+    "first `register_skeleton` of spot, float32": """
+spot = fj.data.spot()
+skeleton = fj.load_skeleton(sys.argv[2])
+started = time.perf_counter()
+jax.block_until_ready(fj.register_skeleton(spot, skeleton, dtype=np.float32))
+print(time.perf_counter() - started)
+""",
 }
 
 
-def library(folder: Path, repeats: int) -> list:
-    """Rows (name, cold seconds, warm seconds) of the library's first calls."""
+def library(folder: Path, repeats: int, only: str = "") -> list:
+    """Rows (name, cold seconds, warm seconds) of the library's first calls (those whose name
+    holds `only`)."""
     import fleshing_jax as fj
 
-    medial = folder / "spot.ma"
-    fj.save_medial(fj.medial_mesh(fj.data.spot(), 200, progress=False), medial)
+    spot = fj.data.spot()
+    medial, skeleton = folder / "spot.ma", folder / "spot-skeleton.json"
+    spheres = fj.medial_mesh(spot, 200, progress=False)
+    fj.save_medial(spheres, medial)
+    fj.save_skeleton(fj.skeleton(spot, medial=spheres), skeleton)
     rows = []
     for name, body in LIBRARY.items():
-        command = [sys.executable, "-c", _LIBRARY_SETUP + body, str(medial)]
+        if only not in name:
+            continue
+        command = [sys.executable, "-c", _LIBRARY_SETUP + body, str(medial), str(skeleton)]
         cold, warm = [], []
         for i in range(repeats):
             cache = folder / f"library-{len(rows)}-{i}"
@@ -142,10 +157,12 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--skip-demo", action="store_true")
     parser.add_argument("--library-only", action="store_true", help="only the library's calls")
+    parser.add_argument("--only", default="", metavar="WORD",
+                        help="only the library calls whose name holds WORD")
     args = parser.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
         folder = Path(tmp)
-        rows = library(folder, args.repeats)
+        rows = library(folder, args.repeats, args.only)
         if not args.library_only:
             rows += command_line(folder, args)
     print("| call | cold (s) | warm (s) |")
