@@ -12,6 +12,7 @@ from _posing_shapes import RADIUS
 import fleshing_jax as fj
 from fleshing_jax._skeleton.joint_zone import JOINT_CURVATURE, ZONE_LENGTHS, joint_zone
 from fleshing_jax._skeleton.posing import limb_target, posed
+from fleshing_jax._skeleton.spill import SHARE
 
 
 def _straight_frames(n):
@@ -238,3 +239,41 @@ def test_turn_rotates_the_limb_past_its_zone_about_the_world_s_up(tube, skeleton
             before = rest[past] - rest[past].mean(axis=0)
             moved = after[past] - after[past].mean(axis=0)
             np.testing.assert_allclose(moved, before @ rotation.T, atol=1e-6)
+
+
+def _tip_tangent(vertices, rest):
+    """The unit normal of the tube's last ring (x = 6 at rest), oriented as x is there."""
+    ring = np.flatnonzero(np.abs(rest[:, 0] - 6.0) < 1e-9)
+    a, b = ring[0], ring[len(ring) // 4]
+    centre = vertices[ring].mean(axis=0)
+    normal = np.cross(vertices[a] - centre, vertices[b] - centre)
+    sign = np.sign(np.cross(rest[a] - rest[ring].mean(0), rest[b] - rest[ring].mean(0))[0])
+    return sign * normal / np.linalg.norm(normal)
+
+
+def test_a_bend_past_a_joint_s_range_is_carried_on_by_its_free_child(tube, skeleton,
+                                                                     registration):
+    # Limb 0 (room 1.2 at radius 0.3) has one child, limb 1, left free: bent past its exact
+    # range (twisted too), the bend is carried on by the child in the same plane. No vertex
+    # inexact, and the tip turned by the whole angle towards the bend's direction at rest.
+    own, below = (np.degrees(float(registration.zones[k].reach(
+        0.0, registration.joints[k], registration.stops[k]))) for k in (0, 1))
+    angle, direction, twist = SHARE * (own + 0.5 * below), 30.0, 40.0
+    rest = np.asarray(tube.vertices)
+    posed = fj.pose_skeleton(registration, skeleton,
+                             {0: fj.LimbPose(angle, direction, twist)})
+    assert angle > own and np.asarray(posed.valid).all()
+    t, first, second = np.asarray(registration.zones[0].axes)
+    phi = np.radians(direction)
+    towards = np.cos(phi) * first + np.sin(phi) * second
+    theta = np.radians(angle)
+    np.testing.assert_allclose(_tip_tangent(np.asarray(posed.vertices), rest),
+                               np.cos(theta) * t + np.sin(theta) * towards, atol=1e-9)
+    # Continuous where the child starts taking its share (eagerly unposed below it).
+    start = SHARE * own
+    before, after = (np.asarray(fj.pose_skeleton(registration, skeleton, {
+        0: fj.LimbPose(a, direction, twist)}).vertices) for a in (start - 1e-7, start + 1e-7))
+    assert np.abs(after - before).max() < 1e-6
+    # A posed child keeps its own pose: the parent is then inexact past its range.
+    both = fj.pose_skeleton(registration, skeleton, {0: fj.LimbPose(angle), 1: fj.LimbPose()})
+    assert not np.asarray(both.valid).all()

@@ -118,6 +118,23 @@ class JointZone(eqx.Module):
         room = jnp.maximum(WHOLE_FROM - self.rests, WHOLE_FROM / 2)
         return (self.rests + bent - WHOLE_FROM) / room
 
+    def reach(self, direction: Array, joint: Array, stop: Array) -> Array:
+        """The largest bend (radians, scalar, `inf` where none leaves it) towards `direction`
+        (radians from `I`), without a twist, that keeps the radial map exact over the whole
+        room `[joint, stop]` (every `margins ≤ 0`): there each vertex's `k₁·d*` is linear in
+        the bend, `k₀·d* + θ cᵢ`, so the bound is `minᵢ (WHOLE_FROM − k₀·d*) / cᵢ` over
+        `cᵢ > 0`. Past the table's `range` a pose's zone is the whole room: this is then the
+        limb's exact range in that direction (`joint_range`'s, in closed form: traceable)."""
+        width = stop - joint
+        _, slope = ramp(jnp.clip((self.arc - joint) / width, 0, 1))
+        t, first, second = self.axes
+        axis = jnp.cross(t, jnp.cos(direction) * first + jnp.sin(direction) * second)
+        rate = (slope / width) * jnp.sum(axis * self.moments, axis=-1)
+        # (Rows that bound nothing, padded or unregistered, have zero moments: no rate.)
+        rising = rate > 0
+        bounds = (WHOLE_FROM - self.rests) / jnp.where(rising, rate, 1)
+        return jnp.min(jnp.where(rising, bounds, jnp.inf))
+
 
 def _monotone_slopes(x: np.ndarray, y: np.ndarray) -> np.ndarray:
     """Fritsch–Carlson slopes (n,) of a monotone C¹ cubic through increasing `x`, non-decreasing

@@ -22,7 +22,9 @@ class LimbPose(eqx.Module):
 
     - `bend`: the angle the limb turns through at its joint: in a short zone past the joint
       (no kink there; as short as the map's validity allows for the angle, `fj.joint_range`),
-      the limb past it moving rigidly.
+      the limb past it moving rigidly. Past the limb's exact range in its direction, a
+      limb's only child, if not posed, carries the rest of the bend on at its own joint
+      (`fj.pose_skeleton`).
     - `direction`: the direction the limb bends towards, about its tangent at the joint,
       measured from the first normal of its rest spine's frame there.
     - `twist`: the turn of the limb about its tangent at the joint, in the same zone.

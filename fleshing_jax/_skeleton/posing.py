@@ -50,6 +50,7 @@ from .._spines.table import tabulable, tabulates
 from .joint_zone import JointZone, joint_zone
 from .limb_pose import LimbPose, sane_angles
 from .skeleton import Skeleton, descendants
+from .spill import spilled
 
 
 class SkeletonRegistration(eqx.Module):
@@ -287,8 +288,11 @@ def pose_skeleton(
       onto itself) is not flagged.
 
     Each posed limb's region is fleshed from its rest spine to the bent one (`det J = 1`); its
-    child limbs follow rigidly its end frame, then bend by their own poses. The body and the
-    limbs neither posed nor below a posed limb are not touched. Differentiable in the poses'
+    child limbs follow rigidly its end frame, then bend by their own poses. A `LimbPose` past
+    its limb's exact range in its direction is carried on, in the same plane, by the limb's
+    only child where that child has no pose (a knee by its ankle: each up to 95 % of its exact
+    range, then both past theirs). The body and the limbs neither posed nor below a posed limb
+    are not touched. Differentiable in the poses'
     angles (`jax.grad`), under `jit` too.
 
     **Returns:** a `PosedSkeleton` `(vertices (n, 3), valid (n,))`.
@@ -373,6 +377,12 @@ def posed(registration: SkeletonRegistration, skeleton: Skeleton, poses: dict,
     reg = registration
     vertices = reg.vertices
     valid = jnp.ones(vertices.shape[0], bool)
+    # A bend past a joint's exact range is carried on by its free child (`spill`). Traced, the
+    # child is posed in every frame: batched with its parent, so that the program holds one
+    # limb's code (a gradient of a knee's angles compiled twice as long with its foot's own).
+    given = len(poses)
+    poses = spilled(reg, skeleton, poses)
+    stacked = stacked or (len(poses) > given and not is_concrete(poses))
     moved = posed_limbs(reg, poses, method, check, stacked)
     carried: dict[int, Rigid | None] = {}  # what moves each touched limb's children
     trusted: dict[int, Array] = {}  # whether the angles of the limb and its ancestors are sane
@@ -629,7 +639,7 @@ def limb_causes(registration: SkeletonRegistration, skeleton: Skeleton, poses: d
     dict limb index → `Causes`, for the limbs posed with a `LimbPose` or a spine."""
     from .._fleshing.diagnose import diagnose
 
-    poses = check_poses(poses, skeleton)
+    poses = spilled(registration, skeleton, check_poses(poses, skeleton))
     causes = {}
     for k, pose in poses.items():
         reg = registration

@@ -16,6 +16,7 @@ from .._fleshing.methods import check_method
 from .._fleshing.verify import registered_stretch
 from .posing import as_registration, check_poses, limb_poser, limb_target, posed
 from .skeleton import Skeleton
+from .spill import spilled
 
 
 def pose_stretch(mesh_or_registration, skeleton: Skeleton, poses: dict, *,
@@ -33,7 +34,7 @@ def pose_stretch(mesh_or_registration, skeleton: Skeleton, poses: dict, *,
     not for the per-frame path.
     """
     registration = as_registration(mesh_or_registration, skeleton)
-    poses = check_poses(poses, skeleton)
+    poses = spilled(registration, skeleton, check_poses(poses, skeleton))
     method = check_method(method)
     valid = posed(registration, skeleton, poses, method).valid
     stretch = jnp.ones(valid.shape, registration.vertices.dtype)
