@@ -327,6 +327,24 @@ def test_flesh_in_chunks_equals_one_point_path(monkeypatch):
     assert 0.3 < float(jnp.mean(expected[1])) < 0.99
 
 
+def test_a_small_batch_runs_its_pending_points_at_its_own_size():
+    # Eagerly, the pending points run in a second program, gathered to a padded size: a batch
+    # of up to `WHOLE_BATCH` points at its own size whatever the count (a skeleton's limbs,
+    # padded alike, share one program), a larger one at a power of two >= `MINIMUM_BATCH`.
+    from fleshing_jax._fleshing.eager import MINIMUM_BATCH, WHOLE_BATCH, pending_index
+
+    rng = np.random.default_rng(0)
+    for n, count, size in ((512, 1, 512), (512, 300, 512), (WHOLE_BATCH, WHOLE_BATCH, WHOLE_BATCH),
+                           (4 * WHOLE_BATCH, 1, MINIMUM_BATCH), (4 * WHOLE_BATCH, 70, 128)):
+        pending = np.zeros(n, bool)
+        pending[rng.choice(n, count, replace=False)] = True
+        index = pending_index(pending)
+        assert index.shape == (size,) and index.dtype == np.int32
+        # Every pending point once, in order, then copies of the last one.
+        np.testing.assert_array_equal(index[:count], np.flatnonzero(pending))
+        assert np.all(index[count:] == index[count - 1])
+
+
 # In the slow set (25 s a dtype): the eager paths' results are checked point for point against
 # the one-point map by `test_flesh_in_chunks_equals_one_point_path`, and in float32 against
 # exact float64 by `test_table.py::test_float32_batched_paths_agree_with_exact_float64`.
