@@ -28,18 +28,20 @@ def compiles(caplog):
 
 def test_an_eager_pose_at_a_new_angle_compiles_nothing(skeleton, registration, compiles):
     # 90° leaves the tube's limb points that the reach bound does not certify, 60° none: the
-    # two-phase eager pose compiled the sampled check at 90° (30 s on its own).
+    # two-phase eager pose compiled the sampled check at 90° (30 s on its own). Past about
+    # 82°, limb 0's free child carries the bend on (`spill`), and past about 136° both are
+    # inexact: the first call, at 150°, poses both (and may compile).
     def pose(angle):
         return fj.pose_skeleton(registration, skeleton, {0: fj.LimbPose(angle, 20.0, 5.0)})
 
-    first = pose(60.0)
-    assert compiles(lambda: pose(60.0))[0] == 0  # (the first call may compile)
-    for angle in (90.0, 37.5, 120.0):
+    first = pose(150.0)
+    assert int(np.sum(~np.asarray(first.valid))) > 0
+    assert compiles(lambda: pose(150.0))[0] == 0
+    for angle in (60.0, 90.0, 37.5, 120.0):
         count, posed = compiles(lambda angle=angle: pose(angle))
         assert count == 0, f"a pose at {angle}° compiled {count} programs"
-        # A real new pose: the limb moved, and the 90° and 120° bends flag some vertices.
+        # A real new pose: the limb moved.
         assert not np.array_equal(np.asarray(posed.vertices), np.asarray(first.vertices))
-    assert int(np.sum(~np.asarray(posed.valid))) > 0
 
 
 def test_a_jitted_frame_is_traced_once_for_every_angle(skeleton, registration, compiles):
