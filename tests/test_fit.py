@@ -453,6 +453,26 @@ def test_the_start_from_the_targets_holds_fixed_control_points_and_needs_a_bspli
 
 
 @needs_bspline
+def test_the_start_from_the_targets_takes_their_twist():
+    # `start.turned`: the start from the targets' shape keeps the twist it was given; the
+    # roll that brings its posed source closest to twisted targets is read off them (a fit
+    # from twist 0 onto the biped's arm bent 90° and twisted 0.5 stopped at a local minimum).
+    rest = BSpline(_STRAIGHT, degree=3)
+    source = cloud(rest, radius=0.3)
+    target, _ = fj.flesh(source, rest, fj.Arc(4.0 / np.deg2rad(120), 4.0), twist=0.5)
+    problem, y0 = _problem(rest, rest, source, target, fit_twist=True)
+    weights = np.ones(len(source))
+    shaped = start.initial(problem.parameters, problem.registration, rest, target, weights,
+                           y0[1])
+    turned = start.turned(problem, shaped, target, weights)
+    assert abs(float(turned[1]) - 0.5) < 0.05 and float(shaped[1]) == 0.0
+    for a, b in zip(turned[0], shaped[0]):
+        np.testing.assert_array_equal(a, b)  # the control points kept
+    untwisted = (shaped[0], None)  # the twist not fitted: nothing to turn
+    assert start.turned(problem, untwisted, target, weights) is untwisted
+
+
+@needs_bspline
 @pytest.mark.slow  # (a quintic of 13 control points: its compile)
 def test_a_far_bend_that_stopped_at_a_local_minimum_now_converges():
     # A straight quintic of 13 control points onto 90° from the rest spine: the plain fit

@@ -131,7 +131,8 @@ def fit_spine(
     shape: by default (`continuation="auto"`), a free-form `init` (a `BSpline` whose control
     points are fitted) starts with its control points fitted by linear least squares to
     where the targets say the bent spine runs (`_fit.start`), or from the circular arc
-    closest to that spine, whichever poses the source closest to the targets (`init` too).
+    closest to that spine, whichever poses the source closest to the targets (`init` too),
+    each with the twist (when fitted) that rolls it onto them best (`start.turned`).
     A fit that does not converge with its rms above the tolerance is retried from where it
     stopped, the target solved first with every point posed by the map's formula (no cliffs
     where points leave the valid space), then as asked; if still not, by continuation from
@@ -260,6 +261,7 @@ def fit_spine(
         shaped = start.initial(setup.parameters, setup.registration, source_spine,
                                target, weights, setup.y0[1])
         arced = start.arc(setup.parameters, shaped)
+        shaped, arced = (start.turned(problem, y, target, weights) for y in (shaped, arced))
         result = staged(1, start.closer(problem, setup.y0, shaped, arced))
         if not _explained(result):
             # Often stopped near the answer at a cliff (a point posed invalid, its target
