@@ -377,3 +377,31 @@ def test_only_a_limb_left_unexplained_is_tried_from_other_starts():
     barely = np.array(_starts(np.array([1e-3, 0.0])))
     np.testing.assert_allclose(np.hypot(*barely.T), RESTART)
     assert len({tuple(np.round(s / RESTART, 6)) for s in barely}) == 4
+
+
+def test_a_partial_scan_explains_the_limbs_it_shows_one_side_of(skeleton, registration, samples):
+    # A scan of the whole body but one side of the limbs, the limbs at the truth: their far
+    # sides lie away from the target, behind what it shows, and pass (`_ahead`); without limb
+    # 2's part, limb 2 is posed where the target has nothing, whichever way it is bent.
+    from scipy.spatial import cKDTree
+
+    from fleshing_jax._skeleton.fit_shape import _ahead, _unexplained, local_planes
+
+    points, normals, _ = samples
+    region, rest = np.asarray(skeleton.region), np.asarray(registration.vertices)
+
+    def verdict(target, poses):
+        vertices = np.asarray(fj.pose_skeleton(registration, skeleton, poses).vertices)
+        planes, noise = local_planes(target)
+        near = cKDTree(target).query(vertices)[1]
+        ahead = _ahead(vertices, np.asarray(registration.triangles), target, near, planes)
+        owner = region[cKDTree(vertices).query(target)[1]]
+        return _unexplained(np.zeros(len(target)), noise, rest, owner, [0, 1, 2], ahead,
+                            region, [0, 2])
+
+    posed = np.asarray(fj.pose_skeleton(registration, skeleton, SHAPE_TRUTH).vertices)
+    owner = region[cKDTree(posed).query(points)[1]]
+    assert verdict(points[(normals[:, 1] > 0) | (owner < 0)], SHAPE_TRUTH) == ""
+    bent_otherwise = {0: SHAPE_TRUTH[0], 2: fj.LimbPose(60.0, -60.0)}
+    message = verdict(points[owner != 2], bent_otherwise)
+    assert message.startswith("limb 2 is posed where the target has no surface"), message

@@ -279,7 +279,7 @@ def fit_skeleton_pose(
       for a `target`, where a round limb's turn about its own axis does not show).
     - `solver`: any optimistix least-squares solver or minimiser; default
       `LevenbergMarquardt(rtol, atol)` with tolerances from the dtype (1e-10 in float64,
-      1e-5 in float32; 1e-6 for a `target`, whose nearest neighbours change with the pose).
+      1e-5 in float32 and for a `target`, whose nearest neighbours change with the pose).
     - `max_steps` (an integer in [1, 100000]), `throw`: passed to `optimistix.least_squares`;
       `rtol`, `atol`: in (0, 1].
 
