@@ -1,0 +1,117 @@
+"""One joint posed alone at the angles animators use (issue 46 item 2), on the biped.
+
+    python benchmarks/joints.py [--figure /tmp/joints.png]
+
+On the procedural biped (`characters.biped()`, its own skeleton, float64): its left knee
+(the leg chain's middle limb), elbow (the arm's) and shoulder (the arm's top) and its head,
+each posed alone both ways (`direction` 0° and 180°), the rest of the chain free (a bend past a
+joint's exact range carried on by its free child, `_skeleton.spill`). Prints one Markdown row
+per pose: the joint's own exact range that way (`fj.joint_range`), flagged vertices, ΔV/V, the
+worst edge stretch, the largest principal stretch of the map at the vertices it places
+exactly (`fj.pose_stretch`; "-" where none moves exactly) and whether the body stayed bit for
+bit. With `--figure`, the posed leg and arm (knee and elbow 120°) beside the rest.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+import jax
+import numpy as np
+
+jax.config.update("jax_enable_x64", True)
+
+import fleshing_jax as fj  # noqa: E402
+from fleshing_jax._medial_axis.characters import biped  # noqa: E402
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from blender_armature import biped_poses  # noqa: E402
+
+
+def _chains(skeleton):
+    """The limbs `blender_armature.biped_poses` poses: its leg's and arm's chains (top first)
+    and its head (the one bent 30° there)."""
+    poses = biped_poses(fj, skeleton)(None)
+    head = next(k for k, pose in poses.items() if float(pose.bend) == 30.0)
+    chains = {}
+    for k in sorted(poses):
+        if k != head:
+            chains.setdefault(skeleton.chain(k)[0], []).append(k)
+
+    def height(chain):
+        spine = skeleton.limbs[chain[-1]].spine
+        return float(spine(spine.length)[2])
+
+    leg, arm = sorted(chains.values(), key=height)
+    return leg, arm, head
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--figure", type=Path)
+    args = parser.parse_args()
+    mesh = biped()
+    skeleton = fj.skeleton(mesh)
+    registration = fj.register_skeleton(mesh, skeleton)
+    rest, faces = np.asarray(mesh.vertices), np.asarray(mesh.faces)
+    edges = np.asarray(mesh.edges_unique)
+    lengths = np.linalg.norm(rest[edges[:, 0]] - rest[edges[:, 1]], axis=1)
+    body = np.asarray(skeleton.region) == -1
+    leg, arm, head = _chains(skeleton)
+    joints = [(leg[1], 120.0, "knee"), (arm[1], 120.0, "elbow"), (arm[0], 90.0, "shoulder"),
+              (leg[1], 70.0, "knee"), (arm[1], 70.0, "elbow"), (head, 45.0, "head")]
+    print("| joint (limb) | bend | its own exact range that way | flagged | dV/V (%) | worst edge "
+          "| principal stretch | body still |")
+    print("|---|---:|---:|---:|---:|---:|---:|---|")
+    shown = {}
+    for k, bend, name in joints:
+        for direction in (0.0, 180.0):
+            poses = {k: fj.LimbPose(bend, direction)}
+            posed = fj.pose_skeleton(registration, skeleton, poses)
+            moved = np.asarray(posed.vertices)
+            stretch = np.linalg.norm(moved[edges[:, 0]] - moved[edges[:, 1]], axis=1) / lengths
+            change = float(fj.volume(moved, faces) / fj.volume(rest, faces)) - 1
+            principal = np.asarray(fj.pose_stretch(registration, skeleton, poses))
+            principal = principal[np.isfinite(principal) & (principal > 1 + 1e-9)]
+            own = float(fj.joint_range(registration, k, direction))
+            print(f"| {name} ({k}) | {bend:g}° towards {direction:g}° | {own:.1f}° | "
+                  f"{int(np.sum(~np.asarray(posed.valid)))} | {100 * change:+.4f} | "
+                  f"{stretch.max():.2f} | "
+                  f"{f'{principal.max():.2f}' if principal.size else '-'} | "
+                  f"{'yes' if np.array_equal(moved[body], rest[body]) else 'no'} |", flush=True)
+            shown[(name, bend, direction)] = moved
+    if args.figure is not None:
+        _figure(args.figure, rest, faces, np.asarray(skeleton.region), leg, arm, shown)
+
+
+def _figure(path, rest, faces, region, leg, arm, shown):
+    """The leg and the arm at rest and with the knee and the elbow at 120° (towards 0°)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from mpl_toolkits.mplot3d.art3d import Poly3DCollection
+
+    figure = plt.figure(figsize=(12, 3.5))
+    panels = [(rest, leg, "leg at rest"), (shown[("knee", 120.0, 0.0)], leg, "knee 120°"),
+              (rest, arm, "arm at rest"), (shown[("elbow", 120.0, 0.0)], arm, "elbow 120°")]
+    for i, (points, limbs, title) in enumerate(panels):
+        ax = figure.add_subplot(1, 4, i + 1, projection="3d")
+        keep = np.isin(region[faces], limbs).any(axis=1)
+        ax.add_collection3d(Poly3DCollection(points[faces[keep]], facecolor=(0.7, 0.75, 0.9),
+                                             edgecolor=(0, 0, 0, 0.15), linewidths=0.2))
+        corners = points[np.unique(faces[keep])]
+        middle, half = corners.mean(axis=0), np.ptp(corners, axis=0).max() / 2
+        for axis, centre in zip("xyz", middle, strict=True):
+            getattr(ax, f"set_{axis}lim")(centre - half, centre + half)
+        ax.view_init(5, -90)
+        ax.set_axis_off()
+        ax.set_title(title, fontsize=9)
+    figure.savefig(path, dpi=90, bbox_inches="tight")
+    plt.close(figure)
+
+
+if __name__ == "__main__":
+    main()
