@@ -260,6 +260,14 @@ def test_slab_distance_tests_the_foot_first_and_changes_nothing():
     value = slabs.distance(p, i)
     np.testing.assert_array_equal(value, slabs._parts(p, i)[0])
     assert 1000 < np.isfinite(value).sum() < 49_000
+    # `in_boxes`: a box of 8 of the points (axis-aligned, 0.3 wide) said to hold no finite
+    # distance holds none; most boxes near no slab's triangle are said to.
+    p, i = p[:10_000], i[:10_000]
+    boxes = p[:, None] + rng.uniform(0, 0.3, (10_000, 8, 3))
+    keep = slabs.in_boxes(i, boxes.min(axis=1).T, boxes.max(axis=1).T)
+    inner = slabs.distance(boxes.reshape(-1, 3), np.repeat(i, 8)).reshape(-1, 8)
+    assert np.isinf(inner[~keep]).all()
+    assert 0.5 < (~keep).mean() < 0.99
 
 
 def test_pairs_evaluated_in_blocks_match_one_pass(monkeypatch):
@@ -304,19 +312,23 @@ def test_candidate_search_and_pruning_keep_every_closest_pair(monkeypatch):
     lists = cKDTree(points).query_ball_point(union.centre, union.radius)
     assert sorted(zip(prim.tolist(), pts.tolist())) == sorted(
         (k, i) for k, found in enumerate(lists) for i in found)
-    # With a margin per point: every pair within it (more only where the sum is negative, or
-    # within the float32 test's pad on the squares).
+    # With a margin per point: every pair within it (more only within the slack), also
+    # where the tiles keep only the pairs of some primitives.
     extra = rng.uniform(-0.5, 0.5, len(points))
     pts, prim = candidates.ball_pairs(points, union.centre, union.radius, extra)
     distance = np.linalg.norm(points[:, None] - union.centre, axis=2)
     reach = union.radius + extra[:, None]
     got = np.zeros(distance.shape, bool)
     got[pts, prim] = True
-    origin = points.mean(axis=0)
-    pad = candidates.float32_pad(points - origin, union.centre - origin, union.radius, extra)
-    assert 0 < pad < 1e-3
     assert (got[distance - reach <= -1e-12]).all()
-    assert not got[(distance**2 - reach**2 > pad) & (reach > 0)].any()
+    assert not got[distance - reach > 1e-4].any()
+    slabs = union.kind == 2
+    odd = np.concatenate(list(candidates.ball_blocks(
+        points, union.centre, union.radius, extra, lambda prim, low, high: ~slabs[prim])),
+        axis=1)
+    assert (odd[1] == np.sort(odd[1])).all()
+    assert set(zip(*odd.tolist())) == {(i, k) for i, k in zip(pts.tolist(), prim.tolist())
+                                       if not slabs[k]}
     params = np.concatenate([centres, radii[:, None]], axis=1)
     found = candidates.search(points, union, params, margin=0.05)
     # Exactly the pairs within twice the margin of each point's best (over all primitives),

@@ -133,6 +133,40 @@ class _Slabs:
         value[near] = self._parts(np.take(p, near, axis=0), i.take(near))[0]
         return value
 
+    def in_boxes(self, i, low, high):
+        """`(M,)`: whether some point of the box `low (3, M)` to `high (3, M)` may have a
+        finite `distance` to slab `i (M,)` (conservative: `False` only where the foot's
+        coordinates of `distance`'s test are off the triangle by more than `FOOT` at every
+        point of the box, their round-off allowed for).
+
+        Those coordinates are `P_k·d − k_k |m·d|` (`d = p − c0`), linear in `d` and in the
+        lift `|m·d|`, so each one's range over a box follows from its middle and
+        half-sizes."""
+        columns = np.take(self.test, i, axis=1)
+        c0, m, p1, p2 = (columns[k:k + 3] for k in range(0, 12, 3))
+        k1, k2, ok = columns[12:]
+        middle, half = (low + high) / 2, (high - low) / 2
+        d = middle - c0
+        size = np.abs(middle) + np.abs(c0) + half
+
+        def span(v):
+            """The value of `v·d` `(M,)` at the boxes' middles, its largest change over
+            the boxes, and a bound of the magnitude of its terms."""
+            return column_dot(v, d), column_dot(np.abs(v), half), column_dot(np.abs(v), size)
+
+        centre, width, magnitude = span(m)
+        lift_low = np.maximum(np.abs(centre) - width, 0)  # `|m·d|` over a box
+        lift_high = np.abs(centre) + width
+        keep = ok > 0
+        for v, k, bound in ((p1, k1, -FOOT), (p2, k2, -FOOT), (-(p1 + p2), -(k1 + k2),
+                                                                -1 - FOOT)):
+            # The largest of `v·d − k |m·d|` over a box (a coordinate, or minus their sum).
+            centre, width, size_v = span(v)
+            largest = centre + width - np.where(k >= 0, k * lift_low, k * lift_high)
+            allowance = 1e-8 * (size_v + np.abs(k) * (lift_high + magnitude))
+            keep &= largest >= bound - allowance
+        return keep
+
     def closest(self, p, i):
         """`distance`, and the barycentric coordinates `(M, 3)` of the interpolated sphere
         that attains it (meaningless where the distance is `inf`)."""
@@ -247,6 +281,15 @@ class UnionPrimitives:
                             radii[edges[:, 1]])
         self.slabs = _Slabs(*(x for k in range(3) for x in (centers[faces[:, k]],
                                                              radii[faces[:, k]])))
+
+    def in_boxes(self, prim, low, high):
+        """`(M,)`: whether some point of the box `low (3, M)` to `high (3, M)` may have a
+        finite distance to primitive `prim (M,)` (spheres and cones: always; slabs:
+        `_Slabs.in_boxes`)."""
+        keep = np.ones(len(prim), bool)
+        slab = np.flatnonzero(self.kind[prim] == 2)
+        keep[slab] = self.slabs.in_boxes(self.index[prim[slab]], low[:, slab], high[:, slab])
+        return keep
 
     def closest(self, points, pts, prim):
         """Signed distances `(M,)` of the pairs (point `points[pts]`, primitive `prim`) for
