@@ -88,7 +88,10 @@ def main():
     print("|---|---|---|---|---|---|---|")
     posed_points = {}
     for name, (k, pose) in poses.items():
-        posed = fj.pose_skeleton(registration, skeleton, {k: pose})
+        # (Its children held: `fj.aim` solves on the limb alone, and a free only child would
+        # carry a bend past the limb's exact range on.)
+        held = {c: fj.LimbPose() for c in skeleton.children(k)}
+        posed = fj.pose_skeleton(registration, skeleton, {k: pose, **held})
         points = np.asarray(posed.vertices)
         posed_points[name] = points
         body = np.asarray(skeleton.region) == -1

@@ -38,10 +38,12 @@ def aim(registration: SkeletonRegistration, skeleton, limb: int, point) -> LimbP
     joint through the limb's end (its spine's end, or where its first child starts): the
     angle by bisection on the bent spine (its bending zone depends on the angle), the
     direction corrected until the chord reaches the point (a curved limb's chord turns out of
-    the bend's plane).
-    Bends up to 180°. **Returns:** the `LimbPose`. **Raises** `ValueError` for a limb index
-    of no limb, a `point` that is not a finite (3,) array, one on the limb's own axis at its
-    joint (no direction to bend towards), or one no bend reaches (saying how near it comes).
+    the bend's plane). Solved on the limb alone: past its exact range a free only child
+    carries the bend on (`fj.pose_skeleton`), so pose that child too (`fj.LimbPose()`) to
+    keep the limb aimed there. Bends up to 180°. **Returns:** the `LimbPose`. **Raises**
+    `ValueError` for a limb index of no limb, a `point` that is not a finite (3,) array,
+    one on the limb's own axis at its joint (no direction to bend towards), or one no bend
+    reaches (saying how near it comes).
     """
     k = check_limb_index(limb, skeleton, "limb")
     joint_range(registration, k)  # (the registration's limb index checked too)
