@@ -712,6 +712,7 @@ def _pose(args) -> int:
     from ._mesh.volume import volume
     from ._skeleton.joint_zone import joint_range
     from ._skeleton.posing import limb_causes, pose_skeleton, register_skeleton
+    from ._skeleton.spill import spilled
     from ._skeleton.stretch import pose_stretch
 
     check_output_path(args.output, extensions=MESH_WRITABLE)
@@ -751,14 +752,19 @@ def _pose(args) -> int:
                                                       method=args.method)), nan=1.0)
     squeezed = _print_largest("principal stretch of the map", principal, skeleton)
     if not valid.all():
+        # (With the bends a free child carries on past its parent's range: `spill`.)
+        carried = spilled(registration, skeleton, poses)
         for limb, causes in limb_causes(registration, skeleton, poses, args.method).items():
             if causes.invalid:
                 print(f" limb {limb}:")
-                pose = poses[limb]  # (a bend the other way: towards the opposite direction)
+                pose = carried[limb]  # (a bend the other way: towards the opposite direction)
                 towards = float(pose.direction) + (180.0 if float(pose.bend) < 0 else 0.0)
                 largest = np.floor(100 * float(joint_range(
                     registration, limb, towards, twist=float(pose.twist)))) / 100
-                _print_causes(causes, f"bend limb {limb} at most {largest:.2f} degrees (its exact "
+                bend = (f"bend limb {limb}" if limb in poses else
+                        f"limb {limb} carries its parent's bend on past the parent's range: "
+                        f"it takes")
+                _print_causes(causes, f"{bend} at most {largest:.2f} degrees (its exact "
                                       "range at its joint in this direction), or try another "
                                       "--method")
         if not args.allow_invalid:

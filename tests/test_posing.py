@@ -403,6 +403,21 @@ def test_pose_command(tube, skeleton, tmp_path, capsys):
     assert np.asarray(fj.edge_stretch(tube, fj.load_mesh(folded).vertices)).max() < 8
 
 
+@pytest.mark.slow  # (the command's diagnosis and stretch of a second limb: 16 s, cold)
+def test_pose_command_names_the_child_carrying_a_bend_on(tube, skeleton, tmp_path, capsys):
+    from fleshing_jax._cli import main
+
+    mesh, saved = tmp_path / "tube.obj", tmp_path / "tube.json"
+    tube.export(mesh)
+    fj.save_skeleton(skeleton, saved)
+    # Limb 0 past its and its free child's ranges: both inexact, the child named as carrying
+    # the bend on (it has no pose of the user's to advise on).
+    assert main(["pose", str(mesh), str(tmp_path / "posed.obj"), "--skeleton", str(saved),
+                 "--limb", "0", "--bend", "175"]) == 3
+    printed = capsys.readouterr().out
+    assert "limb 0:" in printed and "advice: limb 1 carries its parent's bend on" in printed
+
+
 @pytest.mark.parametrize(
     "options, message",
     [
