@@ -151,11 +151,12 @@ def test_jax_field_matches_the_numpy_union_distance():
 def test_binding_of_the_capsule(capsule):
     mesh, medial, rig = capsule
     assert bool(rig.valid.all())
-    beta = np.asarray(rig.beta)
+    at = np.asarray(rig.welded)  # the binding's arrays are per welded point
+    beta = np.asarray(rig.beta)[at]
     assert np.all(beta >= 0) and np.allclose(beta.sum(1), 1)
     # On a chain of equal spheres the footprint is the projection onto the axis: offsets
     # are radial on the cylinder, of length 0.5 everywhere.
-    offset = np.asarray(rig.offset)
+    offset = np.asarray(rig.offset)[at]
     assert np.allclose(np.linalg.norm(offset, axis=1), RADIUS, atol=1e-9)
     cylinder = np.abs(mesh.vertices[:, 2]) < LENGTH / 2 - 1e-9
     assert np.allclose(offset[cylinder, 2], 0, atol=1e-9)
@@ -192,7 +193,7 @@ def test_still_blocks_keep_their_skinned_vertices(capsule):
     still = np.asarray(jax.jit(still_blocks)(rig.correction.blocks, rig.rest_centers,
                                              posed.centers, posed.rotations))
     assert still.any() and not still.all()
-    kept = still[np.asarray(rig.correction.rank)[np.asarray(rig.welded)] // rig.correction.block]
+    kept = still[np.asarray(rig.welded) // rig.correction.block]
     skinned = np.asarray(rig.pose(posed, "medial", implicit=False)[0])
     x = np.asarray(rig.pose(posed, "medial")[0])
     np.testing.assert_array_equal(x[kept], skinned[kept])
@@ -376,7 +377,8 @@ def test_lone_spheres_bind_and_follow():
     mesh = trimesh.util.concatenate([a, b])
     medial = MedialMesh(np.array([[0.0, 0, 0], [2.0, 0, 0]]), np.array([0.5, 0.5]))
     rig = MedialRig(mesh.vertices, medial, faces=mesh.faces)
-    assert np.array_equal(np.asarray(rig.spheres)[:, 0], (mesh.vertices[:, 0] > 1).astype(int))
+    spheres = np.asarray(rig.spheres)[np.asarray(rig.welded), 0]
+    assert np.array_equal(spheres, (mesh.vertices[:, 0] > 1).astype(int))
     turn = rot_z(0.5)
     posed = MedialPose(medial, jnp.asarray([[0.0, 0, 0], [2.0, 1.0, 0]]),
                        jnp.asarray(np.stack([np.eye(3), turn])))

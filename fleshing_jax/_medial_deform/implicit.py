@@ -246,7 +246,8 @@ class Correction(eqx.Module):
     edges are among `field_cones ++ edge_cones` (`edge_slots`), the rest iso-values and the
     smooth union's widths, the one-ring as a gather table (`ring`, `ring_weights` summing to
     1 per row) and the rest Laplacian vectors (rest vertex minus its rest one-ring mean;
-    `None` without faces)."""
+    `None` without faces); `blocks` the spheres each block of `block` consecutive vertices
+    reads (`still.block_spheres`), or `None`."""
 
     field_cones: Int[Array, "n kc"]
     edge_cones: Int[Array, "n e"]
@@ -257,8 +258,6 @@ class Correction(eqx.Module):
     ring: Int[Array, "n w"] | None
     ring_weights: Float[Array, "n w"] | None
     laplacian: Float[Array, "n 3"] | None
-    order: Int[Array, " n"] | None = None
-    rank: Int[Array, " n"] | None = None
     blocks: Int[Array, "b s"] | None = None
     block: int = eqx.field(static=True, default=0)
 
@@ -303,22 +302,20 @@ def correct(
     skipping = still is not None and data.blocks is not None
     # The vertices padded to whole blocks (copies of the last one, dropped from the output):
     # `lax.map` then runs one traced block, where a remainder traced and compiled the field a
-    # second time. Skipping still blocks, the vertices are taken in their blocks' order.
+    # second time. The rig keeps its points in block order (`still.py`): a block is a slice.
     block = data.block if skipping else min(BLOCK, n)
     pad = -n % block
 
-    def padded(a):
-        a = a[data.order] if skipping else a
-        return jnp.concatenate([a, jnp.broadcast_to(a[-1:], (pad, *a.shape[1:]))]) if pad else a
-
     def blocked(a):
-        return padded(a).reshape((n + pad) // block, block, *a.shape[1:])
+        if pad:
+            a = jnp.concatenate([a, jnp.broadcast_to(a[-1:], (pad, *a.shape[1:]))])
+        return a.reshape((n + pad) // block, block, *a.shape[1:])
 
     per_vertex = [blocked(a) for a in (data.width, data.field_cones, data.edge_cones,
                                        data.field_slabs, data.edge_slots)]
     if skipping:
         iso = blocked(data.iso)
-        fixed = still[data.rank // block]  # each vertex's block is still
+        fixed = jnp.repeat(still, block)[:n]  # each vertex's block is still
 
     def evaluate(x, g_prev):
         # In blocks of vertices (a loop, each block vectorised): the (block, candidates)
@@ -326,17 +323,17 @@ def correct(
         # over all vertices at once they go through memory (measured in benchmarks/README.md).
         if not skipping:
             f, g = jax.lax.map(lambda a: jax.vmap(one)(*a), (blocked(x), *per_vertex))
-            return f.reshape(-1)[:n], g.reshape(-1, 3)[:n]
+        else:
+            # A still block keeps its vertices: its field is their iso-value, its gradient
+            # the previous one (no Newton step, no turn for the angle test).
+            def one_block(a):
+                skip, f_still, g_still, *rest = a
+                return jax.lax.cond(skip, lambda: (f_still, g_still),
+                                    lambda: jax.vmap(one)(*rest))
 
-        # A still block keeps its vertices: its field is their iso-value, its gradient the
-        # previous one (no Newton step, no turn for the angle test).
-        def one_block(a):
-            skip, f_still, g_still, *rest = a
-            return jax.lax.cond(skip, lambda: (f_still, g_still),
-                                lambda: jax.vmap(one)(*rest))
-
-        f, g = jax.lax.map(one_block, (still, iso, blocked(g_prev), blocked(x), *per_vertex))
-        return f.reshape(-1)[data.rank], g.reshape(-1, 3)[data.rank]
+            f, g = jax.lax.map(one_block, (still, iso, blocked(g_prev), blocked(x),
+                                           *per_vertex))
+        return f.reshape(-1)[:n], g.reshape(-1, 3)[:n]
 
     cos_max = jnp.cos(jnp.deg2rad(contact_angle)).astype(skinned.dtype)
     relaxing = data.ring is not None and relax_iterations > 0

@@ -24,9 +24,10 @@ footprint sphere of its nearest primitive (`footprint.py`). Our own choices:
   on top of dual-quaternion skinning); the baselines' comparisons use `implicit=False`. Its
   contact test only sees each vertex's candidate primitives (the nearest at rest), so two
   parts far apart at rest that press together after a pose are not detected.
-- **Still blocks.** On rigs of up to `still.VERTICES` vertices, the correction skips the
-  blocks of vertices whose spheres all move as one rigid body (`still.py`): it would move
-  them by round-off only.
+- **Still blocks.** The correction skips the blocks of vertices whose spheres all move as
+  one rigid body (`still.py`): it would move them by round-off only. The welded points are
+  kept in a spatial order for it (`points`, the binding's arrays; `welded` maps the caller's
+  vertices to them).
 
 Volumes measured (capsule radius 0.5, cylinder 4, 1762 vertices, chain of 17 spheres, `ΔV/V`,
 medial+implicit / medial / LBS / DQS): bent 90° onto an arc of its length −0.05 / −0.09 /
@@ -277,6 +278,17 @@ class MedialRig(eqx.Module):
         else:
             table, table_weights = _ring_table(ring[0], ring[1], m, RING)
             laplacian = rest - np.einsum("nk,nkd->nd", table_weights, rest[table])
+        # The points in a spatial (Morton) order, so that the correction's blocks are slices
+        # of consecutive points (`still.py`). Permuted after binding, so that each point's
+        # arrays are the same numbers as bound in the welded order; indices renumbered.
+        order = morton_order(rest)
+        rank = np.argsort(order)
+        welded, rest = rank[welded], rest[order]
+        b = b._replace(**{name: getattr(b, name)[order] for name in b._fields if name != "cones"})
+        idx, weights = idx[order], weights[order]
+        if table is not None:
+            table, table_weights = rank[table[order]], table_weights[order]
+            laplacian = laplacian[order]
 
         # Converted on the host and put on the device as they are: `jnp.asarray` with a
         # dtype compiles a conversion program per shape (half a second of a small rig).
@@ -293,19 +305,16 @@ class MedialRig(eqx.Module):
         self.spheres, self.beta, self.offset = i_(b.spheres), f_(b.beta), f_(b.offset)
         self.rotation_spheres, self.rotation_weights = i_(idx), f_(weights)
         self.cones, self.medial_faces = i_(b.cones), i_(mfaces)
-        order = rank = blocks = None
-        size = block_size(m)
+        size, blocks = block_size(m), None
         if m <= STILL_VERTICES:
             # The spheres each point reads, for the correction's skip of still blocks.
             reads = np.concatenate([b.spheres, idx, b.cones[b.field_cones].reshape(m, -1),
                                     b.cones[b.edge_cones].reshape(m, -1),
                                     mfaces[b.field_slabs].reshape(m, -1)], axis=1)
-            order = morton_order(rest)
-            rank, blocks = np.argsort(order), block_spheres(order, reads, table, size)
+            blocks = block_spheres(reads, table, size)
         self.correction = Correction(i_(b.field_cones), i_(b.edge_cones), i_(b.field_slabs),
                                      i_(b.edge_slots), f_(b.iso), f_(b.width), i_(table),
-                                     f_(table_weights), f_(laplacian), i_(order), i_(rank),
-                                     i_(blocks), size)
+                                     f_(table_weights), f_(laplacian), i_(blocks), size)
         self.faces = i_(f)
         self.medial_key = np.frombuffer(bytes.fromhex(medial.fingerprint()), np.uint8).copy()
         self.n_spheres = len(centers)

@@ -18,10 +18,10 @@ are still (none in the vertices' order). Per frame the test compares the spheres
 and translations, `(blocks, spheres a block reads)` numbers, where the field's evaluation
 costs `(vertices, candidates)` closed forms.
 
-Only rigs of at most `VERTICES` vertices skip: taking the vertices in block order costs
-gathers of every per-vertex array at every evaluation, which on the 107,786-vertex capsule
-bent 90° (a quarter of its blocks still) made a pose 41 → 47 ms of CPU (with blocks of
-1024; 59 ms with blocks of 256), where on spot the skip took the skin from 1.13 to 0.74 ms.
+The rig keeps its welded points in this order (`rig.py` permutes them at binding), so that a
+block is a slice of every per-point array: the skip costs no gathers into block order at each
+evaluation (which, when the rig kept its own order, made a pose of the 107,786-vertex capsule
+bent 90° 41 → 47 ms of CPU, and limited the skip to small rigs).
 """
 
 from __future__ import annotations
@@ -61,19 +61,19 @@ def block_size(m: int) -> int:
     return int(min(max(SIZE, 2 ** int(np.ceil(np.log2(max(m / 8, 1))))), MOST))
 
 
-def block_spheres(order: np.ndarray, spheres: np.ndarray, ring: np.ndarray | None,
-                  size: int) -> np.ndarray:
-    """The spheres each block of `size` vertices reads: `(blocks, s)` int array, each row the
-    distinct spheres of the block's vertices and of their one-ring neighbours, padded by its
-    first.
+def block_spheres(spheres: np.ndarray, ring: np.ndarray | None, size: int) -> np.ndarray:
+    """The spheres each block of `size` consecutive points reads: `(blocks, s)` int array,
+    each row the distinct spheres of the block's points and of their one-ring neighbours,
+    padded by its first.
 
-    **Arguments:** `order (m,)` the vertices in block order (`morton_order`); `spheres
-    (m, k)` the spheres each vertex reads; `ring (m, w)` its one-ring neighbours (itself as
-    padding), or None."""
-    reads = spheres if ring is None else np.concatenate(
-        [spheres, spheres[ring].reshape(len(spheres), -1)], axis=1)
-    rows = [np.unique(reads[order[start:start + size]])
-            for start in range(0, len(order), size)]
+    **Arguments:** `spheres (m, k)` the spheres each point reads (the points in block order,
+    `morton_order`); `ring (m, w)` their one-ring neighbours (itself as padding), or None."""
+    rows = []
+    for start in range(0, len(spheres), size):
+        block = slice(start, start + size)
+        reads = spheres[block] if ring is None else np.r_[spheres[block].ravel(),
+                                                          spheres[ring[block]].ravel()]
+        rows.append(np.unique(reads))
     width = max(len(row) for row in rows)
     return np.stack([np.r_[row, np.full(width - len(row), row[0])] for row in rows])
 
