@@ -48,7 +48,11 @@ def chain_splits(found: LimbPath, spine, joint: float, centers, radii) -> list[i
     r = radii[path]
     # A median of three against the medial radii's noise (a sphere a few % off its neighbours).
     r = np.median(np.stack([np.r_[r[0], r[:-1]], r, np.r_[r[1:], r[-1]]]), axis=0)
-    turn = _turning(s, points, at, WINDOW * r)
+    # The turn of the path's centres, not of the spine: the spine is smoothed (its curvature
+    # below 0.8 / r), which turned the biped's ankle by 17° where its foot turns by 90°.
+    line = centers[path]
+    arc = np.r_[0.0, np.cumsum(np.linalg.norm(np.diff(line, axis=0), axis=1))]
+    turn = _turning(arc, line, arc, WINDOW * r)
     splits, pieces = [], [(float(joint), float(s[-1]))]
     while pieces and len(splits) < PIECES - 1:
         low, high = pieces.pop(0)
@@ -65,8 +69,10 @@ def _split(at, r, turn, low, high) -> int | None:
     if len(piece) < 3:
         return None
     thick = float(np.median(r[piece]))
-    inner = piece[(at[piece] >= low + SEGMENT * thick) & (at[piece] <= high - SEGMENT * thick)
-                  & (piece > 0)]
+    # Each side at least `SEGMENT` radii of the joint's own: a foot as thin as its ankle
+    # is 3 of them long, under 2 of its shin's (the biped's ankle was put mid-shin).
+    inner = piece[(at[piece] >= low + SEGMENT * r[piece])
+                  & (at[piece] <= high - SEGMENT * r[piece]) & (piece > 0)]
     if len(inner) == 0:
         return None
     middle = 0.5 * (low + high)

@@ -41,6 +41,9 @@ from scipy.sparse import csgraph
 from .fit import farthest, medial_graph, sphere_gaps
 
 CORE = 0.6  # a core sphere is at least this fraction of the thickest sphere's radius
+# A limb from the body starts at its waist (a hip), where the core's radius falls to this
+# fraction of its thickest before, even where it is still `CORE` as thick (`_waist`).
+WAIST = 0.85
 # A limb protrudes at least its thickest radius: shorter, it is a bump (issue 45: "shorter
 # than its own radius"; the characters' bumps reach 0.86). Spot's stubby hind legs protrude
 # 1.19-1.5 on its medial meshes: at 1.5 one was left in the body at seed 1, at 1.25 at seed 10.
@@ -137,6 +140,7 @@ def _split(graph, centers, radii, nodes, root, parent, limbs, depth):
     level = radii[root] if depth == 1 else radii[nodes].max()
     groups = []  # per limb: its paths (the first one the main), last sphere inside, core
     hangs = []  # per limb: (n,) bool, the spheres below its first one in the tree
+    waists = []  # per limb: `_waist`'s (spheres before its path, last inside, core), or None
     for tip in _tips(nodes, reach, predecessors, distance):
         chain = _ancestors(tip, predecessors)  # tip … root
         covered, core = _covered(centers, radii, chain, level, depth > 1)
@@ -166,9 +170,10 @@ def _split(graph, centers, radii, nodes, root, parent, limbs, depth):
         if length < ELONGATION * thickest or (depth > 1 and thickest > THINNER * level):
             continue
         groups.append(([path], last_inside, core))
+        waists.append(_waist(centers, radii, chain, core, cut[0]) if depth == 1 else None)
         hangs.append(np.isin(np.arange(len(centers)),
                              _subtree(path[0], predecessors, distance, nodes)))  # fmt: skip
-    groups = _joined_routes(centers, radii, groups, graph)
+    groups, waists = _joined_routes(centers, radii, groups, graph, waists)
     found = [
         (paths[0], last_inside, core, spheres)
         for (paths, last_inside, core), spheres in zip(
@@ -176,8 +181,15 @@ def _split(graph, centers, radii, nodes, root, parent, limbs, depth):
         )
     ]
     if depth == 1:
-        found, groups = _from_thicker_limbs(centers, radii, found, groups)
-    for (path, last_inside, core, spheres), (routes, _, _) in zip(found, groups):
+        found, groups, waists = _from_thicker_limbs(centers, radii, found, groups, waists)
+        # A waist leads into one limb alone: spheres before its path on another limb's way
+        # from the root are the body's (the front of a body, tapering towards two horns).
+        ways = [set(_ancestors(int(f[0][-1]), predecessors).tolist()) for f in found]
+        waists = [w if w is None or not any(set(w[0].tolist()) & way for j, way in
+                                            enumerate(ways) if j != k) else None
+                  for k, w in enumerate(waists)]  # fmt: skip
+    for (path, last_inside, core, spheres), (routes, _, _), waist in zip(found, groups, waists,
+                                                                        strict=True):
         index = len(limbs)
         limbs.append(LimbPath(path, last_inside, core, spheres, parent))
         if depth < MAX_DEPTH and len(spheres) > 2:
@@ -204,11 +216,18 @@ def _split(graph, centers, radii, nodes, root, parent, limbs, depth):
         paths += [p for p in routes if not any(np.array_equal(p, q) for q in paths)]
         first, *others = paths
         alternatives = tuple((p, int(predecessors[p[0]])) for p in others)
+        if waist is not None and len(waist[0]):
+            # Found as before (its spheres, its children); its routes from `path[0]` start
+            # at its waist instead, the parent's core ending there.
+            before, last_inside, core = waist
+            first = np.r_[before, first]
+            alternatives = tuple((np.r_[before, p], last_inside) if p[0] == path[0] else (p, i)
+                                 for p, i in alternatives)  # fmt: skip
         limbs[index] = LimbPath(first, last_inside, core, spheres, parent, alternatives)
 
 
-def _from_thicker_limbs(centers, radii, found, groups):
-    """`(found, groups)` without the limbs that leave another limb rather than the body: a
+def _from_thicker_limbs(centers, radii, found, groups, waists):
+    """`(found, groups, waists)` without the limbs that leave another limb rather than the body: a
     limb whose last sphere inside its parent lies inside another limb at least `1/THINNER`
     times as thick (an ear reached through a head as thick as the torso, no waist between:
     found from the body before the head was). Its spheres join that limb's, whose own level
@@ -224,11 +243,13 @@ def _from_thicker_limbs(centers, radii, found, groups):
                 spheres[b] = np.union1d(spheres[b], spheres[a])
                 break
     found = [(*f[:3], spheres[k]) for k, f in enumerate(found)]
-    return ([f for f, k in zip(found, keep) if k], [g for g, k in zip(groups, keep) if k])
+    return ([f for f, k in zip(found, keep) if k], [g for g, k in zip(groups, keep) if k],
+            [w for w, k in zip(waists, keep) if k])  # fmt: skip
 
 
-def _joined_routes(centers, radii, groups, graph):
-    """`groups` (per limb: its paths, last sphere inside, core) with each limb whose main path
+def _joined_routes(centers, radii, groups, graph, waists):
+    """`(groups, waists)`: `groups` (per limb: its paths, last sphere inside, core; `waists`
+    alongside) with each limb whose main path
     is another route to an earlier one (`_same_limb`) by the paths that earlier one gained
     after this one was found joined to it, until none is. Tips come by decreasing reach, so
     a wide flat ear's rim may be reached first by two paths with no medial edge between
@@ -243,9 +264,10 @@ def _joined_routes(centers, radii, groups, graph):
             if same is not None:
                 groups[same][0].extend(groups[j][0])
                 groups = groups[:j] + groups[j + 1 :]
+                waists = waists[:j] + waists[j + 1 :]
                 merged = True
                 break
-    return groups
+    return groups, waists
 
 
 def _same_limb(centers, radii, path, limbs, graph) -> int | None:
@@ -325,6 +347,30 @@ def _covered(centers, radii, chain, thickness, thickest_run=False):
     thin = np.flatnonzero(~thick[first:])
     core = outwards[: first + thin[0] if len(thin) else len(chain)]
     return sphere_gaps(centers[chain], centers[core], radii[core]) < 0, core
+
+
+def _waist(centers, radii, chain, core, cut: int):
+    """`(before, last_inside, core)`: where a limb from the body found along `chain` (tip …
+    root; its path `chain[:cut]`, `core` its parent's core along it) starts instead, at its
+    waist (a hip): the core ends at its first sphere past the root at most `WAIST` times as
+    thick as the core before it and at least as thick as any further out (the limb tapering
+    away from there), where the core runs on beyond that sphere; `before` the spheres then
+    added before the path (outwards). The
+    biped's thighs, 0.6 as thick as its pelvis, were core down to 0.36 (its hips at 0.47):
+    its knees, 1.1 radii from where the legs then left the body, were no joints."""
+    outwards = radii[core]
+    beyond = np.maximum.accumulate(radii[chain])[::-1][: len(core)]  # outwards, as `core`
+    waist = np.flatnonzero((outwards <= WAIST * np.maximum.accumulate(outwards))
+                           & (outwards >= beyond))  # fmt: skip
+    waist = waist[waist > 0]
+    # Only where the core runs on past the waist's own sphere (a thigh's top; not a shoulder,
+    # the core's last sphere there: moved into the arm, a 30° bend flagged its armpit).
+    if not len(waist) or np.linalg.norm(
+            centers[core[-1]] - centers[core[waist[0]]]) <= radii[core[waist[0]]]:
+        return np.zeros(0, int), int(chain[cut]), core
+    core = core[: waist[0]]
+    covered = np.flatnonzero(sphere_gaps(centers[chain], centers[core], radii[core]) < 0)
+    return chain[cut : covered[0]][::-1], int(chain[covered[0]]), core
 
 
 def _tips(nodes, reach, predecessors, distance) -> np.ndarray:
