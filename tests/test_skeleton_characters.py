@@ -88,6 +88,18 @@ def test_biped_has_jointed_arms_and_legs_and_a_head_on_its_torso(biped_rig):
     assert abs(change) < 1e-3
 
 
+def test_biped_legs_are_jointed_at_its_hips_and_knees(biped_rig):
+    """Each leg's chain leaves the torso at its hip (the thigh 0.6 as thick as the pelvis
+    was the body's down to z = 0.32) and bends next at its knee (where its radius narrows:
+    it was put mid-shin, z 0.13-0.18), not on the shin."""
+    _, skeleton, _ = biped_rig
+    for foot in _mirrored(BIPED_LEG[-1]):
+        hip, knee = skeleton.chain(skeleton.limb_at(foot))[:2]
+        joints = [skeleton.limbs[k].spine(skeleton.limbs[k].joint) for k in (hip, knee)]
+        assert float(joints[0][2]) > 0.4  # the hip at 0.47
+        assert abs(float(joints[1][2]) - BIPED_LEG[2][2]) < 0.05  # the knee at 0.27
+
+
 def test_jointed_quadruped_has_jointed_legs_a_head_and_a_tail():
     mesh = jointed_quadruped()
     skeleton, vertices = _rig(mesh, 120)

@@ -3,13 +3,13 @@
 Our own construction on the limb's path of medial spheres, placing joints where an animator
 places bones (thigh → shin → foot, upper arm → forearm → hand, neck → head). A piece of a
 limb (from its joint, or from a split, to the next split or its tip) is split at a sphere
-of its path, at least `SEGMENT` of its typical radii from either end of the piece, where:
+of its path, at least `SEGMENT` of that sphere's radii from either end of the piece, where:
 
 1. the medial radius narrows: a local minimum over ±`WINDOW` radii, at most `NARROW` times
    the piece's thickest radius (a knee, an ankle, a wrist, a neck below a head); the
    narrowest first;
-2. else the axis turns by at least `TURN` degrees within ±`WINDOW` radii (an elbow or a
-   knee held bent); the sharpest first;
+2. else the axis (the polyline of the path's centres) turns by at least `TURN` degrees
+   within ±`WINDOW` radii (an elbow or a knee held bent, an ankle); the sharpest first;
 3. else, a piece at least `LONG` radii long: in its middle (a knee on a leg of even
    thickness, where an animator would put it: the medial axis gives no better cue).
 
