@@ -13,6 +13,8 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike
 
+from ._numerics import on_device
+
 
 def as_float_array(value: ArrayLike, name: str, shape: tuple[int, ...] | None = None) -> Array:
     """Converts `value` to a floating JAX array, checking its shape.
@@ -103,12 +105,14 @@ def as_margin(margin: ArrayLike, dtype=None) -> Array:
     for a value that is not a real number, `ValueError` for a non-scalar, negative or (when
     concrete) non-finite one."""
     margin = as_float_array(margin, "margin", ())
-    if is_concrete(margin) and not (np.isfinite(np.asarray(margin)) and margin >= 0):
+    if not is_concrete(margin):
+        return margin if dtype is None else margin.astype(dtype)
+    value = np.asarray(margin)  # (checked and cast on the host: on the device, programs)
+    if not (np.isfinite(value) and value >= 0):
         raise ValueError(
-            "`margin` must be a finite distance ≥ 0 (from the cut locus), "
-            f"got {np.asarray(margin)}."
+            f"`margin` must be a finite distance ≥ 0 (from the cut locus), got {value}."
         )
-    return margin if dtype is None else margin.astype(dtype)
+    return margin if dtype is None else on_device(value, dtype)
 
 
 def is_concrete(*values) -> bool:

@@ -115,6 +115,13 @@ def _horner(terms: list[float], y: Array) -> Array:
     return value
 
 
+def on_device(x, dtype=None) -> Array:
+    """`x` (concrete: numbers, NumPy or device arrays) as a device array of `dtype`, converted
+    on the host: `jnp.asarray(x, dtype)` compiles a conversion program for each shape and
+    dtype (a dozen of the programs of a skeleton's first registration, tens of ms each)."""
+    return jax.device_put(np.asarray(x, dtype))
+
+
 def cast_floats(tree, dtype):
     """Casts every floating array leaf of `tree` to `dtype` (so float32 points stay float32)."""
 

@@ -54,11 +54,27 @@ def register_eagerly(registrar: Registrar, points: Array) -> tuple:
     quick = points.shape[0] <= QUICK_BATCH  # (compiled quickly: compiling is most of it)
     if registrar.fused:
         start = _register_start(registrar, points, quick=quick)
-        registration, pending, unclear, any_pending = _register_finish(
-            registrar, points, *start, quick=quick)
+        certified = _register_finish(registrar, points, *start, quick=quick)
     else:
-        registration, pending, unclear, any_pending = _register_certified(
-            registrar, points, quick=quick)
+        certified = _register_certified(registrar, points, quick=quick)
+    return registered_pending(registrar, points, certified)
+
+
+def certified_registration(registrar: Registrar, points: Array) -> tuple:
+    """`(registration, pending, unclear, any_pending)`: the fast path's registration of
+    `points` (n, 3), traced (in chunks on exact spines, `map_chunks`), for
+    `registered_pending`; also traced by a caller that makes the registrar in the same
+    program (`_skeleton.posing`)."""
+    fields = map_chunks(registrar.register_certified, points, whole=registrar.fused)
+    return _shared_and_pending(registrar, *fields)
+
+
+def registered_pending(registrar: Registrar, points: Array, certified: tuple) -> tuple:
+    """`register_eagerly`'s fields from the fast path's `certified` (`_register_certified`'s
+    outputs): the sampled test and the global search run, each compiled only if a point needs
+    it."""
+    registration, pending, unclear, any_pending = certified
+    quick = points.shape[0] <= QUICK_BATCH
     search, sampled = (bool(a) for a in np.asarray(any_pending))
     if sampled:  # before the search: its points are cleared with it
         registration = _register_clear(registrar, registration, pending_index(unclear),
@@ -98,10 +114,7 @@ def _rigid(poser, registration, images, valid):
     return poser.rigid(registration, images, valid)
 
 
-@Program
-def _register_certified(registrar, points):
-    fields = map_chunks(registrar.register_certified, points, whole=registrar.fused)
-    return _shared_and_pending(registrar, *fields)
+_register_certified = Program(certified_registration)
 
 
 @Program

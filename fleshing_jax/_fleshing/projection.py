@@ -211,10 +211,13 @@ class Registrar(eqx.Module):
     margin: Array
     region: ValidRegion | None  # None where the margin has a closed form (lines, arcs)
 
-    def __init__(self, spine: AbstractSpine, samples: int | None = None, margin=0.0):
+    def __init__(self, spine: AbstractSpine, samples: int | None = None, margin=0.0,
+                 table: SpineTable | None = None):
         samples = spine.default_samples() if samples is None else samples
         spine = spine._prepare()
-        self.spine = fast_evaluator(spine)
+        # `table`: the spine's `fast_evaluator` where the caller made it already (a skeleton's
+        # rest spine, whose table its bent spines read too: `_skeleton.posing`).
+        self.spine = fast_evaluator(spine) if table is None else table
         self.exact = jax.lax.stop_gradient(spine)
         self.search = _search(self.spine, samples)
         closed = spine._has_closed_form_foot()

@@ -32,6 +32,7 @@ import numpy as np
 from jaxtyping import Array
 
 from .._fleshing.maps import WHOLE_FROM
+from .._numerics import on_device
 from .._spines.bent import ramp, rotate
 
 # κ·ρ kept in a zone: below the radial map's limit 1/√3 ≈ 0.577, where its concave side would
@@ -196,8 +197,8 @@ def joint_zone(arc_length: np.ndarray, offset: np.ndarray, curvature: np.ndarray
     pad = ZONE_LENGTHS - len(capacities)
     capacities, lengths, slopes = (np.pad(a, (0, pad), mode="edge")
                                    for a in (capacities, lengths, slopes))
-    return JointZone(*(jnp.asarray(a, dtype) for a in (lengths, capacities, slopes, axes,
-                                                       *margins)))
+    return JointZone(*(on_device(a, dtype) for a in (lengths, capacities, slopes, axes,
+                                                     *margins)))
 
 
 def _margin_rows(keep, offset, curvature, s, frames, axes) -> tuple:

@@ -36,14 +36,15 @@ import numpy as np
 from jaxtyping import Array, Bool, Float
 
 from .._batching.buckets import bucket, pad_batch, unpad_batch
-from .._batching.quick import Program
+from .._batching.quick import QUICK_BATCH, Program
 from .._checks import as_margin, is_concrete
+from .._fleshing.eager import certified_registration, registered_pending
 from .._fleshing.ends import EndFrames, aligned_twist, target_ends
 from .._fleshing.methods import check_method
-from .._fleshing.pipeline import Poser, pose_prepared, prepare_target, register
-from .._fleshing.projection import Registration, invalid_past
+from .._fleshing.pipeline import Poser, pose_prepared, prepare_target
+from .._fleshing.projection import Registrar, Registration, invalid_past
 from .._mesh.deform import longest_edge, polygon_mesh
-from .._numerics import cast_floats
+from .._numerics import cast_floats, on_device
 from .._spines.looked_up import LookedUpSpine
 from .._spines.spine import AbstractSpine
 from .._spines.table import tabulable, tabulates
@@ -150,7 +151,7 @@ def register_skeleton(mesh, skeleton: Skeleton, *, margin: float | None = None,
     """
     vertices, faces = polygon_mesh(mesh)
     _check_skeleton(skeleton, vertices)
-    points = jnp.asarray(vertices, dtype)
+    points = on_device(vertices, dtype)
     if margin is None:
         margin = 0.5 * longest_edge(vertices, faces)
     margin = as_margin(margin, points.dtype)
@@ -164,10 +165,16 @@ def register_skeleton(mesh, skeleton: Skeleton, *, margin: float | None = None,
     rows = np.asarray(points)
     for k, limb in enumerate(skeleton.limbs):
         ids = np.flatnonzero(region == k).astype(np.int32)
-        spine = cast_floats(limb.spine, points.dtype)._bucketed()
-        # Its tables made once, for the registration and the rest spines (`_prepared_rest`).
-        prepared = _prepared_rest(spine)
-        reg = invalid_past(register(pad_batch(rows[ids], size), prepared, margin=margin),
+        # (Its floats cast on the host: on the device, one program per array shape.)
+        spine = jax.device_put(cast_floats(jax.tree.map(np.asarray, limb.spine),
+                                           points.dtype))._bucketed()
+        tabled = tabulates(spine, points.dtype)  # (its length not computed again)
+        batch = jax.device_put(pad_batch(rows[ids], size))
+        prepared, table, length = _rests(spine, tabulable(spine))
+        registrar, certified = _registration(prepared, batch, margin,
+                                             table.table if tabled else None,
+                                             quick=size <= QUICK_BATCH)
+        reg = invalid_past(Registration(batch, *registered_pending(registrar, batch, certified)),
                            len(ids))
         arc = np.full(len(vertices), np.nan)
         arc[ids] = np.asarray(reg.arc_length)[: len(ids)]
@@ -177,34 +184,33 @@ def register_skeleton(mesh, skeleton: Skeleton, *, margin: float | None = None,
         joint = max(float(limb.joint), float(np.max(arc[border], initial=-np.inf)))
         # It is complete before the borders with the children.
         inner = np.isin(region, lineage[k])
-        stop = min(float(prepared.length), float(np.min(arc[_border(edges, region == k, inner)],
-                                                         initial=np.inf)))
+        stop = min(float(length), float(np.min(arc[_border(edges, region == k, inner)],
+                                               initial=np.inf)))
         if not joint < stop:
             raise ValueError(
                 f"`skeleton`: limb {k}'s region meets its child limbs (arc length {stop:.4g}) "
                 f"before it leaves its parent ({joint:.4g}): there is no room to bend it."
             )
-        tabled = tabulates(spine, points.dtype)  # (its length not computed again)
-        rest = _looked_up(prepared) if tabled else prepared
+        rest = table if tabled else prepared
         # (All rows, padded ones invalid: every limb's zone has the same shapes.)
         at = np.where(np.asarray(reg.valid), np.asarray(reg.arc_length), joint)
-        (_, *frames), axes = _frames_at(rest, jnp.asarray(at, points.dtype),
-                                        jnp.asarray(joint, points.dtype))
+        (_, *frames), axes = _frames_at(rest, on_device(at, points.dtype),
+                                        on_device(joint, points.dtype))
         zones.append(joint_zone(*(np.asarray(f) for f in (
             reg.arc_length, reg.offset, reg.curvature, reg.valid)), joint, stop, points.dtype,
             frames=frames, axes=axes))
         registrations.append(reg)
         rests.append(rest)
-        checks.append(_looked_up(prepared) if not tabled and tabulable(spine) else None)
+        checks.append(None if tabled else table)
         indices.append(jax.device_put(ids))
-        joints.append(jnp.asarray(joint, points.dtype))
+        joints.append(on_device(joint, points.dtype))
         # (Rounded to the dtype, the stop may fall an ulp past the rest spine's own length,
         # which a bent spine refuses: its table's length, in float32, rounds its own way.)
-        stops.append(jnp.minimum(jnp.asarray(stop, points.dtype), rest.length))
+        stops.append(on_device(np.minimum(np.asarray(stop, points.dtype), rest.length)))
     return SkeletonRegistration(tuple(registrations), tuple(rests), tuple(checks),
                                 tuple(indices), tuple(joints),
                                 tuple(stops), points, margin, tuple(zones),
-                                jnp.asarray(_triangles(faces), jnp.int32), fingerprint(skeleton))
+                                on_device(_triangles(faces), np.int32), fingerprint(skeleton))
 
 
 def _triangles(faces: np.ndarray) -> np.ndarray:
@@ -622,15 +628,38 @@ def _pose_limb_eagerly(registration, target, method, check=True, checked_on=None
 _posed_by_program = eqx.filter_jit(_posed_by)
 
 
-# In single precision a limb's bent spines read its rest spine from a table made once here
-# (`_spines.looked_up`): preparing a frame's target 3× faster on spot.
-_looked_up = Program(LookedUpSpine)  # (once per registration: compiled quickly)
-# In double precision they evaluate it exactly, from its tables (a free-form spine's lengths,
-# coefficients and frame nodes), made once here too: each frame built them again (the frame
-# nodes' propagation is a loop), about a third of a float64 frame of spot's leg. The limb's
-# registration and its table (float32) start from them too: each of those programs built them
-# again, and compiled them again.
-_prepared_rest = Program(lambda spine: spine._prepare())
+def _limb_rests(spine: AbstractSpine, lookup: bool):
+    """Limb `spine`'s rest spines, made once: `(prepared, table, length)`.
+
+    - `prepared`: the spine with its tables (a free-form spine's lengths, coefficients and
+      frame nodes): in double precision a limb's bent spines evaluate it exactly from them
+      (each frame built them again: the frame nodes' propagation is a loop, about a third of
+      a float64 frame of spot's leg); its registration starts from them too;
+    - `table`: its `LookedUpSpine` if `lookup` (static: `tabulable`), else `None`: in single
+      precision the bent spines read the rest spine from it (preparing a frame's target 3×
+      faster on spot) and the registration searches its table (`_limb_registered`); in
+      double precision, the projection check's (`limb_check`);
+    - `length`: scalar."""
+    prepared = spine._prepare()
+    return prepared, LookedUpSpine(prepared) if lookup else None, prepared.length
+
+
+def _limb_registered(prepared: AbstractSpine, points: Array, margin: Array, table):
+    """`(registrar, certified)`: the registration's fast path of a limb's region `points`
+    (n, 3) on its `prepared` rest spine (`_fleshing.eager.certified_registration`), searching
+    `table` (a `SpineTable`: the rest spine's, in single precision) if given, for
+    `registered_pending`.
+
+    Two programs a limb (each shared by every limb: their shapes are bucketed), not six: the
+    registrar made its own copy of the table and each phase was a program of its own, each
+    traced, lowered and compiled (the table's compile twice); in one program XLA's compile
+    grew faster than its parts'."""
+    registrar = Registrar(prepared, margin=margin, table=table)
+    return registrar, certified_registration(registrar, points)
+
+
+_rests = Program(_limb_rests)
+_registration = Program(_limb_registered)
 
 
 def limb_causes(registration: SkeletonRegistration, skeleton: Skeleton, poses: dict,
