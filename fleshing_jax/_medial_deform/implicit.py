@@ -70,16 +70,25 @@ def cone_table(centers: Array, radii: Array, cones: Int[Array, "C 2"]) -> Cones:
 
 
 def cone_field(p: Float[Array, " 3"], cone: Cones) -> tuple[Array, Array]:
-    """Signed distance of `p` to one cone (fields of `cone` unbatched), and its gradient."""
+    """Signed distance of `p` to one cone (fields of `cone` unbatched), and its gradient.
+
+    The square roots are of `max(·, tiny)` (the dtype's smallest normal number): the same
+    value wherever the argument is at least `tiny`, `√tiny` (~1e-19 in float32) below, with
+    a zero derivative there, so that the gradient's division needs no guard; where
+    `safe_sqrt`/`safe_divide`'s selects made a pose's field evaluation ~1.25× as long
+    (measured on the 107k-vertex capsule). On the axis or at the foot itself the gradient is
+    `v/√tiny` (`v` at most `√tiny` long), where the guarded form gave 0: either is a
+    direction of a non-differentiable point."""
+    tiny = jnp.finfo(p.dtype).tiny
     d0 = p - cone.c0
     x = dot(d0, cone.u)
-    y = safe_sqrt(dot(d0, d0) - x * x)
+    y = jnp.sqrt(jnp.maximum(dot(d0, d0) - x * x, tiny))
     # Clamped to [lo, hi]: on a proper cone the lateral foot clamped to the segment, for
     # nested spheres (lo = hi) the larger sphere's centre, without a select per evaluation.
     t = jnp.clip(x - y * cone.slope, cone.lo, cone.hi)
     v = d0 - t * cone.u
-    dist = safe_sqrt(dot(v, v))
-    return dist - (cone.r0 - cone.s * t), safe_divide(v, dist)
+    dist = jnp.sqrt(jnp.maximum(dot(v, v), tiny))
+    return dist - (cone.r0 - cone.s * t), v / dist
 
 
 class Slabs(eqx.Module):
