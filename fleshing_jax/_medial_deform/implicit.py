@@ -365,13 +365,15 @@ def correct(
         # step, as one loop: the field is traced and compiled once for all of them.
         x, active, g_prev = state
         if relaxing:
-            ring = jax.vmap(weighted_sum)(data.ring_weights, x[data.ring])
-            move = ring + delta - x
-            move = move - dot(move, g_prev)[:, None] * g_prev
-            moving = active & (k >= newton_steps)
-            if skipping:
-                moving = moving & ~fixed
-            x = jnp.where(moving[:, None], x + relax_step * move, x)
+            def relax(x):
+                ring = jax.vmap(weighted_sum)(data.ring_weights, x[data.ring])
+                move = ring + delta - x
+                move = move - dot(move, g_prev)[:, None] * g_prev
+                moving = active & ~fixed if skipping else active
+                return jnp.where(moving[:, None], x + relax_step * move, x)
+
+            # Only in the relaxation's rounds (the Newton steps' share of the loop skips it).
+            x = jax.lax.cond(k >= newton_steps, relax, lambda x: x, x)
         f, g = evaluate(x, g_prev)
         # The angle test of Vaillant et al. on unit gradients; a smooth union's gradient can
         # be short where two primitives' gradients oppose, so the step's denominator is kept
