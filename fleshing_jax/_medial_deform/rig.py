@@ -24,10 +24,10 @@ footprint sphere of its nearest primitive (`footprint.py`). Our own choices:
   on top of dual-quaternion skinning); the baselines' comparisons use `implicit=False`. Its
   contact test only sees each vertex's candidate primitives (the nearest at rest), so two
   parts far apart at rest that press together after a pose are not detected.
-- **Still blocks.** The correction skips the blocks of vertices whose spheres all move as
-  one rigid body (`still.py`): it would move them by round-off only. The welded points are
-  kept in a spatial order for it (`points`, the binding's arrays; `welded` maps the caller's
-  vertices to them).
+- **Still blocks.** On rigs of up to `still.VERTICES` vertices, the correction skips the
+  blocks of vertices whose spheres all move as one rigid body (`still.py`): it would move
+  them by round-off only. The welded points are kept in a spatial order for it (`points`,
+  the binding's arrays; `welded` maps the caller's vertices to them).
 
 Volumes measured (capsule radius 0.5, cylinder 4, 1762 vertices, chain of 17 spheres, `ΔV/V`,
 medial+implicit / medial / LBS / DQS): bent 90° onto an arc of its length −0.05 / −0.09 /
