@@ -21,7 +21,7 @@ costs `(vertices, candidates)` closed forms.
 The rig keeps its welded points in this order (`rig.py` permutes them at binding), so that a
 block is a slice of every per-point array: the skip costs no gathers into block order at each
 evaluation. Only rigs of at most `VERTICES` vertices skip: on the 107,786-vertex capsule bent
-90° (no block still) the blocks' `lax.cond`s made its skin 44 → 53 ms of CPU (load 10).
+90° (no block still) the blocks' `lax.cond`s made its skin 46 → 53 ms of CPU (load 10).
 """
 
 from __future__ import annotations
