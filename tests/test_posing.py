@@ -12,6 +12,8 @@ import pytest
 from jax.test_util import check_grads
 
 import fleshing_jax as fj
+from fleshing_jax._fleshing.reach import REACH_SAMPLES
+from fleshing_jax._skeleton.posing import CERTIFICATE_SAMPLES, limb_poser, limb_target
 
 
 def _pose(registration, skeleton, poses):
@@ -261,6 +263,12 @@ def test_a_bend_beyond_the_limb_s_reach_is_flagged(skeleton, registration):
     # The map has no stretch at the vertices left in place: NaN exactly there.
     stretch = np.asarray(fj.pose_stretch(registration, skeleton, poses))
     np.testing.assert_array_equal(np.isnan(stretch), ~valid)
+    # The check's reach certificate is the coarse one (the region's test keeps its samples):
+    # traced only, nothing compiled.
+    poser = jax.eval_shape(lambda: limb_poser(
+        registration.registrations[2], limb_target(registration, 2, poses[2]), "radial"))
+    assert poser.region.reach.bounds.shape == (CERTIFICATE_SAMPLES,)
+    assert poser.region.positions.shape == (3, REACH_SAMPLES) != (3, CERTIFICATE_SAMPLES)
 
 
 def test_past_its_range_a_limb_stays_whole_and_is_flagged_inexact(tube, skeleton,

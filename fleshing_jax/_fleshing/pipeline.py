@@ -179,7 +179,7 @@ class Poser(eqx.Module):
 
     def __init__(
         self, target, method, twist, check_projection=True, margin=0.0, start=None,
-        beyond="continue", fallback=False, checked_on=None,
+        beyond="continue", fallback=False, checked_on=None, certificate=None,
     ):
         """`start`: the source's `EndFrames`, from which the target's first normal is carried
         (`ends.aligned_twist`; `None`: the target's own, for callers that align the twist
@@ -192,7 +192,8 @@ class Poser(eqx.Module):
         own (`_table`) that equals `target` far within the projection check's resolution (its
         samples' spacing), on which the check's valid region is built instead (a bent limb
         read from its rest spine's table, in double precision: `_skeleton.posing`); the
-        points are still bent on `target` exactly."""
+        points are still bent on `target` exactly. `certificate`: the samples of the valid
+        region's reach certificate (`ValidRegion`; default its own samples')."""
         self.fallback = fallback
         target = target._prepare()  # once: each preparation is traced again
         if start is not None:
@@ -207,7 +208,7 @@ class Poser(eqx.Module):
         self.method, self.check_projection = method, check_projection
         use = check_projection and not closed
         checked = self.target if checked_on is None or not use else _own_table(checked_on)
-        self.region = ValidRegion(checked, margin) if use else None
+        self.region = ValidRegion(checked, margin, certificate=certificate) if use else None
 
     @property
     def fused(self) -> bool:
@@ -581,18 +582,19 @@ def prepare_target(
     beyond: str = "continue",
     fallback: bool = False,
     checked_on: AbstractSpine | None = None,
+    certificate: int | None = None,
 ) -> Poser:
     """`target` prepared once for posing points of `dtype` (`pose` = `pose_prepared` of this):
     a compiled call of its own, which `_mesh.overlap` may run beside the registration.
     `start`: the source's `EndFrames` (`Registration.ends`, or `EndFrames(source)`), from
-    which the target's first normal is carried; `beyond` as for `Fleshing`; `fallback` and
-    `checked_on` as for `Poser`."""
+    which the target's first normal is carried; `beyond` as for `Fleshing`; `fallback`,
+    `checked_on` and `certificate` as for `Poser`."""
     _check_spine(target, "target")
     target, twist, start, checked_on = cast_floats(
         (target, as_twist(twist, dtype), start, checked_on), dtype)
     margin = as_margin(margin, dtype)
     options = (check_method(method), twist, bool(check_projection), margin, start,
-               check_beyond(beyond), bool(fallback), checked_on)
+               check_beyond(beyond), bool(fallback), checked_on, certificate)
     return _poser(target._bucketed(), *options)
 
 
@@ -610,10 +612,10 @@ def pose_prepared(registration: Registration, poser: Poser) -> tuple[Array, Arra
 
 @eqx.filter_jit
 def _poser(target, method, twist, check_projection, margin=0.0, start=None, beyond="continue",
-           fallback=False, checked_on=None):
+           fallback=False, checked_on=None, certificate=None):
     # (compiled apart, as `_registrar`)
     return Poser(target, method, twist, check_projection, margin, start, beyond, fallback,
-                 checked_on)
+                 checked_on, certificate)
 
 
 @eqx.filter_jit

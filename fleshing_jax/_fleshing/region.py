@@ -82,12 +82,19 @@ class ValidRegion(eqx.Module):
     extent: Array
     stiffness: Array
 
-    def __init__(self, spine: AbstractSpine, margin: Array, samples: int = REACH_SAMPLES):
+    def __init__(self, spine: AbstractSpine, margin: Array, samples: int = REACH_SAMPLES,
+                 certificate: int | None = None):
+        """`certificate`: the samples of the direction-free certificate (`reach`; default
+        `samples`, built on the same jets). Any count gives a sound certificate: it only
+        decides which points skip the pruned and sampled tests (a posed limb's is smaller:
+        `_skeleton.posing.CERTIFICATE_SAMPLES`)."""
         spine = jax.lax.stop_gradient(spine._prepare())
         self.spine = spine
         self.margin = jax.lax.stop_gradient(jnp.asarray(margin, spine.length.dtype))
         jets = sampled_jets(spine, samples)  # (the reach bounds' samples too: evaluated once)
-        self.reach = LocalReach(spine, samples, self.margin, jets)
+        own = certificate is None or certificate == samples
+        self.reach = LocalReach(spine, samples if own else certificate, self.margin,
+                                jets if own else None)
         lo, hi = search_range(spine)
         self.lo, self.h = lo, (hi - lo) / (samples - 1)
         positions, _, k = jets
