@@ -9,7 +9,9 @@ joint's exact range carried on by its free child, `_skeleton.spill`). Prints one
 per pose: the joint's own exact range that way (`fj.joint_range`), flagged vertices, ΔV/V, the
 worst edge stretch, the largest principal stretch of the map at the vertices it places
 exactly (`fj.pose_stretch`; "-" where none moves exactly) and whether the body stayed bit for
-bit. With `--figure`, the posed leg and arm (knee and elbow 120°) beside the rest.
+bit. Then the leg lifted 90° as a marching step (hip 90° towards +x, knee 90° towards −x,
+`towards`). With `--figure`, the posed leg and arm (knee and elbow 120°, the lifted leg)
+beside the rest.
 """
 
 from __future__ import annotations
@@ -82,23 +84,39 @@ def main():
                   f"{f'{principal.max():.2f}' if principal.size else '-'} | "
                   f"{'yes' if np.array_equal(moved[body], rest[body]) else 'no'} |", flush=True)
             shown[(name, bend, direction)] = moved
+    # The leg lifted 90° as a marching step: the thigh forwards (+x), the shin back down.
+    poses = {leg[0]: fj.LimbPose(90.0, towards=(1.0, 0.0, 0.0)),
+             leg[1]: fj.LimbPose(90.0, towards=(-1.0, 0.0, 0.0))}
+    posed = fj.pose_skeleton(registration, skeleton, poses)
+    moved = np.asarray(posed.vertices)
+    stretch = np.linalg.norm(moved[edges[:, 0]] - moved[edges[:, 1]], axis=1) / lengths
+    change = float(fj.volume(moved, faces) / fj.volume(rest, faces)) - 1
+    principal = np.asarray(fj.pose_stretch(registration, skeleton, poses))
+    principal = principal[np.isfinite(principal) & (principal > 1 + 1e-9)]
+    print(f"| leg lifted ({leg[0]}, {leg[1]}) | hip 90° ahead, knee 90° back | - | "
+          f"{int(np.sum(~np.asarray(posed.valid)))} | {100 * change:+.4f} | {stretch.max():.2f} | "
+          f"{f'{principal.max():.2f}' if principal.size else '-'} | "
+          f"{'yes' if np.array_equal(moved[body], rest[body]) else 'no'} |", flush=True)
+    shown[("lifted", 90.0, 0.0)] = moved
     if args.figure is not None:
         _figure(args.figure, rest, faces, np.asarray(skeleton.region), leg, arm, shown)
 
 
 def _figure(path, rest, faces, region, leg, arm, shown):
-    """The leg and the arm at rest and with the knee and the elbow at 120° (towards 0°)."""
+    """The leg and the arm at rest, with the knee and the elbow at 120° (towards 0°), and the
+    leg lifted (hip 90° ahead, knee 90° back); seen from the side (along y)."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     from mpl_toolkits.mplot3d.art3d import Poly3DCollection
 
-    figure = plt.figure(figsize=(12, 3.5))
+    figure = plt.figure(figsize=(15, 3.5))
     panels = [(rest, leg, "leg at rest"), (shown[("knee", 120.0, 0.0)], leg, "knee 120°"),
+              (shown[("lifted", 90.0, 0.0)], leg, "leg lifted: hip 90°, knee 90°"),
               (rest, arm, "arm at rest"), (shown[("elbow", 120.0, 0.0)], arm, "elbow 120°")]
     for i, (points, limbs, title) in enumerate(panels):
-        ax = figure.add_subplot(1, 4, i + 1, projection="3d")
+        ax = figure.add_subplot(1, len(panels), i + 1, projection="3d")
         keep = np.isin(region[faces], limbs).any(axis=1)
         ax.add_collection3d(Poly3DCollection(points[faces[keep]], facecolor=(0.7, 0.75, 0.9),
                                              edgecolor=(0, 0, 0, 0.15), linewidths=0.2))
