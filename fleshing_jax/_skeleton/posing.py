@@ -221,14 +221,18 @@ def _triangles(faces: np.ndarray) -> np.ndarray:
     return np.concatenate(fans, axis=0) if fans else np.zeros((0, 3), np.int64)
 
 
-@eqx.filter_jit
-def _frames_at(spine: AbstractSpine, s: Array, joint: Array):
+def _frames(spine: AbstractSpine, s: Array, joint: Array):
     """`((C, T, I, J) (n, 3) each, (T, I, J) (3, 3))`: `spine`'s frames at arc lengths `s`
-    (n,) and at `joint` (scalar); one program for every limb (their shapes are bucketed)."""
+    (n,) and at `joint` (scalar); one program for every limb (their shapes are bucketed),
+    compiled quickly (run once a limb: the optimised compile of a float64 B-spline's frames
+    was about 2 s of CPU)."""
     prepared = spine._prepare()
     (c, t, _), (i, j) = jax.vmap(prepared._jet_and_normals)(s)
     (_, t0, _), (i0, j0) = prepared._jet_and_normals(joint)
     return (c, t, i, j), jnp.stack([t0, i0, j0])
+
+
+_frames_at = Program(_frames)
 
 
 def _edges(faces: np.ndarray) -> np.ndarray:
