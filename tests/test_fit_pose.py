@@ -304,9 +304,15 @@ def test_the_angle_spread_is_the_sandwich_standard_error():
     np.testing.assert_allclose(covariance(jac, r), expected, rtol=1e-10)
     np.testing.assert_allclose(block_spread(expected, [[0], [1]]),
                                np.sqrt(np.diag(expected)), rtol=1e-10)
+    # Rows in pairs that share their noise (a point's components): each pair's score squared.
+    scores = (jac * r[:, None]).reshape(100, 2, 2).sum(axis=1)
+    paired = inverse @ scores.T @ scores @ inverse
+    np.testing.assert_allclose(covariance(jac, r, group=2), paired, rtol=1e-10)
+    with pytest.raises(ValueError, match="group"):
+        covariance(jac, r, group=3)
     # Two limbs of (b₁, b₂, ψ); the second's bend columns are zero (a limb the target misses).
     blind = np.stack([np.ones_like(x), x, x**2, 0 * x, 0 * x, np.cos(3 * x)], axis=1)
-    spread = _spreads((blind, r / 10), (4, 7), 3)  # (b₁, b₂, ψ) per limb
+    spread = _spreads((blind[:198], r[:198] / 10), (4, 7), 3)  # (b₁, b₂, ψ) per limb
     assert spread[4] < ANGLE_SPREAD and spread[7] > 1e3
     message = _undetermined(spread)
     assert "limb 7 ±" in message and "limb 4" not in message and "markers" in message

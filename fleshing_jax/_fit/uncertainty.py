@@ -23,19 +23,27 @@ import numpy as np
 FLOOR = 1e-14
 
 
-def covariance(jacobian, residuals) -> np.ndarray:
+def covariance(jacobian, residuals, group: int = 1) -> np.ndarray:
     """The sandwich covariance (p, p) of the parameters (module docstring) from the Jacobian
-    `jacobian` (n, p) and the residuals `residuals` (n,) at the solution."""
+    `jacobian` (n, p) and the residuals `residuals` (n,) at the solution. With `group` > 1 the
+    rows come in consecutive groups of that many, the components of one point's residual
+    vector, which share that point's noise: the meat sums each group's score `Σ rᵢ Jᵢ` (p,)
+    squared (`diag(r²)` counted a point-to-surface residual, whose 3 components all follow its
+    one distance along the normal, as independent draws: up to √3 too narrow)."""
     j = np.asarray(jacobian, np.float64)
     r = np.asarray(residuals, np.float64).reshape(-1)
     if j.ndim != 2 or j.shape[0] != r.shape[0]:
         raise ValueError(f"`jacobian` must have shape (n, p) with n = {r.shape[0]}, the "
                          f"residuals' count, got {j.shape}.")
+    if group < 1 or len(r) % group:
+        raise ValueError(f"`group` must be a positive divisor of the residuals' count "
+                         f"{len(r)}, got {group}.")
     normal = j.T @ j
     values, vectors = np.linalg.eigh(normal)
     floor = FLOOR * max(float(values.max()), np.finfo(np.float64).tiny)
     inverse = (vectors / np.maximum(values, floor)) @ vectors.T
-    meat = (j * r[:, None] ** 2).T @ j
+    scores = (j * r[:, None]).reshape(-1, group, j.shape[1]).sum(axis=1)
+    meat = scores.T @ scores
     # The sandwich is 0 along a direction the residuals do not depend on (its meat is 0 too):
     # there the classical estimate `s² (JᵀJ)⁻¹`, at the floor, stands in (enormous).
     null = vectors[:, values < floor]

@@ -441,7 +441,7 @@ def _spreads(linear, limbs: tuple[int, ...], per_limb: int) -> dict:
     that is not of Gauss–Newton type)."""
     if linear is None:
         return {k: float("nan") for k in limbs}
-    cov = covariance(*linear)
+    cov = covariance(*linear, group=3)  # each target point's (or marker's) 3 components
     blocks = [[i * per_limb, i * per_limb + 1] for i in range(len(limbs))]
     return dict(zip(limbs, np.rad2deg(block_spread(cov, blocks)).tolist()))
 
