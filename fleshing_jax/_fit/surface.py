@@ -85,11 +85,16 @@ def nearest_vertices(points: Array, vertices: Array) -> Int[Array, " K"]:
                              vmap_method="sequential")
 
 
-def to_surface(points: Array, vertices: Array, faces: Array, ring: Array) -> Array:
+def to_surface(points: Array, vertices: Array, faces: Array, ring: Array,
+               along_normal: bool = False) -> Array:
     """The difference vectors (K, 3) from the closest points of the surface `(vertices (V, 3),
     faces (F, 3))` to `points` (K, 3), their squared norms the squared distances; `ring`
     (V, R): `rings(faces, V)`. Differentiable in both `points` and `vertices` (the module's
-    docstring)."""
+    docstring). With `along_normal`, each vector's part along its triangle's unit normal
+    (stopped; a collapsed triangle keeps the whole vector): point to plane, whose derivative
+    sees only the surface's motion across itself. (The closest point's weights are stopped,
+    so the whole vector's derivative also counts the surface sliding along itself, which moves
+    no distance: with noisy points that made the fit rugged and its spread too narrow.)"""
     fixed = jax.lax.stop_gradient(vertices)
     candidates = ring[nearest_vertices(points, fixed)]  # (K, R) faces, -1 padding
 
@@ -102,4 +107,12 @@ def to_surface(points: Array, vertices: Array, faces: Array, ring: Array) -> Arr
 
     face, weights = jax.vmap(nearest)(jax.lax.stop_gradient(points), candidates)
     weights = jax.lax.stop_gradient(weights)
-    return points - jnp.einsum("kc,kci->ki", weights, vertices[faces[face]])
+    difference = points - jnp.einsum("kc,kci->ki", weights, vertices[faces[face]])
+    if not along_normal:
+        return difference
+    a, b, c = jnp.unstack(fixed[faces[face]], axis=1)
+    cross = jnp.cross(b - a, c - a)
+    size = jnp.linalg.norm(cross, axis=-1, keepdims=True)
+    flat = size > jnp.finfo(size.dtype).tiny
+    normal = cross / jnp.where(flat, size, 1.0)
+    return jnp.where(flat, jnp.sum(difference * normal, -1, keepdims=True) * normal, difference)
