@@ -64,10 +64,10 @@ def ramp(u: Array) -> tuple[Array, Array]:
 
 
 def rotate(axis: Array, angle: Array, v: Array) -> Array:
-    """`v` (3,) turned by `angle` radians about the unit `axis` (3,) (Rodrigues): exactly `v`
-    at angle 0."""
+    """`v` (..., 3) turned by `angle` radians about the unit `axis` (3,) (Rodrigues): exactly
+    `v` at angle 0. Several vectors turned at once (stacked) are turned exactly as one by one."""
     cos, sin = jnp.cos(angle), jnp.sin(angle)
-    return cos * v + sin * jnp.cross(axis, v) + (1 - cos) * dot(axis, v) * axis
+    return cos * v + sin * jnp.cross(axis, v) + (1 - cos) * dot(axis, v)[..., None] * axis
 
 
 class BentSpine(AbstractTabulatedSpine):
@@ -186,12 +186,16 @@ class PreparedBent(AbstractSpine):
         """`Q v` for the ramp value `r`."""
         return rotate(self.bend_axis, self.bend * r, rotate(self.twist_axis, self.twist * r, v))
 
-    def _turn_slope(self, r: Array, slope: Array, v: Array) -> Array:
-        """`Q′ v` (derivative in `s`) for the ramp value `r` and its slope."""
-        turned = self._turn(r, v)
-        twisted = rotate(self.twist_axis, self.twist * r, v)
-        about_tangent = rotate(self.bend_axis, self.bend * r, jnp.cross(self.twist_axis, twisted))
-        return slope * (self.bend * jnp.cross(self.bend_axis, turned) + self.twist * about_tangent)
+    def _turn_frame(self, r: Array, slope: Array, t0: Array, k0: Array, i0: Array, j0: Array):
+        """`(Q T₀, Q k₀ + Q′ T₀, Q I₀, Q J₀)` (each (3,)) for the ramp value `r` and its slope
+        in `s`. The four vectors and `Q′`'s (`twist_axis × twisted T₀`) are turned as one stack:
+        the same values as one by one, in a fifth of the traced operations."""
+        twisted = rotate(self.twist_axis, self.twist * r, jnp.stack([t0, k0, i0, j0]))
+        stack = jnp.concatenate([twisted, jnp.cross(self.twist_axis, twisted[:1])])
+        tangent, k, i, j, about_tangent = rotate(self.bend_axis, self.bend * r, stack)
+        turn_slope = slope * (self.bend * jnp.cross(self.bend_axis, tangent)
+                              + self.twist * about_tangent)
+        return tangent, k + turn_slope, i, j
 
     def _tangent(self, s: Array) -> Array:
         """`T₁(s) = Q(s) T₀(s)` for `s ∈ [joint, stop]` (the quadrature's integrand)."""
@@ -224,11 +228,8 @@ class PreparedBent(AbstractSpine):
     def _turned(self, s: Array, base, integrate: bool = True):
         """`_jet_and_normals` at `s` from the base's there (`integrate`: as `_position`)."""
         (c0, t0, k0), (i0, j0) = base
-        r, slope = self._angles(s)
-        tangent = self._turn(r, t0)
-        k = self._turn(r, k0) + self._turn_slope(r, slope, t0)
-        jet = (self._position(s, c0, integrate), tangent, k)
-        return jet, (self._turn(r, i0), self._turn(r, j0))
+        tangent, k, i, j = self._turn_frame(*self._angles(s), t0, k0, i0, j0)
+        return (self._position(s, c0, integrate), tangent, k), (i, j)
 
     def _jet_and_normals(self, s: Array):
         return self._turned(s, self.base._jet_and_normals(s))
@@ -270,8 +271,7 @@ class PreparedBent(AbstractSpine):
         flat = nodes.reshape(-1)
         (c0, t0, k0), (i0, j0) = at.jet, at.normals
         r, slope = jax.vmap(self._angles)(flat)
-        turn = jax.vmap(self._turn)
-        k = turn(r, k0) + jax.vmap(self._turn_slope)(r, slope, t0)
+        tangent, k, i, j = jax.vmap(self._turn_frame)(r, slope, t0, k0, i0, j0)
 
         def moved(s, tangent):  # (Q − 1) T₀ at s
             return self._turn(self._angles(s)[0], tangent) - tangent
@@ -283,8 +283,8 @@ class PreparedBent(AbstractSpine):
         def shaped(v):
             return v.reshape(nodes.shape + (3,))
 
-        jet = (shaped(c), shaped(turn(r, t0)), shaped(k))
-        return table.refit(jet, (shaped(turn(r, i0)), shaped(turn(r, j0))))
+        jet = (shaped(c), shaped(tangent), shaped(k))
+        return table.refit(jet, (shaped(i), shaped(j)))
 
     def default_samples(self) -> int:
         return self.base.default_samples()
