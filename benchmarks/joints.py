@@ -67,37 +67,33 @@ def main():
     print("| joint (limb) | bend | its own exact range that way | flagged | dV/V (%) | worst edge "
           "| principal stretch | body still |")
     print("|---|---:|---:|---:|---:|---:|---:|---|")
+    def row(label, pose_text, own_text, poses):
+        """Prints one table row for `poses` and returns the posed vertices."""
+        posed = fj.pose_skeleton(registration, skeleton, poses)
+        moved = np.asarray(posed.vertices)
+        stretch = np.linalg.norm(moved[edges[:, 0]] - moved[edges[:, 1]], axis=1) / lengths
+        change = float(fj.volume(moved, faces) / fj.volume(rest, faces)) - 1
+        principal = np.asarray(fj.pose_stretch(registration, skeleton, poses))
+        principal = principal[np.isfinite(principal) & (principal > 1 + 1e-9)]
+        print(f"| {label} | {pose_text} | {own_text} | "
+              f"{int(np.sum(~np.asarray(posed.valid)))} | {100 * change:+.4f} | "
+              f"{stretch.max():.2f} | "
+              f"{f'{principal.max():.2f}' if principal.size else '-'} | "
+              f"{'yes' if np.array_equal(moved[body], rest[body]) else 'no'} |", flush=True)
+        return moved
+
     shown = {}
     for k, bend, name in joints:
         for direction in (0.0, 180.0):
-            poses = {k: fj.LimbPose(bend, direction)}
-            posed = fj.pose_skeleton(registration, skeleton, poses)
-            moved = np.asarray(posed.vertices)
-            stretch = np.linalg.norm(moved[edges[:, 0]] - moved[edges[:, 1]], axis=1) / lengths
-            change = float(fj.volume(moved, faces) / fj.volume(rest, faces)) - 1
-            principal = np.asarray(fj.pose_stretch(registration, skeleton, poses))
-            principal = principal[np.isfinite(principal) & (principal > 1 + 1e-9)]
             own = float(fj.joint_range(registration, k, direction))
-            print(f"| {name} ({k}) | {bend:g}° towards {direction:g}° | {own:.1f}° | "
-                  f"{int(np.sum(~np.asarray(posed.valid)))} | {100 * change:+.4f} | "
-                  f"{stretch.max():.2f} | "
-                  f"{f'{principal.max():.2f}' if principal.size else '-'} | "
-                  f"{'yes' if np.array_equal(moved[body], rest[body]) else 'no'} |", flush=True)
-            shown[(name, bend, direction)] = moved
+            shown[(name, bend, direction)] = row(
+                f"{name} ({k})", f"{bend:g}° towards {direction:g}°", f"{own:.1f}°",
+                {k: fj.LimbPose(bend, direction)})
     # The leg lifted 90° as a marching step: the thigh forwards (+x), the shin back down.
-    poses = {leg[0]: fj.LimbPose(90.0, towards=(1.0, 0.0, 0.0)),
-             leg[1]: fj.LimbPose(90.0, towards=(-1.0, 0.0, 0.0))}
-    posed = fj.pose_skeleton(registration, skeleton, poses)
-    moved = np.asarray(posed.vertices)
-    stretch = np.linalg.norm(moved[edges[:, 0]] - moved[edges[:, 1]], axis=1) / lengths
-    change = float(fj.volume(moved, faces) / fj.volume(rest, faces)) - 1
-    principal = np.asarray(fj.pose_stretch(registration, skeleton, poses))
-    principal = principal[np.isfinite(principal) & (principal > 1 + 1e-9)]
-    print(f"| leg lifted ({leg[0]}, {leg[1]}) | hip 90° ahead, knee 90° back | - | "
-          f"{int(np.sum(~np.asarray(posed.valid)))} | {100 * change:+.4f} | {stretch.max():.2f} | "
-          f"{f'{principal.max():.2f}' if principal.size else '-'} | "
-          f"{'yes' if np.array_equal(moved[body], rest[body]) else 'no'} |", flush=True)
-    shown[("lifted", 90.0, 0.0)] = moved
+    shown[("lifted", 90.0, 0.0)] = row(
+        f"leg lifted ({leg[0]}, {leg[1]})", "hip 90° ahead, knee 90° back", "-",
+        {leg[0]: fj.LimbPose(90.0, towards=(1.0, 0.0, 0.0)),
+         leg[1]: fj.LimbPose(90.0, towards=(-1.0, 0.0, 0.0))})
     if args.figure is not None:
         _figure(args.figure, rest, faces, np.asarray(skeleton.region), leg, arm, shown)
 
