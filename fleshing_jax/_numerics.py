@@ -11,6 +11,7 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jax.custom_derivatives import SymbolicZero
 from jaxtyping import Array
 
 
@@ -172,12 +173,28 @@ def polish_root(function, s: Array, params) -> Array:
         f, slope = function(s, params)
         return s - safe_divide(f, slope)
 
-    @root.defjvp
     def _root_jvp(primals, tangents):
         s, params = primals
         _, dparams = tangents
         value = root(s, params)
-        (_, slope), (df, _) = jax.jvp(lambda p: function(value, p), (params,), (dparams,))
+        # Pushed forward through the parameters that move only (symbolic zeros: the others,
+        # a spine's coefficients under a fit's derivative in its angles, are held). With
+        # their zero tangents materialised, the derivative of the whole residual was traced
+        # and compiled: a shape fit's Jacobian held 2,000 operations more.
+        leaves, tree = jax.tree.flatten(params)
+        moving = [i for i, d in enumerate(tree.flatten_up_to(dparams))
+                  if not isinstance(d, SymbolicZero)]
+
+        def at(*values):
+            full = list(leaves)
+            for i, v in zip(moving, values):
+                full[i] = v
+            return function(value, tree.unflatten(full))
+
+        dleaves = tree.flatten_up_to(dparams)
+        (_, slope), (df, _) = jax.jvp(at, [leaves[i] for i in moving],
+                                      [dleaves[i] for i in moving])
         return value, -safe_divide(df, slope)
 
+    root.defjvp(_root_jvp, symbolic_zeros=True)
     return root(s, params)
