@@ -9,19 +9,23 @@ from fleshing_jax._medial_axis.rows import (
     cross,
     dot,
     gather_columns,
+    norm,
     row_keys,
     sorted_rows,
 )
 
 
 @pytest.mark.parametrize("wider", [False, True])
-def test_dot_and_cross_are_numpy_s_bit_for_bit(wider):
+def test_dot_cross_and_norm_are_numpy_s_bit_for_bit(wider):
     rng = np.random.default_rng(0)
     a, b = (rng.normal(size=(1000, 6)) * 10.0 ** rng.integers(-8, 8, (1000, 1)) for _ in "ab")
     # Columns of a wider table (as the primitives' rows), or contiguous rows.
     a, b = (x[:, 2:5] if wider else np.ascontiguousarray(x[:, :3]) for x in (a, b))
     assert np.array_equal(dot(a, b), np.einsum("ij,ij->i", a, b))
     assert np.array_equal(cross(a, b), np.cross(a, b))
+    for x in (a, a.astype(np.float32)):  # (float32 stays float32)
+        assert np.array_equal(norm(x), np.linalg.norm(x, axis=1))
+        assert norm(x).dtype == x.dtype
     # By coordinates: the same sums.
     assert np.array_equal(column_dot(np.ascontiguousarray(a.T), b.T), dot(a, b))
 

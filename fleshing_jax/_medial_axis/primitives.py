@@ -25,7 +25,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial import cKDTree
 
-from .rows import column_dot, dot, gather_columns
+from .rows import column_dot, dot, gather_columns, norm
 
 
 class _Cones:
@@ -33,7 +33,7 @@ class _Cones:
 
     def __init__(self, c0, r0, c1, r1):
         axis = c1 - c0
-        length = np.linalg.norm(axis, axis=1)
+        length = norm(axis)
         self.proper = length > np.abs(r0 - r1) * (1 + 1e-12)  # not one sphere inside the other
         self.length = np.where(self.proper, length, 1.0)
         self.u = axis / self.length[:, None]
@@ -230,7 +230,7 @@ def _enclosing(c0, r0, c1, r1):
     """The smallest spheres `(centre (M, 3), radius (M,))` holding two spheres each: radius
     `(L + r0 + r1) / 2`, its centre on the axis, or the larger sphere where it holds the
     other."""
-    length = np.linalg.norm(c1 - c0, axis=1)
+    length = norm(c1 - c0)
     radius = (length + r0 + r1) / 2
     along = np.clip(radius - r0, 0, length) / np.where(length > 0, length, 1.0)
     return c0 + along[:, None] * (c1 - c0), np.maximum(radius, np.maximum(r0, r1))
@@ -309,7 +309,7 @@ class UnionPrimitives:
         value = np.empty(len(p))
         lone, cone, slab = self._slices(prim)
         j = self.index[prim[lone]]
-        value[lone] = np.linalg.norm(p[lone] - self.centers[j], axis=1) - self.radii[j]
+        value[lone] = norm(p[lone] - self.centers[j]) - self.radii[j]
         value[cone] = self.cones.distance(p[cone], self.index[prim[cone]])
         value[slab] = self.slabs.distance(p[slab], self.index[prim[slab]])
         return value
@@ -325,7 +325,7 @@ class UnionPrimitives:
         weights = np.zeros((len(p), 3))
         lone, cone, slab = self._slices(prim)
         j = self.index[prim[lone]]
-        value[lone] = np.linalg.norm(p[lone] - self.centers[j], axis=1) - self.radii[j]
+        value[lone] = norm(p[lone] - self.centers[j]) - self.radii[j]
         spheres[lone] = j[:, None]
         weights[lone, 0] = 1.0
         i = self.index[prim[cone]]

@@ -70,14 +70,14 @@ import scipy.sparse.linalg as sparse_linalg
 
 from .candidates import closest as _closest, prune, search as _search
 from .primitives import UnionPrimitives
+from .rows import norm
 from .surface import SurfaceQuery, ray_inside
 
 
 def _moved(params, anchor):
     """How far `(n,)` each sphere of `params (n, 4)` lies from `anchor (n, 4)`: the centre's
     move plus the radius's."""
-    return np.linalg.norm(params[:, :3] - anchor[:, :3], axis=1) + np.abs(params[:, 3]
-                                                                          - anchor[:, 3])
+    return norm(params[:, :3] - anchor[:, :3]) + np.abs(params[:, 3] - anchor[:, 3])
 
 
 def _jacobian(points, spheres, weights, params):
@@ -87,7 +87,7 @@ def _jacobian(points, spheres, weights, params):
     # (`np.take`, not `params[spheres]`: the same rows, several times faster.)
     foot = np.einsum("ij,ijk->ik", weights, np.take(params[:, :3], spheres, axis=0))
     u = points - foot
-    u /= np.maximum(np.linalg.norm(u, axis=1, keepdims=True), 1e-300)
+    u /= np.maximum(norm(u), 1e-300)[:, None]
     rows = np.repeat(np.arange(len(points)), 12)
     cols = (4 * spheres[:, :, None] + np.arange(4)).reshape(-1)
     du = np.concatenate([u, np.ones((len(u), 1))], axis=1)
@@ -100,7 +100,7 @@ def _interpolated(points, spheres, weights, params):
     `weights (N, 3)` between its `spheres (N, 3)` of `params (n, 4)`: an upper bound of its
     distance to the primitive of those spheres (which holds every interpolated sphere)."""
     sphere = np.einsum("ij,ijk->ik", weights, np.take(params, spheres, axis=0))
-    return np.linalg.norm(points - sphere[:, :3], axis=1) - sphere[:, 3]
+    return norm(points - sphere[:, :3]) - sphere[:, 3]
 
 
 def _weights(residual, samples: int, power: float):

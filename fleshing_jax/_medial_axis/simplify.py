@@ -52,9 +52,9 @@ import functools
 
 import numpy as np
 
-from .connect import components, distinct
+from .connect import components, distinct, unique_rows
 from .primitives import _Cones, _Slabs
-from .rows import row_keys, sorted_rows
+from .rows import norm, row_keys, sorted_rows
 
 
 def contact_quadrics(axis, slide: float = 1.0):
@@ -107,7 +107,7 @@ def _edge_costs(spheres, A, b, c, edges, k, length_weight, scale, stable, hausdo
     pick = np.argmin(errors, axis=1)
     rows = np.arange(len(edges))
     chosen = np.select([(pick == k)[:, None] for k in range(3)], options[:3], options[3])
-    length = np.linalg.norm(si[:, :3] - sj[:, :3], axis=1)
+    length = norm(si[:, :3] - sj[:, :3])
     dr = np.abs(si[:, 3] - sj[:, 3])
     stability = np.clip((length - dr) / np.where(length > 0, length, 1.0), 0, 1)
     # Saturated: ratios above `stable` count as 1 (see the module's notes).
@@ -198,7 +198,7 @@ def _uncovered_block(spheres, edges, faces, pairs, optimum, samples, points):
 
     # Only samples outside the merged sphere can be uncovered (most of the pairs' cost).
     centre = optimum[p_row]
-    best = np.linalg.norm(points[p_id] - centre[:, :3], axis=1) - centre[:, 3]
+    best = norm(points[p_id] - centre[:, :3]) - centre[:, 3]
     out = np.flatnonzero(best > 0)
     p_row, p_id, best = p_row[out], p_id[out], best[out]
     cones = _Cones(optimum[c_row, :3], optimum[c_row, 3], ends[:, :3], ends[:, 3])
@@ -279,6 +279,10 @@ def simplify(centers, radii, edges, faces, quadrics, target: int, *, scale: floa
     spheres = np.concatenate([centers, radii[:, None]], axis=1)
     A, b, c = (x.copy() for x in quadrics)
     edges, faces = np.asarray(edges, np.int64), np.asarray(faces, np.int64).reshape(-1, 3)
+    # The faces are carried by `member`, not renumbered round by round: only the late
+    # collapses and the result need them (a tenth of spot's collapses went to renumbering
+    # and deduplicating them every round; the same faces, in the same order).
+    initial_faces = faces
     cost = np.full(len(edges), np.nan)
     optimum = np.zeros((len(edges), 4))
     member = np.arange(len(spheres))  # the sphere each initial sphere has gone into
@@ -298,6 +302,7 @@ def simplify(centers, radii, edges, faces, quadrics, target: int, *, scale: floa
             key = distinct(member[:, None] * len(points) + initial)
             key = key[key % len(points) % sparse == 0]
             samples = (_groups(key // len(points), n), key % len(points))
+            faces = _merged_faces(initial_faces, member, n)
             uncovered = functools.partial(_uncovered, spheres, edges, faces, samples=samples,
                                           points=points)
         # Only edges next to a collapse need new costs (NaN); the others keep theirs.
@@ -369,13 +374,19 @@ def simplify(centers, radii, edges, faces, quadrics, target: int, *, scale: floa
         first = live[np.unique(row_keys(edges, m).take(live), return_index=True)[1]]
         edges, cost, optimum = (np.take(x, first, axis=0) for x in (edges, cost, optimum))
         cost[touched[first]] = np.nan
-        if len(faces):
-            faces = sorted_rows(relabel[faces])
-            live = np.flatnonzero((faces[:, 0] != faces[:, 1]) & (faces[:, 1] != faces[:, 2]))
-            first = live[np.unique(row_keys(faces, m).take(live), return_index=True)[1]]
-            faces = np.take(faces, first, axis=0)
         if progress is not None:
             progress.update(len(chosen))
     order = np.lexsort(edges.T[::-1])
-    return spheres[:, :3], spheres[:, 3], edges[order], faces[np.lexsort(faces.T[::-1])]
+    return (spheres[:, :3], spheres[:, 3], edges[order],
+            _merged_faces(initial_faces, member, len(spheres)))
+
+
+def _merged_faces(faces, member, n: int):
+    """The faces `(f, 3)` once the collapses have taken each initial sphere into `member`
+    (`(n0,)`, indices below `n`): those still on three spheres, each once, sorted within
+    and across rows (as renumbering them after every collapse and dropping the repeats and
+    the degenerate ones gives: a face on two spheres stays on two)."""
+    faces = sorted_rows(member[faces])
+    live = (faces[:, 0] != faces[:, 1]) & (faces[:, 1] != faces[:, 2])
+    return unique_rows(faces[live], n)
 

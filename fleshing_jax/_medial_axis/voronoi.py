@@ -27,7 +27,7 @@ import numpy as np
 from scipy.spatial import Delaunay
 
 from .connect import distinct, join_pieces, unique_rows, volumes
-from .rows import cross
+from .rows import cross, norm
 from .shells import shells
 from .surface import SurfaceQuery
 
@@ -59,7 +59,7 @@ def circumcentres(a, b, c, d):
     det = 2 * np.einsum("ij,ij->i", u, vw)
     num = ((u * u).sum(1)[:, None] * vw + (v * v).sum(1)[:, None] * wu
            + (w * w).sum(1)[:, None] * uv)
-    scale = np.maximum.reduce([np.linalg.norm(x, axis=1) for x in (u, v, w)]) ** 3
+    scale = np.maximum.reduce([norm(x) for x in (u, v, w)]) ** 3
     ok = np.abs(det) > 1e-12 * scale
     return a + num / np.where(ok, det, 1.0)[:, None], ok
 
@@ -103,8 +103,7 @@ def initial_medial_axis(query: SurfaceQuery, points, normals, weights, sample_fa
     radius = np.zeros(len(tets))
     # The circumradius is a distance to a surface point, so it bounds the distance from above
     # where the closest face was not certified (see `SurfaceQuery.query`).
-    radius[candidates] = np.minimum(distance, np.linalg.norm(
-        poles - np.take(a, candidates, axis=0), axis=1))
+    radius[candidates] = np.minimum(distance, norm(poles - np.take(a, candidates, axis=0)))
 
     # Voronoi edges: Delaunay neighbours that are both kept.
     neighbours = delaunay.neighbors.astype(np.int64)
@@ -141,12 +140,12 @@ def initial_medial_axis(query: SurfaceQuery, points, normals, weights, sample_fa
         i, j = np.divmod(key, n_points)
         pi, pj = np.take(points, i, axis=0), np.take(points, j, axis=0)
         axis = pj - pi
-        axis /= np.linalg.norm(axis, axis=1, keepdims=True)
+        axis /= norm(axis)[:, None]
         # A reference direction perpendicular to the axis, then the angle of each circumcentre
         # around the axis (the polygon is convex and perpendicular to it).
         helper = np.where((np.abs(axis[:, 0]) < 0.9)[:, None], [1.0, 0, 0], [0, 1.0, 0])
         e1 = cross(axis, helper)
-        e1 /= np.linalg.norm(e1, axis=1, keepdims=True)
+        e1 /= norm(e1)[:, None]
         e2 = cross(axis, e1)
         offset = np.take(centre, owner, axis=0) - (pi + pj) / 2
         angle = np.arctan2(np.einsum("ij,ij->i", offset, e2), np.einsum("ij,ij->i", offset, e1))
