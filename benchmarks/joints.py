@@ -9,9 +9,9 @@ joint's exact range carried on by its free child, `_skeleton.spill`). Prints one
 per pose: the joint's own exact range that way (`fj.joint_range`), flagged vertices, ΔV/V, the
 worst edge stretch, the largest principal stretch of the map at the vertices it places
 exactly (`fj.pose_stretch`; "-" where none moves exactly) and whether the body stayed bit for
-bit. Then the leg lifted 90° as a marching step (hip 90° towards +x, knee 90° towards −x,
-`towards`). With `--figure`, the posed leg and arm (knee and elbow 120°, the lifted leg)
-beside the rest.
+bit. Then the knee bent 120° back (−x) and the elbow 120° ahead (+x) (`towards`: in the body's
+side plane), and the leg lifted 90° as a marching step (hip 90° towards +x, knee 90° towards
+−x). With `--figure`, those three poses beside the rest, seen side on.
 """
 
 from __future__ import annotations
@@ -89,6 +89,12 @@ def main():
             shown[(name, bend, direction)] = row(
                 f"{name} ({k})", f"{bend:g}° towards {direction:g}°", f"{own:.1f}°",
                 {k: fj.LimbPose(bend, direction)})
+    # The knee and the elbow bent in the body's side plane (seen side on in the figure).
+    for k, name, towards, way in ((leg[1], "knee", (-1.0, 0.0, 0.0), "back (-x)"),
+                                  (arm[1], "elbow", (1.0, 0.0, 0.0), "ahead (+x)")):
+        own = float(fj.joint_range(registration, k, towards=towards))
+        shown[(name, 120.0, way)] = row(f"{name} ({k})", f"120° {way}", f"{own:.1f}°",
+                                        {k: fj.LimbPose(120.0, towards=towards)})
     # The leg lifted 90° as a marching step: the thigh forwards (+x), the shin back down.
     shown[("lifted", 90.0, 0.0)] = row(
         f"leg lifted ({leg[0]}, {leg[1]})", "hip 90° ahead, knee 90° back", "-",
@@ -99,18 +105,20 @@ def main():
 
 
 def _figure(path, rest, faces, region, leg, arm, shown):
-    """The leg and the arm at rest, with the knee and the elbow at 120° (towards 0°), and the
-    leg lifted (hip 90° ahead, knee 90° back); seen from the side (along y)."""
+    """The leg and the arm at rest, with the knee bent 120° back and the elbow 120° ahead, and
+    the leg lifted (hip 90° ahead, knee 90° back); seen from the side (along y)."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     from mpl_toolkits.mplot3d.art3d import Poly3DCollection
 
-    figure = plt.figure(figsize=(15, 3.5))
-    panels = [(rest, leg, "leg at rest"), (shown[("knee", 120.0, 0.0)], leg, "knee 120°"),
+    figure = plt.figure(figsize=(15, 4))
+    panels = [(rest, leg, "leg at rest"),
+              (shown[("knee", 120.0, "back (-x)")], leg, "knee 120° back"),
               (shown[("lifted", 90.0, 0.0)], leg, "leg lifted: hip 90°, knee 90°"),
-              (rest, arm, "arm at rest"), (shown[("elbow", 120.0, 0.0)], arm, "elbow 120°")]
+              (rest, arm, "arm at rest"),
+              (shown[("elbow", 120.0, "ahead (+x)")], arm, "elbow 120° ahead")]
     for i, (points, limbs, title) in enumerate(panels):
         ax = figure.add_subplot(1, len(panels), i + 1, projection="3d")
         keep = np.isin(region[faces], limbs).any(axis=1)
@@ -123,7 +131,7 @@ def _figure(path, rest, faces, region, leg, arm, shown):
         ax.view_init(5, -90)
         ax.set_axis_off()
         ax.set_title(title, fontsize=9)
-    figure.savefig(path, dpi=90, bbox_inches="tight")
+    figure.savefig(path, dpi=110, bbox_inches="tight")
     plt.close(figure)
 
 
