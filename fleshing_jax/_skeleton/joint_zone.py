@@ -179,10 +179,10 @@ def joint_zone(arc_length: np.ndarray, offset: np.ndarray, curvature: np.ndarray
     # A zone of length L bends a vertex at its place u = (s − joint)/L by κ = θ r′(u)/L: each
     # vertex in the zone bounds θ by L·allowed/r′(u), where the ramp puts it (a vertex at the
     # zone's ends, where r′ = 0, bounds nothing; past the zone it is carried rigidly).
-    # (The ramp on every row, padded ones at the joint: one shape, one compiled ramp a bucket.)
-    everywhere = np.where(keep, np.asarray(arc_length, float), joint)
-    place = (everywhere[None, :] - joint) / lengths[:, None]  # (Z, rows)
-    slope = np.asarray(ramp(np.clip(place, 0, 1))[1], float)[:, keep]
+    # (On the host in float64: the ramp's operations compiled eagerly, one by one, were 2.5 s
+    # of a registration's first limb.)
+    place = (s[None, :] - joint) / lengths[:, None]  # (Z, n)
+    slope = ramp(np.clip(place, 0, 1), np)[1]
     bends = slope > 0
     bounds = np.where(bends, allowed[None, :] / np.where(bends, slope, 1), np.inf)
     capacities = np.minimum(lengths * np.min(bounds, axis=1, initial=np.inf), 2 * np.pi)
