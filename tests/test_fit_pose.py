@@ -364,7 +364,7 @@ def test_only_a_limb_left_unexplained_is_tried_from_other_starts():
     surface = np.array([[0.0, 0, 0], [1, 0, 0], [2, 0, 0], [3, 0, 0]])
     region = np.array([-1, -1, 4, 7])  # the body, then limbs 4 and 7
     cloud = surface + [0, 0.01, 0]  # each target point nearest its own vertex
-    problem = SimpleNamespace(cloud=cloud, limbs=(4, 7))
+    problem = SimpleNamespace(cloud=cloud, weights=np.ones(len(cloud)), limbs=(4, 7))
 
     def linear(off):  # residuals as the solve lays them out: the target's, over √K
         return None, np.concatenate([off.reshape(-1) / np.sqrt(len(cloud)), [0.0, 0.0]])
