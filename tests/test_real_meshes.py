@@ -136,3 +136,11 @@ def test_cheburashka_is_rigged_at_its_torso_with_its_head_ears_arms_and_feet():
             for right in (False, True)]  # the lowest vertex on each side
     assert feet[0] != feet[1] and all(k >= 0 and parents[k] == -1 for k in feet)
     assert len(skeleton.limbs) == 7  # head, two ears, two arms, two feet
+    # Each foot bends from its hip, inside the torso (`limb_fit.TOP_INSIDE`): its joint at
+    # least 12 % of the diagonal from the foot's end (10.7 and 8.9 % when it was cut where
+    # its spine left the torso's core: a bend moved the foot alone).
+    diagonal = np.linalg.norm(np.ptp(v, axis=0))
+    for k in feet:
+        limb = skeleton.limbs[k]
+        lever = np.linalg.norm(np.asarray(limb.spine(limb.spine.length) - limb.spine(limb.joint)))
+        assert lever > 0.12 * diagonal, (k, lever / diagonal)

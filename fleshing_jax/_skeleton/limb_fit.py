@@ -10,6 +10,7 @@ import numpy as np
 from .fit import extend_beyond, fit_bspline
 from .limbs import LimbPath
 from .regions import REACH, in_reach, limb_region, spine_samples
+from .visible import box_diagonal, moves_visibly
 
 # Every limb's spine has one static structure (count of control points, subdivisions per
 # span), so that one compiled program serves all (here and when posing them).
@@ -21,6 +22,14 @@ REFITS = 3  # straighter fits, at most, until the region lies within the spine's
 # head's spine, made straight for its ears at 0.6, let its region end 0.13 from its tip, and
 # the head with its ears and horns stayed in the body; at 0.75 of it every vertex is valid.
 STRAIGHTER = (1.0, 0.75, 0.5)
+# A limb from the body starts inside it, as an animator's hip or shoulder does: its region is
+# cut this many radii of its first sphere before where its spine leaves the body's core (at
+# most at the spine's start), where that raises its joint and keeps the region within the
+# spine's reach (`fit_limb`). Spot's legs, 0.3 long below the belly, had their joints at
+# the belly (a third of their spines), so a 30° bend moved the hooves by 2.4-3.2 % of the
+# diagonal; now at 18-24 %, 0.04-0.08 higher.
+TOP_INSIDE = 1.0
+TOP_STRAIGHT = 4.0
 # Times `regions.REACH`: how far a limb's region may reach among its own vertices (those
 # nearest to its medial spheres) when the usual reach leaves it none.
 WIDE = 2
@@ -34,9 +43,39 @@ def fit_limb(found: LimbPath, centers, radii, vertices, adjacency, allowed, marg
     core spheres; `wide`: (n,) bool or `None`, the vertices that may lie up to `WIDE` times
     as far from the spine as usual when the usual reach leaves the limb no region; `owned`:
     (n,) bool or `None`, when given the limb's own vertices (nearest to its medial spheres),
-    among which its region is grown instead, whatever their distance to the spine."""
+    among which its region is grown instead, whatever their distance to the spine.
+
+    A limb from the body is also cut `TOP_INSIDE` radii further in, its spine fitted
+    `TOP_STRAIGHT` times straighter; that region is kept where its joint lies farther from
+    the limb's end and it lies within its (refitted) spine's reach."""
+    args = (found, centers, radii, vertices, adjacency, allowed, margin, cut_at, wide, owned)
+    spine, part, _, tip = _fit(*args)
+    # (Not a bump a bend would not visibly move: cut further in, it would be kept.)
+    if part is not None and found.parent == -1 and cut_at is None and moves_visibly(
+            spine, part.joint, vertices[part.vertices], np.empty((0, 3)), box_diagonal(vertices)):
+        inner_spine, inner, arc, _ = _fit(*args, deeper=TOP_INSIDE)
+        if (inner is not None
+                and _lever(inner_spine, inner.joint, tip) > _lever(spine, part.joint, tip)
+                and reach_needed(inner_spine, inner, vertices, arc, margin) is None):
+            return inner_spine, inner
+    return spine, part
+
+
+def _lever(spine, joint: float, tip: np.ndarray) -> float:
+    """The distance from the joint's point on `spine` to the limb's `tip` (3,) (a bend's
+    lever: the straighter spine's own end may fall short of the tip)."""
+    s, points, _ = map(np.asarray, spine_samples(spine))
+    at = np.array([np.interp(joint, s, points[:, k]) for k in range(3)])
+    return float(np.linalg.norm(tip - at))
+
+
+def _fit(found, centers, radii, vertices, adjacency, allowed, margin, cut_at, wide, owned,
+         deeper=0.0):
+    """`fit_limb`'s spine and region, the cut `deeper` radii of the path's first sphere
+    further in, the arc lengths of the spine's fitted points (`limb_spine`'s `arc`) and the
+    limb's tip."""
     spine, cut, tip, arc, local = limb_spine(found, centers, radii, vertices, margin,
-                                             cut_at=cut_at)
+                                             cut_at=cut_at, deeper=deeper)
     # A part wider than its spine's medial radii say: a head's crown beyond them (the region
     # grown within them is its lower half, bordering the body its whole length, a knob:
     # spot's head at seeds 6 and 11), a flat ear's lobe (a slab: its radius is its half
@@ -59,7 +98,8 @@ def fit_limb(found: LimbPath, centers, radii, vertices, adjacency, allowed, marg
         if far is None:
             break
         for share in STRAIGHTER:
-            refit = limb_spine(found, centers, radii, vertices, margin, share * far, cut_at)
+            refit = limb_spine(found, centers, radii, vertices, margin, share * far, cut_at,
+                               deeper)
             refit_part = limb_region(*refit, vertices, adjacency, allowed, **how)
             if refit_part is not None:
                 break
@@ -73,7 +113,7 @@ def fit_limb(found: LimbPath, centers, radii, vertices, adjacency, allowed, marg
             break
         spine, cut, tip, arc, local = refit
         part = refit_part
-    return spine, part
+    return spine, part, arc, tip
 
 
 def reach_needed(spine, part, vertices, arc, margin, chunk=2048):
@@ -93,10 +133,12 @@ def reach_needed(spine, part, vertices, arc, margin, chunk=2048):
     return np.interp(arc, s, far)
 
 
-def limb_spine(found: LimbPath, centers, radii, vertices, margin, far=None, cut_at=None):
+def limb_spine(found: LimbPath, centers, radii, vertices, margin, far=None, cut_at=None,
+               deeper=0.0):
     """The limb's rest spine, the arc length where it leaves its parent, the point at its
     tip, and the medial radius at arc lengths along it (at least `far` at each path point, when
-    given: the curvature bound then keeps those distances within reach)."""
+    given: the curvature bound then keeps those distances within reach), the cut `deeper`
+    radii of the path's first sphere further in (at most at the spine's start)."""
     path = centers[found.path]
     inside = centers[found.inside]
     # s = 0 a little inside the parent: towards the last sphere inside it, at most two
@@ -111,6 +153,7 @@ def limb_spine(found: LimbPath, centers, radii, vertices, margin, far=None, cut_
     # parent is thick (an ear's spine, from inside the head).
     local = radii[np.r_[found.inside, found.path, found.path[-1]]]
     bound = local if far is None else np.maximum(local, far)
+    bound = bound * (1.0 + (TOP_STRAIGHT - 1.0) * min(deeper, 1.0))
     # Straight at both ends: the spine's continuations past its ends (osculating circles,
     # the closest-point search's range) are then its tangent lines, as the rigid motion of
     # the points beyond them is; a circle curving back towards the region (a haunch behind
@@ -129,4 +172,4 @@ def limb_spine(found: LimbPath, centers, radii, vertices, margin, far=None, cut_
     gaps = np.linalg.norm(samples[:, None] - centers[found.core], axis=-1)
     held = np.flatnonzero(np.any(gaps < radii[found.core], axis=1))
     cut = float(s[held[-1]]) if len(held) else 0.0
-    return spine, cut, tip, arc, local
+    return spine, max(0.0, cut - deeper * float(radii[found.path[0]])), tip, arc, local
