@@ -7,10 +7,8 @@ the limb past it is one rigid piece, and the higher the curvature the zone needs
 map exists while `κ·ρ < 1/√3` for a point at distance `ρ` on the concave side, so the zone is
 the shortest one in which every vertex keeps `k₁·d* ≤ k₀·d* + κ |d*| ≤ JOINT_CURVATURE`, with
 `d*` its unbent offset, `k₀` the rest spine's curvature and `κ` the bend's, in any direction:
-a bend of `θ` radians over a zone of length `L` has `κ = θ r′(u)/L` at the vertex's place `u`
-in the zone (`_spines.bent.ramp`: its slope rises from 0 to a plateau of `4/3` and falls back),
-so that the flesh where the ramp is low (a shoulder thick at its joint, a heel at the zone's
-end) bounds the zone by the curvature it gets there, not by the plateau's.
+with the ramp's plateau `4/3`, a bend of `θ` radians over a zone of length `L` has
+`κ ≤ 4θ/(3L)`.
 
 At registration, each limb gets a table: for zone lengths from the limb's radius at the joint
 to all of its room to bend (`stop − joint`), the largest bend the zone allows (`JointZone`). A pose
@@ -43,6 +41,7 @@ from .._spines.bent import ramp, rotate
 # zone's few per cent.
 JOINT_CURVATURE = 0.45
 ZONE_LENGTHS = 32  # the zone lengths tabulated, evenly spaced up to the room to bend
+_PLATEAU = 4.0 / 3.0  # the largest slope of `fj.BentSpine`'s ramp (`_spines.bent.ramp`)
 
 
 class JointZone(eqx.Module):
@@ -176,16 +175,14 @@ def joint_zone(arc_length: np.ndarray, offset: np.ndarray, curvature: np.ndarray
     unbent = np.sqrt(np.maximum(1 - (2 / 3) * rest, 0))
     allowed = (np.maximum(JOINT_CURVATURE - rest * unbent, 0.0)
                / np.maximum(np.linalg.norm(d, axis=1) * unbent, 1e-300))
-    # A zone of length L bends a vertex at its place u = (s − joint)/L by κ = θ r′(u)/L: each
-    # vertex in the zone bounds θ by L·allowed/r′(u), where the ramp puts it (a vertex at the
-    # zone's ends, where r′ = 0, bounds nothing; past the zone it is carried rigidly).
-    # (On the host in float64: the ramp's operations compiled eagerly, one by one, were 2.5 s
-    # of a registration's first limb.)
-    place = (s[None, :] - joint) / lengths[:, None]  # (Z, n)
-    slope = ramp(np.clip(place, 0, 1), np)[1]
-    bends = slope > 0
-    bounds = np.where(bends, allowed[None, :] / np.where(bends, slope, 1), np.inf)
-    capacities = np.minimum(lengths * np.min(bounds, axis=1, initial=np.inf), 2 * np.pi)
+    # A zone reaching arc length s is bounded by every vertex before s.
+    curvature_bound = np.full(ZONE_LENGTHS, np.inf)  # (an empty zone bounds nothing)
+    if len(s):
+        order = np.argsort(s)
+        bound = np.minimum.accumulate(allowed[order])
+        reached = np.searchsorted(s[order], joint + lengths, side="right")
+        curvature_bound = np.where(reached > 0, bound[np.maximum(reached - 1, 0)], np.inf)
+    capacities = np.minimum(lengths * curvature_bound / _PLATEAU, 2 * np.pi)
     # A zone's capacity falls where a thick part enters it; a bend must not then be given
     # the shorter zone before the thick part and the longer one past it by turns. So each zone
     # is credited with the least capacity of the longer ones (non-decreasing; every zone still

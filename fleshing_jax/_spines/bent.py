@@ -49,18 +49,17 @@ def _rise(v: Array) -> tuple[Array, Array]:
     return v**3 - v**4 / 2, 3 * v**2 - 2 * v**3
 
 
-def ramp(u: Array, xp=jnp) -> tuple[Array, Array]:
+def ramp(u: Array) -> tuple[Array, Array]:
     """`(r(u), r′(u))` on `[0, 1]`: `r` goes from 0 to 1, its slope rises from 0 to a plateau
     over the first `EDGE` of the way (a smoothstep: no jump in the slope's derivative either)
     and falls back to 0 over the last. The plateau is `1/(1 − EDGE)` (4/3), where a single
-    smooth bump would peak at 15/8: the largest curvature a bend needs is that much lower.
-    `xp`: the array module (`numpy` for tables built on the host, with nothing to compile)."""
+    smooth bump would peak at 15/8: the largest curvature a bend needs is that much lower."""
     e, scale = EDGE, 1 / (1 - EDGE)
-    first, first_slope = _rise(xp.where(u < e, u, e) / e)
-    last, last_slope = _rise(xp.where(u > 1 - e, 1 - u, e) / e)
-    value = xp.where(u < e, scale * e * first,
-                     xp.where(u > 1 - e, 1 - scale * e * last, scale * (u - e / 2)))
-    slope = xp.where(u < e, first_slope, xp.where(u > 1 - e, last_slope, 1))
+    first, first_slope = _rise(jnp.where(u < e, u, e) / e)
+    last, last_slope = _rise(jnp.where(u > 1 - e, 1 - u, e) / e)
+    value = jnp.where(u < e, scale * e * first,
+                      jnp.where(u > 1 - e, 1 - scale * e * last, scale * (u - e / 2)))
+    slope = jnp.where(u < e, first_slope, jnp.where(u > 1 - e, last_slope, 1))
     return value, scale * slope
 
 
