@@ -74,8 +74,7 @@ TARGET_POINTS = 5000  # a larger cloud (or a mesh's surface) is sampled down to 
 # the moving limbs is posed: the target is measured to the posed triangles.
 STILL_POINTS = 2048
 # Of the target, in the solve (the check of the result reads them all). (All 5,000 of spot's
-# clean samples stopped its fit 0.95° off, converged; with 0.5 % noise they halved the legs'
-# spreads, ±4.5° to ±2.3°.)
+# samples with 0.5 % noise halved the legs' spreads, ±4.5° to ±2.3°, and left them 4–7° off.)
 SOLVE_POINTS = 1500
 # The continuation's stages: the Cauchy scale σ as a fraction of the target's diagonal.
 STAGES = (0.1, 0.03, 0.01)
