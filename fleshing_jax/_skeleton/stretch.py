@@ -14,7 +14,7 @@ from jaxtyping import Array, Float
 
 from .._fleshing.methods import check_method
 from .._fleshing.verify import registered_stretch
-from .posing import as_registration, check_poses, limb_poser, limb_target, posed
+from .posing import as_registration, check_poses, limb_check, limb_poser, limb_target, posed
 from .skeleton import Skeleton
 from .spill import spilled
 
@@ -41,8 +41,11 @@ def pose_stretch(mesh_or_registration, skeleton: Skeleton, poses: dict, *,
     for k, pose in poses.items():
         # The same map as `pose_skeleton`'s, at the registered vertices (their validity is
         # taken from there: it includes the images' projection check).
+        # (Prepared as the pose prepares it, checked on the same spine: the stretch reads only
+        # its frames, and `pose_skeleton`'s compiled preparation serves it.)
         ids, limb = registration.indices[k], registration.registrations[k]
-        poser = limb_poser(limb, limb_target(registration, k, pose), method)
+        poser = limb_poser(limb, limb_target(registration, k, pose), method,
+                           checked_on=limb_check(registration, k, pose))
         limb = registered_stretch(registration.rests[k], limb, poser)
         stretch = stretch.at[ids].set(limb[: ids.shape[0]])
     return jnp.where(valid, stretch, jnp.nan)
