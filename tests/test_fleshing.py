@@ -7,18 +7,29 @@ import pytest
 from conftest import PAIRS, central_difference, cloud
 
 import fleshing_jax as fj
+from fleshing_jax._fleshing.pipeline import pose_point
+from fleshing_jax._fleshing.projection import register_point
 
 MAPS = ("radial", "normal", "binormal")
 
 
 @jax.jit
 def _determinants(source, target, points):
-    """det J of the three maps, in one program: they share the registration on the source,
-    and in one program compile in 20 % less CPU time than in a program each (helix-helix)."""
-    return [
-        fj.jacobian_determinant(fj.Fleshing(source, target, method=m, twist=0.7), points)
-        for m in MAPS
-    ]
+    """det J of the three maps (`fj.jacobian_determinant` of each `Fleshing(source, target,
+    method=m, twist=0.7)`: NaN where not valid), in one program: each point is registered on
+    the source once for the three (as each map's `apply_point` registers it, then poses it),
+    which a `Fleshing` each traced and differentiated three times (the five pairs: 23 → 18 s
+    of CPU, helix-helix 10.9 → 8.0 s; the same determinants, bit for bit). In one program
+    they compile in 20 % less CPU time than in a program each (helix-helix)."""
+    twist = jnp.asarray(0.7)
+
+    def images(x):
+        registration = register_point(source, x)
+        posed = [pose_point(registration, target, method, twist) for method in MAPS]
+        return [image for image, _ in posed], [valid for _, valid in posed]
+
+    jacobians, valid = jax.vmap(jax.jacfwd(images, has_aux=True))(points)
+    return [jnp.where(v, jnp.linalg.det(j), jnp.nan) for j, v in zip(jacobians, valid)]
 
 
 @pytest.mark.parametrize("name", sorted(PAIRS))
