@@ -128,11 +128,14 @@ def test_local_reach_equals_its_definition(dtype):
     assert bounds.min() < 0.25 < np.median(bounds)
 
 
-def _smallest_squared_distances(points, dense):
-    """Each point's smallest squared distance to the `dense` samples, through one product
-    (round-off ~1e-14 here, far below the test's tolerance)."""
-    squared = np.sum(points**2, 1)[:, None] + np.sum(dense**2, 1)[None] - 2 * points @ dense.T
-    return np.maximum(squared.min(axis=1), 0)
+def _smallest_squared_distances(points, dense, dense_squared):
+    """Each point's smallest squared distance to the `dense` samples (`dense_squared`: their
+    squared norms), through one product (round-off ~1e-14 here, far below the test's
+    tolerance), summed in place: `|p|²` added after the minimum (one (n, m) array, not four:
+    the distances about twice as fast)."""
+    squared = points @ (-2 * dense.T)
+    squared += dense_squared
+    return np.maximum(squared.min(axis=1) + np.sum(points**2, 1), 0)
 
 
 @eqx.filter_jit  # (one program a spine: evaluated eagerly, hundreds of small ones)
@@ -166,7 +169,8 @@ def test_local_reach_bounds_are_sound(shape):
                               ((0, 1), (0, 2 * np.pi), (0.9, 0.999)))  # fmt: skip
     x, r, dense, reach = _points_inside_the_bounds(spine, fraction, angle, depth)
     dense = np.asarray(dense)
-    nearest = np.sqrt(np.concatenate([_smallest_squared_distances(block, dense)
+    dense_squared = np.sum(dense**2, 1)
+    nearest = np.sqrt(np.concatenate([_smallest_squared_distances(block, dense, dense_squared)
                                       for block in np.split(np.asarray(x), 8)]))  # fmt: skip
     assert np.all(nearest >= np.asarray(r) * (1 - 1e-9) - 1e-12)
     # And the bounds are not vacuous: the tube they certify has a useful radius.
