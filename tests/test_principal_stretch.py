@@ -81,5 +81,8 @@ def test_at_registered_points_it_is_the_map_s():
         poser = prepare_target(BENT, points.dtype, check_projection=False,
                                start=registration.ends, beyond=beyond)
         registered = registered_stretch(BASE, registration, poser)
-        exact = fj.principal_stretch(fj.Fleshing(BASE, BENT, beyond=beyond), points)
+        # (The poser checks no projection, which only flags points (these are valid): nor
+        # does the rigid map, a program half the size; the continued one is the first test's.)
+        fleshing = fj.Fleshing(BASE, BENT, beyond=beyond, check_projection=beyond == "continue")
+        exact = fj.principal_stretch(fleshing, points)
         np.testing.assert_allclose(registered, exact, rtol=1e-10)
