@@ -205,21 +205,30 @@ def _positions_and_reach(spine, s):
     return jax.vmap(spine)(s), jax.vmap(LocalReach(spine))(s)
 
 
-@pytest.mark.parametrize("dtype", [jnp.float64, jnp.float32])
-def test_closed_form_feet_of_lines_and_arcs_equal_the_global_search(dtype):
-    # Lines and arcs register through their closed-form foot (`_closest_start`): the same arc
-    # lengths and convergence as the global search, past the ends too, and no unique foot
-    # (an arc whose search range wraps more than a full turn: the same point of the circle at
-    # two arc lengths; points on its axis) reported as not converged.
+@pytest.fixture(scope="module")
+def global_feet():
+    """Points around lines and arcs, and the global search's feet and flags on each spine
+    (float64): the reference of both dtypes' closed-form feet, searched once."""
     rng = np.random.default_rng(5)
     points = rng.uniform(-4.5, 4.5, (200, 3))
     axis = np.array([[0.0, 1.0, 0.5], [0.0, 1.0, 2.0]])  # on the wrapped arc's axis
     points = np.concatenate([points, axis])
-    tol = 1e-9 if dtype == jnp.float64 else 2e-4
     line = fj.Line(4.0, origin=(-1, 0.5, 0), tangent=(1, 1, 0))
     wrapped = fj.Arc(1.0, 5.0, origin=(0, 0, 0.5))
-    for spine in (line, fj.Arc(3.0, 4.0), wrapped):
-        s, ok = jax.jit(jax.vmap(lambda x: fj.closest_arc_length(spine, x)))(points)
+    feet = [(spine, *jax.jit(jax.vmap(lambda x, spine=spine: fj.closest_arc_length(spine, x)))(
+        points)) for spine in (line, fj.Arc(3.0, 4.0), wrapped)]  # fmt: skip
+    return points, feet
+
+
+@pytest.mark.parametrize("dtype", [jnp.float64, jnp.float32])
+def test_closed_form_feet_of_lines_and_arcs_equal_the_global_search(dtype, global_feet):
+    # Lines and arcs register through their closed-form foot (`_closest_start`): the same arc
+    # lengths and convergence as the global search, past the ends too, and no unique foot
+    # (an arc whose search range wraps more than a full turn: the same point of the circle at
+    # two arc lengths; points on its axis) reported as not converged.
+    points, feet = global_feet
+    tol = 1e-9 if dtype == jnp.float64 else 2e-4
+    for spine, s, ok in feet:
         batched, converged = eqx.filter_jit(closest_arc_lengths)(spine, points.astype(dtype))
         converged = np.asarray(converged)
         # The same verdicts, but within round-off of a tie in float32.
