@@ -383,7 +383,8 @@ def posed(registration: SkeletonRegistration, skeleton: Skeleton, poses: dict,
     """`pose_skeleton` on a registration (traceable: `poses` are its only free values).
     `check=False` skips the global projection check of traced poses (a fit's objective:
     smooth, and a much smaller program; `valid` then flags only the local tests).
-    `stacked=True` poses the limbs as one batch (`posed_limbs`), for traced poses."""
+    `stacked=True` poses the limbs as one batch (`posed_limbs`), and carries their sections
+    as one (`_stacked_sections`), for traced poses."""
     reg = registration
     vertices = reg.vertices
     valid = jnp.ones(vertices.shape[0], bool)
@@ -394,6 +395,8 @@ def posed(registration: SkeletonRegistration, skeleton: Skeleton, poses: dict,
     poses = spilled(reg, skeleton, poses)
     stacked = stacked or (len(poses) > given and not is_concrete(poses))
     moved = posed_limbs(reg, poses, method, check, stacked)
+    # Stacked, the limbs' sections are carried as one batch too (`_stacked_sections`).
+    sections = _stacked_sections(reg, poses, moved) if stacked else {}
     carried: dict[int, Rigid | None] = {}  # what moves each touched limb's children
     trusted: dict[int, Array] = {}  # whether the angles of the limb and its ancestors are sane
     for k, limb in enumerate(skeleton.limbs):
@@ -410,7 +413,8 @@ def posed(registration: SkeletonRegistration, skeleton: Skeleton, poses: dict,
             images, ok = images[:n], ok[:n]
             if isinstance(pose, LimbPose):
                 trust = trust & sane_angles(pose)
-                images, ok = _sections_carried(reg, k, pose, images, ok)
+                images, ok = sections[k] if k in sections else _sections_carried(
+                    reg, k, pose, images, ok)
         if carry is not None:
             images = carry(images)
         carried[k], trusted[k] = (carry if motion is None else motion.then(carry)), trust
@@ -445,18 +449,8 @@ def _sections_carried(registration, k: int, pose: LimbPose, images, valid):
       −3.9 % → −4.2 %."""
     n = registration.indices[k].shape[0]
     r = registration.registrations[k]
-    s, points, registered = r.arc_length[:n], r.points[:n], r.valid[:n]
-    rest, joint = registration.rests[k], registration.joints[k]
-    bend, direction, twist = pose.radians(rest, joint)
-    # (Over the zone's padded rows too: they are zero, and bound nothing.)
-    margins = registration.zones[k].margins(bend, direction, twist, joint,
-                                            bend_stop(registration, k, pose))
-    # (The largest by its index: `jnp.max`'s derivative finds it again by equality, which an
-    # unoptimised XLA, recomputing the margins in two fusions, missed: a NaN gradient.)
-    u = jnp.clip(margins[jnp.argmax(margins)] / BLEND_WIDTH, 0, 1)
-    blend = u * u * (3 - 2 * u)
-    past = jnp.isfinite(s) & (s >= joint)
-    weight = jnp.where(past, jnp.where(registered, blend, 1), 0).astype(joint.dtype)
+    s, points = r.arc_length[:n], r.points[:n]
+    weight = _section_weights(*_section_inputs(registration, k, pose), n)[:n]
     target = limb_target(registration, k, pose)
     if is_concrete(pose, registration):
         # Eagerly one program for every angle, within the range too (it then changes only the
@@ -471,7 +465,63 @@ def _sections_carried(registration, k: int, pose: LimbPose, images, valid):
     else:  # a traced frame skips the sections where nothing is carried
         images = jax.lax.cond(jnp.any(weight > 0), _carried_blend, lambda *a: a[-1],
                               target, points, s, weight, images)
-    return images, valid & ~(past & (weight > 0))
+    return images, valid & ~(weight > 0)  # (a weight is 0 before the joint)
+
+
+def _section_inputs(registration, k: int, pose: LimbPose) -> tuple:
+    """Limb `k`'s arguments of `_section_weights` for `pose` (but the region's size)."""
+    rest, joint = registration.rests[k], registration.joints[k]
+    return (registration.zones[k], registration.registrations[k], joint,
+            bend_stop(registration, k, pose), jnp.stack(pose.radians(rest, joint)))
+
+
+def _section_weights(zone: JointZone, r: Registration, joint, stop, angles, n) -> Array:
+    """(rows,) each registered row's weight towards its section's motion (`_sections_carried`)
+    for a pose of `angles` (3,) radians (bend, direction, twist) bending through `[joint,
+    stop]`: 0 before the joint and on the rows past the region's `n` (padding)."""
+    # (Over the zone's padded rows too: they are zero, and bound nothing.)
+    margins = zone.margins(*angles, joint, stop)
+    # (The largest by its index: `jnp.max`'s derivative finds it again by equality, which an
+    # unoptimised XLA, recomputing the margins in two fusions, missed: a NaN gradient.)
+    u = jnp.clip(margins[jnp.argmax(margins)] / BLEND_WIDTH, 0, 1)
+    blend = u * u * (3 - 2 * u)
+    s = r.arc_length
+    past = jnp.isfinite(s) & (s >= joint) & (jnp.arange(s.shape[0]) < n)
+    return jnp.where(past, jnp.where(r.valid, blend, 1), 0).astype(joint.dtype)
+
+
+def _stacked_sections(registration: SkeletonRegistration, poses: dict, moved: dict) -> dict:
+    """`_sections_carried` of the traced limbs posed by a `LimbPose` that share their
+    structure and shapes (every limb of a fit: `posed_limbs`'s `stacked`), as one batch by
+    `vmap`: dict limb index → `(images, valid)` of its region. One limb's code in the program,
+    not one per limb (each its bent spine's sections at every row: a third of a gradient's
+    program on the tube, with its free child posed)."""
+    if is_concrete(poses):
+        return {}
+    groups: dict = {}
+    for k, pose in poses.items():
+        if isinstance(pose, LimbPose):
+            args = (*_section_inputs(registration, k, pose), limb_target(registration, k, pose),
+                    moved[k][0])
+            leaves, structure = jax.tree.flatten(args)
+            groups.setdefault((structure, tuple(jnp.shape(x) for x in leaves)), []).append(
+                (k, args))
+    sections = {}
+    for members in groups.values():
+        if len(members) < 2:
+            continue
+        ks = [k for k, _ in members]
+        ns = jnp.asarray([registration.indices[k].shape[0] for k in ks])
+        zone, r, joint, stop, angles, target, images = jax.tree.map(
+            lambda *x: jnp.stack(x), *(args for _, args in members))
+        weight = jax.vmap(_section_weights)(zone, r, joint, stop, angles, ns)
+        # (One test for the batch: a traced frame skips the sections where none is carried.)
+        images = jax.lax.cond(jnp.any(weight > 0), jax.vmap(_carried_blend), lambda *a: a[-1],
+                              target, r.points, r.arc_length, weight, images)
+        for i, k in enumerate(ks):
+            n = registration.indices[k].shape[0]
+            sections[k] = images[i, :n], moved[k][1][:n] & ~(weight[i, :n] > 0)
+    return sections
 
 
 def _carried_blend(target, points, s, weight, images):
