@@ -7,6 +7,9 @@ long last one) would compile its solve once per budget, the largest part of its 
 array: traced, not static), reporting `nonlinear_max_steps_reached` as optimistix does at its
 own limit; every stage then passes the same static `max_steps` (the largest budget) and the
 stages run one compiled program. The steps taken are exactly the inner solver's.
+
+A fit's own `max_steps` is such a budget too (`limited`), under one static limit for every
+budget up to `STEPS`: a fit cut short (`max_steps=3`) runs the program of the default one.
 """
 
 from __future__ import annotations
@@ -66,6 +69,10 @@ class _BudgetedMinimiser(_Budget, optx.AbstractMinimiser):
     budget: Int[Array, ""]
 
 
+# The static `max_steps` of every solve whose budget is at most this (the fits' default).
+STEPS = 256
+
+
 def budgeted(solver, steps: int):
     """`solver` (an optimistix least-squares solver or minimiser) stopping after `steps`
     steps, `steps` held as an array (see the module docstring)."""
@@ -76,3 +83,18 @@ def budgeted(solver, steps: int):
         return _BudgetedMinimiser(solver, budget)
     raise TypeError(f"`solver` must be an optimistix least-squares solver or minimiser, got "
                     f"{type(solver).__name__}.")
+
+
+def limited(solver, max_steps: int, steps: int | None = None) -> tuple:
+    """`(solver, static max_steps)` for `optimistix.least_squares`: `solver` stopping after
+    `steps` (default `max_steps`) steps (`budgeted`), under the static limit `STEPS` (or
+    `max_steps`, if more), so that every budget up to it shares one compiled solve."""
+    return budgeted(solver, max_steps if steps is None else steps), max(int(max_steps), STEPS)
+
+
+def unbudgeted(solver, state) -> tuple:
+    """`(solver, state)` of the solver inside a `budgeted` one (its state paired with the
+    steps taken), or as they are."""
+    if isinstance(solver, _Budget):
+        return solver.solver, state[0]
+    return solver, state

@@ -22,7 +22,7 @@ from jaxtyping import Array, ArrayLike
 from .._batching.buckets import bucket, pad_batch, unpad_batch
 from .._fleshing.projection import Registration
 from . import start, verdict
-from .budget import budgeted
+from .budget import limited
 from .continuation import AUTO_STAGES, staged_targets
 from .problem import (
     EXPLAINED,
@@ -255,13 +255,13 @@ def fit_spine(
         # A stage before the last only brings the next start closer, and its target (a blend
         # of the rest and the bend) is no bend: its solve creeps (spot's tail bent 60°: still
         # 4.1e-3 of the diagonal, 0.05 % a step, after 32 steps) until `max_steps`. A short
-        # budget, in the program of the full one (`budgeted`: a value, not a static limit).
+        # budget, in the program of the full one (`limited`: a value, not a static limit).
         for k, goal in enumerate(goals, 1):
             staged_problem = dataclasses.replace(problem, target=jnp.asarray(goal),
                                                  invalid="follow")
             steps = min(STAGE_STEPS, int(max_steps)) if k < len(goals) else int(max_steps)
-            spine, twist_k = solve(staged_problem, budgeted(solver, steps), y, int(max_steps),
-                                   False)[:2]
+            budget, limit = limited(solver, max_steps, steps)
+            spine, twist_k = solve(staged_problem, budget, y, limit, False)[:2]
             y = setup.parameters.of(spine, twist_k if fit_twist else None)
         result = fit(problem, solver, y, max_steps, throw, tolerance, ADVICE)
         return dataclasses.replace(result, stages=stages)

@@ -30,6 +30,7 @@ from .._spines.analytic import Arc, Helix, Line
 from .._spines.bspline import BSpline
 from .._spines.spine import AbstractSpine
 from . import verdict
+from .budget import limited, unbudgeted
 from .jacobian import for_solver
 
 INVALID_MODES = ("penalize", "exclude")
@@ -249,14 +250,17 @@ def default_solver(kind: str, dtype, rtol: float | None, atol: float | None,
     """`LevenbergMarquardt` (`kind="least_squares"`) or `BFGS` (`"minimise"`), with tolerances
     from the dtype unless given; with `explained` (a least-squares fit whose residuals' sum
     of squares is its rms², e.g. `fit_spine`'s), a Levenberg–Marquardt that also stops once
-    it creeps with the rms at most `explained` (`_LevenbergMarquardt`)."""
+    it creeps with the rms at most `explained` (`_LevenbergMarquardt`; an infinite `explained`,
+    no tolerance, stops it as optimistix's own: the same program, `explained` a value)."""
     tol = default_tolerance(dtype)
     rtol, atol = (tol if rtol is None else rtol), (tol if atol is None else atol)
     if kind == "minimise":
         return optx.BFGS(rtol=rtol, atol=atol)
-    if explained is None or not np.isfinite(explained):
+    if explained is None:
         solver = optx.LevenbergMarquardt(rtol=rtol, atol=atol)
     else:
+        # (No rms is at most 0 but a zero one, which no step creeps from: never stops early.)
+        explained = explained if np.isfinite(explained) else 0.0
         solver = _LevenbergMarquardt(rtol, atol, jnp.asarray(explained, dtype))
     return eqx.tree_at(lambda s: s.search, solver, _TrustRegion())
 
@@ -542,7 +546,8 @@ def solve(problem: AbstractPoseProblem, solver, y0, max_steps: int, throw: bool)
 def trust_radius(solver, solution: optx.Solution, dtype) -> Array:
     """The final trust-region size of a trust-region `solver`'s `solution`, else 1 (a line
     search's step says nothing about the local model's quality)."""
-    search = getattr(solution.state, "search_state", None)
+    solver, state = unbudgeted(solver, solution.state)
+    search = getattr(state, "search_state", None)
     radius = getattr(search, "step_size", None)
     if radius is None or not isinstance(getattr(solver, "search", None),
                                         optx.ClassicalTrustRegion):
@@ -609,9 +614,9 @@ def fit(
     A solve that optimistix calls successful but that stalled (`stall_message`), or that
     stopped with its rms above `tolerance` times the targets' diagonal (`explain`, with
     `advice` at a local minimum), is reported as not converged."""
-    spine, twist, losses, radius, result, stats = solve(
-        problem, solver, y0, int(max_steps), bool(throw)
-    )
+    # (The steps a budget, under one static limit: `max_steps=3` runs the default's program.)
+    budget, limit = limited(solver, max_steps)
+    spine, twist, losses, radius, result, stats = solve(problem, budget, y0, limit, bool(throw))
     successful = bool(result == optx.RESULTS.successful)
     out = FitResult(
         spine=spine,

@@ -28,6 +28,7 @@ from jaxtyping import Array, ArrayLike, Bool, Float
 
 from .._batching.buckets import bucket
 from .._checks import check_vertex_ids
+from .._fit.budget import limited
 from .._fit.jacobian import for_solver
 from .._fit.problem import (
     AbstractFitOutcome,
@@ -349,7 +350,9 @@ def fit_skeleton_pose(
     held = {k: v for k, v in init.items() if k not in limbs}
     problem = PoseProblem(small, skeleton, held, rows, targets, limbs, method)
     y0 = jnp.stack([parameters_of(init.get(k, LimbPose()), dtype) for k in limbs])
-    y, radius, result, stats, _ = _solve(problem, solver, y0, max_steps, bool(throw))
+    # (The steps a budget under one static limit: a fit cut short runs the default's program.)
+    budget, limit = limited(solver, max_steps)
+    y, radius, result, stats, _ = _solve(problem, budget, y0, limit, bool(throw))
 
     def outcome(poses):
         whole = pose_skeleton(registration, skeleton, poses, method=method)

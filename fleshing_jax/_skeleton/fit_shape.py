@@ -59,7 +59,7 @@ import trimesh
 from jaxtyping import Array
 from scipy.spatial import cKDTree
 
-from .._fit.budget import budgeted
+from .._fit.budget import limited
 from .._fit.problem import check_cloud
 from .._fit.surface import rings, to_surface
 from .._fit.uncertainty import block_spread, covariance
@@ -280,9 +280,9 @@ def fit_to_shape(registration: SkeletonRegistration, skeleton: Skeleton, target,
         last = i == len(STAGES) - 1
         # Each stage's step budget is a value (`_fit.budget`): the stages share one compiled
         # solve (two, with `throw`: the last stage's own).
-        budget = budgeted(solver, max_steps if last else min(max_steps, COARSE_STEPS))
-        y, _, result, stats, linear = _solve(problem, budget, y, max_steps, throw and last,
-                                             True)
+        budget, limit = limited(solver, max_steps,
+                                None if last else min(max_steps, COARSE_STEPS))
+        y, _, result, stats, linear = _solve(problem, budget, y, limit, throw and last, True)
         steps += int(stats["num_steps"])
         if i == len(STAGES) - 2:
             # (The whole mesh posed eagerly, by the programs that pose the result below.)
@@ -367,12 +367,12 @@ def _restarted(problem: ShapeProblem, solver, y: Array, linear, max_steps: int,
     best, taken = _loss(linear), 0
     if _body_level(*_parts(problem, linear, surface, region)) > MISPLACED:
         return y, taken
-    short = budgeted(solver, min(max_steps, COARSE_STEPS))
+    short, limit = limited(solver, max_steps, min(max_steps, COARSE_STEPS))
     spread = _spreads(linear, problem.limbs, y.shape[-1])
     loose = {i for i, k in enumerate(problem.limbs) if spread[k] > ANGLE_SPREAD}
     for i in sorted(loose.union(_stuck(problem, linear, surface, region))):
         for start in _starts(np.asarray(y[i, :2])):
-            trial, _, _, stats, out = _solve(problem, short, y.at[i, :2].set(start), max_steps,
+            trial, _, _, stats, out = _solve(problem, short, y.at[i, :2].set(start), limit,
                                              False, True)
             taken += int(stats["num_steps"])
             if _loss(out) < best * (1 - IMPROVED):
