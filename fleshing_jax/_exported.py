@@ -14,6 +14,11 @@ shapes and dtypes, and the values of the static (non-array) arguments. Traced ar
 under `jit`, `grad` or `vmap`), `jax.disable_jit` or no cache folder: `eqx.filter_jit`, as
 without this module. The library's source stands for the constants its code reads while
 tracing: a test that patches one (`monkeypatch.setattr`) must call the function traced.
+
+Outputs may be any pytree (equinox modules with static fields: a registrar, a prepared
+spine): the program returns their arrays, and the file keeps, beside it, the output with a
+`_Leaf` in place of each array (pickled), from which a loaded program's output is rebuilt.
+An output that cannot be pickled leaves its program in memory only.
 """
 
 from __future__ import annotations
@@ -22,6 +27,7 @@ import functools
 import hashlib
 import importlib.util
 import os
+import pickle
 import tempfile
 from collections import OrderedDict
 from pathlib import Path
@@ -91,25 +97,76 @@ def _write(path: Path, data: bytes) -> None:
         pass
 
 
-def _program(folder: Path, key: str, flat, avals):
-    """The exported program of `flat` at `avals`: read from `folder`, else exported and saved."""
-    path = folder / f"{key}.exported"
+class _Leaf:
+    """Where an output's array goes, in the pickled outline of a program's output."""
+
+
+def _outline(out):
+    """`(arrays, outline)`: `out`'s arrays, in order, and `out` with a `_Leaf` for each."""
+    dynamic, static = eqx.partition(out, eqx.is_array)
+    arrays, treedef = jax.tree.flatten(dynamic)
+    return arrays, eqx.combine(jax.tree.unflatten(treedef, [_Leaf() for _ in arrays]), static)
+
+
+def _filled(outline, arrays):
+    """`outline` (`_outline`) with its `_Leaf`s replaced by `arrays`, in order."""
+    parts, treedef = jax.tree.flatten(outline, is_leaf=lambda x: isinstance(x, _Leaf))
+    arrays = iter(arrays)
+    return jax.tree.unflatten(treedef, [next(arrays) if isinstance(x, _Leaf) else x
+                                        for x in parts])
+
+
+def _program(folder: Path, key: str, fun, avals):
+    """`(exported, outline)`: the exported program of `fun` (arrays → its output's arrays) at
+    `avals` and its output's outline, read from `folder`, else exported and saved (when the
+    outline pickles)."""
+    path = folder / f"{key}.program"
     try:
-        return jax.export.deserialize(bytearray(path.read_bytes()))
+        outline, data = pickle.loads(path.read_bytes())
+        return jax.export.deserialize(bytearray(data)), outline
     except FileNotFoundError:
         pass
     except Exception:  # noqa: BLE001 (a damaged or foreign file is exported again)
         pass
+    outlines = []
+
+    def flat(*leaves):
+        arrays, outline = _outline(fun(*leaves))
+        outlines.append(outline)
+        return arrays
+
     exported = jax.export.export(jax.jit(flat))(*avals)
-    _write(path, bytes(exported.serialize()))
-    return exported
+    try:
+        data = pickle.dumps((outlines[0], bytes(exported.serialize())))
+    except Exception:  # noqa: BLE001 (an output that does not pickle: kept in memory only)
+        return exported, outlines[0]
+    _write(path, data)
+    return exported, outlines[0]
 
 
-def persistent(fun):
+def _uncommitted(array):
+    """`array` not committed to its device, as `jit` returns from uncommitted arguments (a
+    loaded program's outputs are committed: mixed with uncommitted arrays in eager operations,
+    each such operation compiled again, once). The same buffer; as it is where JAX's array
+    type takes no such flag."""
+    try:
+        from jax._src.array import ArrayImpl
+
+        return ArrayImpl(array.aval, array.sharding, [array.addressable_data(0)],
+                         committed=False)
+    except Exception:  # noqa: BLE001 (another JAX: committed)
+        return array
+
+
+def persistent(fun=None, *, compiler_options: dict | None = None):
     """`eqx.filter_jit(fun)`, with its traced program kept on disk for concrete calls (see the
     module docstring). `fun` takes positional arguments (arrays are traced, everything else
-    static, as `eqx.filter_jit`) and returns a tuple of arrays."""
-    jitted = eqx.filter_jit(fun)
+    static, as `eqx.filter_jit`) and returns a pytree. `compiler_options`: XLA's, as
+    `eqx.filter_jit`'s (a loaded program is compiled with them too). Usable as `@persistent`
+    or `persistent(fun, compiler_options=…)`."""
+    if fun is None:
+        return functools.partial(persistent, compiler_options=compiler_options)
+    jitted = eqx.filter_jit(fun, compiler_options=compiler_options)
     name = f"{fun.__module__}.{fun.__qualname__}"
 
     @functools.wraps(fun)
@@ -125,18 +182,26 @@ def persistent(fun):
         signature = (str(folder), canonicalize_dtype(float).name, treedef, tuple(constants),
                      constants_def, tuple((np.shape(a), np.dtype(a.dtype).name,
                                            bool(getattr(a, "weak_type", False))) for a in leaves))
-        program = _loaded.pop(signature, None)
-        if program is None:
+        loaded = _loaded.pop((signature, name, repr(compiler_options)), None)
+        if loaded is None and " at 0x" in repr(signature):
+            # (An object printed by its address, another in each process: no key on disk.)
+            return jitted(*args)
+        if loaded is None:
             avals = [jax.ShapeDtypeStruct(shape, dtype, weak_type=weak)
                      for shape, dtype, weak in signature[-1]]
 
             def flat(*leaves):
                 return fun(*eqx.combine(jax.tree.unflatten(treedef, leaves), static))
 
-            program = jax.jit(_program(folder, _key(name, signature), flat, avals).call)
-        _loaded[signature] = program  # the most recent last
+            exported, outline = _program(folder, _key(name, signature), flat, avals)
+            loaded = jax.jit(exported.call, compiler_options=compiler_options), outline
+        _loaded[(signature, name, repr(compiler_options))] = loaded  # the most recent last
         while len(_loaded) > LOADED:
             _loaded.popitem(last=False)
-        return program(*leaves)
+        program, outline = loaded
+        outputs = program(*leaves)
+        if not any(getattr(a, "committed", False) for a in leaves):
+            outputs = [_uncommitted(a) for a in outputs]
+        return _filled(outline, outputs)
 
     return call

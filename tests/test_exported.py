@@ -87,3 +87,54 @@ def test_a_damaged_program_is_exported_again(folder, monkeypatch):
     _new_process(monkeypatch)
     scaled(scale, x, 0.5, "sum")
     assert len(traces) == 2  # the file was written again
+
+
+def _scaled_module(scale, x):
+    traces.append("module")
+    return Scale(scale.factor * x, scale.power + 1), "kept as it is"
+
+
+scaled_module = _exported.persistent(_scaled_module, compiler_options={
+    "xla_backend_optimization_level": 0})
+
+
+def test_an_output_of_modules_is_rebuilt_from_its_outline(folder, monkeypatch):
+    # An equinox module with a static field (and a static Python value) comes back whole from
+    # a loaded program, compiled with the compiler options given.
+    scale, x = Scale(jnp.asarray(1.5), 2), np.linspace(0.0, 1.0, 5)
+    first, text = scaled_module(scale, x)
+    _new_process(monkeypatch)
+    again, text_again = scaled_module(scale, x)
+    assert traces == ["module"] and len(list(folder.iterdir())) == 1
+    assert isinstance(again, Scale) and again.power == 3 and text_again == text == "kept as it is"
+    np.testing.assert_array_equal(again.factor, 1.5 * x)
+    np.testing.assert_array_equal(first.factor, again.factor)
+    # Committed to a device as `jit` leaves its outputs (a loaded program's are committed:
+    # mixed with `jit`'s in eager operations, each compiled once more).
+    jitted = eqx.filter_jit(_scaled_module)(scale, jnp.asarray(x))[0]
+    assert again.factor.committed == jitted.factor.committed
+
+
+class Named(eqx.Module):
+    factor: jax.Array
+    how: object = eqx.field(static=True)
+
+
+def test_a_static_value_printed_by_its_address_is_not_kept(folder):
+    # A static field whose printed form differs from process to process (an object at its
+    # address) cannot key a file: the call is jitted as without a folder, nothing written.
+    traced = _exported.persistent(lambda named: named.factor * 2)
+    np.testing.assert_array_equal(traced(Named(jnp.asarray(3.0), object())), 6.0)
+    assert list(folder.iterdir()) == []
+
+
+def test_a_free_form_spine_s_static_fields_print_the_same_in_every_process():
+    # A prepared spine's evaluators (static) print by their functions' names: the key of the
+    # skeleton's registration programs kept on disk (`_skeleton.posing`), not their addresses.
+    import fleshing_jax as fj
+
+    control = np.array([[0.0, 0, 0], [1, 0, 0], [2, 1, 0], [3, 1, 1], [4, 0, 1], [5, 0, 0]])
+    for spine in (fj.BSpline(control), fj.Polyline(control), fj.InterpolatingPolynomial(control)):
+        static = eqx.partition(spine._prepare(), eqx.is_array)[1]
+        printed = repr(jax.tree.structure(static))
+        assert " at 0x" not in printed and "Evaluators(length=fleshing_jax." in printed, printed

@@ -17,6 +17,8 @@ from __future__ import annotations
 
 import equinox as eqx
 
+from .._exported import persistent
+
 QUICK_COMPILE = {
     "xla_backend_optimization_level": 0,
     "xla_llvm_disable_expensive_passes": True,
@@ -58,11 +60,14 @@ def compiling() -> bool:
 class Program:
     """`fun` under `eqx.filter_jit`, compiled either the optimised way or quickly
     (`QUICK_COMPILE`): `program(*args, quick=True)` picks the quick one when called at the
-    top level."""
+    top level. `kept=True`: its traced program is also kept on disk beside JAX's compilation
+    cache (`_exported.persistent`), so that a new process neither traces nor lowers it (for
+    programs whose trace reads no constant a test patches)."""
 
-    def __init__(self, fun):
-        self.optimised = eqx.filter_jit(fun)
-        self.quick = eqx.filter_jit(fun, compiler_options=QUICK_COMPILE)
+    def __init__(self, fun, kept: bool = False):
+        jit = persistent if kept else eqx.filter_jit
+        self.optimised = jit(fun)
+        self.quick = jit(fun, compiler_options=QUICK_COMPILE)
 
     def __call__(self, *args, quick: bool = True):
         return (self.quick if quick and top_level() else self.optimised)(*args)

@@ -232,7 +232,7 @@ def _frames(spine: AbstractSpine, s: Array, joint: Array):
     return (c, t, i, j), jnp.stack([t0, i0, j0])
 
 
-_frames_at = Program(_frames)
+_frames_at = Program(_frames, kept=True)
 
 
 def _edges(faces: np.ndarray) -> np.ndarray:
@@ -722,8 +722,8 @@ def _limb_registered(prepared: AbstractSpine, points: Array, margin: Array, tabl
     return registrar, certified_registration(registrar, points)
 
 
-_rests = Program(_limb_rests)
-_registration = Program(_limb_registered)
+_rests = Program(_limb_rests, kept=True)
+_registration = Program(_limb_registered, kept=True)
 
 
 def limb_causes(registration: SkeletonRegistration, skeleton: Skeleton, poses: dict,

@@ -278,6 +278,12 @@ class Evaluators(NamedTuple):
     evaluate: Callable  # → [(jet, (I, J)) at s, at 0, at length]
     torsion: Callable  # → scalar
 
+    def __repr__(self):
+        # By the functions' names, not their addresses: the same in every process, as the key
+        # of a program kept on disk (`_exported`) needs.
+        names = (f"{name}={f.__module__}.{f.__qualname__}" for name, f in self._asdict().items())
+        return f"Evaluators({', '.join(names)})"
+
 
 class PreparedSpine(AbstractSpine):
     """A free-form spine with its tables (everything that does not depend on `s`) computed once.
