@@ -19,6 +19,7 @@ from jaxtyping import Array, ArrayLike, Float
 
 from .._checks import check_vertex_ids
 from .._fit.correspondences import weighted_rms
+from .._fit.jacobian import for_solver
 from .._fit.problem import (
     AbstractFitOutcome,
     check_cloud,
@@ -99,7 +100,12 @@ class _Problem(eqx.Module):
 
 @eqx.filter_jit
 def _solve(problem: _Problem, solver, y0, max_steps: int, throw: bool):
-    solution = optx.least_squares(problem, solver, y0, max_steps=max_steps, throw=throw)
+    # The residuals traced once, their Jacobian materialised by forward mode at each step
+    # (`_fit.jacobian`, as the spine and skeleton fits): the solver's loop then carries a
+    # matrix, not the linearised ARAP solve and skin.
+    traced = eqx.filter_closure_convert(lambda y: problem(y), y0)
+    solution = optx.least_squares(for_solver(lambda y, args=None: traced(y), solver), solver,
+                                  y0, max_steps=max_steps, throw=throw)
     y = solution.value
     # The solution's pose, images and loss from one ARAP solve and one skin (each traced
     # again made the program larger: a first call 13.6 -> 13.3 s of CPU, test_arap's fit).
