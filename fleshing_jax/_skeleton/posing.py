@@ -38,6 +38,7 @@ from jaxtyping import Array, Bool, Float
 from .._batching.buckets import bucket, pad_batch, unpad_batch
 from .._batching.quick import QUICK_BATCH, Program
 from .._checks import as_margin, is_concrete
+from .._exported import persistent
 from .._fleshing.eager import certified_registration, registered_pending
 from .._fleshing.ends import EndFrames, aligned_twist, target_ends
 from .._fleshing.methods import check_method
@@ -534,7 +535,7 @@ def _carried_blend(target, points, s, weight, images):
     return jnp.where(moved[:, None], blended, images)
 
 
-_carried_blend_program = eqx.filter_jit(_carried_blend)
+_carried_blend_program = persistent(_carried_blend)
 
 
 def posed_limbs(registration: SkeletonRegistration, poses: dict, method: str, check: bool,
@@ -689,7 +690,7 @@ def _pose_limb_eagerly(registration, target, method, check=True, checked_on=None
                              limb_poser(registration, target, method, check, checked_on))
 
 
-_posed_by_program = eqx.filter_jit(_posed_by)
+_posed_by_program = persistent(_posed_by)
 
 
 def _limb_rests(spine: AbstractSpine, lookup: bool):
