@@ -42,6 +42,7 @@ FOLDER = "fleshing-jax-exported"  # inside JAX's cache folder (JAX reads only it
 LOADED = 32  # programs kept in memory per process (each holds its serialized module)
 
 _loaded: OrderedDict = OrderedDict()
+_unkept: set = set()  # the calls whose program JAX could not export: jitted as they are
 _source: list[str] = []
 
 
@@ -119,7 +120,7 @@ def _filled(outline, arrays):
 def _program(folder: Path, key: str, fun, avals):
     """`(exported, outline)`: the exported program of `fun` (arrays → its output's arrays) at
     `avals` and its output's outline, read from `folder`, else exported and saved (when the
-    outline pickles)."""
+    outline pickles); `None` where JAX cannot export it."""
     path = folder / f"{key}.program"
     try:
         outline, data = pickle.loads(path.read_bytes())
@@ -135,7 +136,10 @@ def _program(folder: Path, key: str, fun, avals):
         outlines.append(outline)
         return arrays
 
-    exported = jax.export.export(jax.jit(flat))(*avals)
+    try:
+        exported = jax.export.export(jax.jit(flat))(*avals)
+    except Exception:  # noqa: BLE001 (a program JAX cannot export: a host callback in it)
+        return None
     try:
         data = pickle.dumps((outlines[0], bytes(exported.serialize())))
     except Exception:  # noqa: BLE001 (an output that does not pickle: kept in memory only)
@@ -182,8 +186,9 @@ def persistent(fun=None, *, compiler_options: dict | None = None):
         signature = (str(folder), canonicalize_dtype(float).name, treedef, tuple(constants),
                      constants_def, tuple((np.shape(a), np.dtype(a.dtype).name,
                                            bool(getattr(a, "weak_type", False))) for a in leaves))
-        loaded = _loaded.pop((signature, name, repr(compiler_options)), None)
-        if loaded is None and " at 0x" in repr(signature):
+        key = (signature, name, repr(compiler_options))
+        loaded = _loaded.pop(key, None)
+        if loaded is None and (key in _unkept or " at 0x" in repr(signature)):
             # (An object printed by its address, another in each process: no key on disk.)
             return jitted(*args)
         if loaded is None:
@@ -193,9 +198,13 @@ def persistent(fun=None, *, compiler_options: dict | None = None):
             def flat(*leaves):
                 return fun(*eqx.combine(jax.tree.unflatten(treedef, leaves), static))
 
-            exported, outline = _program(folder, _key(name, signature), flat, avals)
+            program = _program(folder, _key(name, signature), flat, avals)
+            if program is None:
+                _unkept.add(key)
+                return jitted(*args)
+            exported, outline = program
             loaded = jax.jit(exported.call, compiler_options=compiler_options), outline
-        _loaded[(signature, name, repr(compiler_options))] = loaded  # the most recent last
+        _loaded[key] = loaded  # the most recent last
         while len(_loaded) > LOADED:
             _loaded.popitem(last=False)
         program, outline = loaded

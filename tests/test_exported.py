@@ -138,3 +138,22 @@ def test_a_free_form_spine_s_static_fields_print_the_same_in_every_process():
         static = eqx.partition(spine._prepare(), eqx.is_array)[1]
         printed = repr(jax.tree.structure(static))
         assert " at 0x" not in printed and "Evaluators(length=fleshing_jax." in printed, printed
+
+
+def _doubled_on_the_host(x):
+    traces.append("callback")
+    return jax.pure_callback(lambda a: np.asarray(a) * 2, jax.ShapeDtypeStruct(x.shape, x.dtype),
+                             x) + 1
+
+
+doubled_on_the_host = _exported.persistent(_doubled_on_the_host)
+
+
+def test_a_program_jax_cannot_export_is_jitted(folder):
+    # A host callback (a k-d tree in a shape fit) cannot be exported: jitted as without a
+    # folder, tried once (not traced again on the next call), nothing written.
+    x = np.arange(3.0)
+    np.testing.assert_array_equal(doubled_on_the_host(x), 2 * x + 1)
+    np.testing.assert_array_equal(doubled_on_the_host(x), 2 * x + 1)
+    assert traces == ["callback", "callback"]  # the export's trace, then jit's (once)
+    assert list(folder.iterdir()) == []
