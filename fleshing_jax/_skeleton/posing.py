@@ -499,22 +499,12 @@ def _stacked_sections(registration: SkeletonRegistration, poses: dict, moved: di
     program on the tube, with its free child posed)."""
     if is_concrete(poses):
         return {}
-    groups: dict = {}
-    for k, pose in poses.items():
-        if isinstance(pose, LimbPose):
-            args = (*_section_inputs(registration, k, pose), limb_target(registration, k, pose),
-                    moved[k][0])
-            leaves, structure = jax.tree.flatten(args)
-            groups.setdefault((structure, tuple(jnp.shape(x) for x in leaves)), []).append(
-                (k, args))
+    args = {k: (*_section_inputs(registration, k, pose), limb_target(registration, k, pose),
+                moved[k][0]) for k, pose in poses.items() if isinstance(pose, LimbPose)}
     sections = {}
-    for members in groups.values():
-        if len(members) < 2:
-            continue
-        ks = [k for k, _ in members]
+    for ks, batch in _stacked_groups(args, smallest=2):
         ns = jnp.asarray([registration.indices[k].shape[0] for k in ks])
-        zone, r, joint, stop, angles, target, images = jax.tree.map(
-            lambda *x: jnp.stack(x), *(args for _, args in members))
+        zone, r, joint, stop, angles, target, images = batch
         weight = jax.vmap(_section_weights)(zone, r, joint, stop, angles, ns)
         # (One test for the batch: a traced frame skips the sections where none is carried.)
         images = jax.lax.cond(jnp.any(weight > 0), jax.vmap(_carried_blend), lambda *a: a[-1],
@@ -563,16 +553,23 @@ def posed_limbs(registration: SkeletonRegistration, poses: dict, method: str, ch
         pose_limb = _pose_limb if not is_concrete(poses) else _pose_limb_eagerly
         return {k: pose_limb(reg, target, method, check, on)
                 for k, (reg, target, on) in pairs.items()}
-    groups: dict = {}  # limbs by the structure and shapes of their (registration, target)
-    for k, pair in pairs.items():
-        leaves, structure = jax.tree.flatten(pair)
-        groups.setdefault((structure, tuple(jnp.shape(x) for x in leaves)), []).append(k)
     moved = {}
-    for ks in groups.values():
-        batch = jax.tree.map(lambda *x: jnp.stack(x), *(pairs[k] for k in ks))
+    for ks, batch in _stacked_groups(pairs):
         out = jax.vmap(lambda p: _pose_limb(p[0], p[1], method, check, p[2]))(batch)
         moved.update({k: jax.tree.map(lambda x, i=i: x[i], out) for i, k in enumerate(ks)})
     return moved
+
+
+def _stacked_groups(args: dict, smallest: int = 1) -> list:
+    """`args` (limb index → pytree) in groups of the limbs whose pytrees share their structure
+    and their leaves' shapes, of `smallest` limbs or more: `[(limb indices, their pytrees
+    stacked along a new first axis)]`, for `vmap`."""
+    groups: dict = {}
+    for k, tree in args.items():
+        leaves, structure = jax.tree.flatten(tree)
+        groups.setdefault((structure, tuple(jnp.shape(x) for x in leaves)), []).append(k)
+    return [(ks, jax.tree.map(lambda *x: jnp.stack(x), *(args[k] for k in ks)))
+            for ks in groups.values() if len(ks) >= smallest]
 
 
 def _limb_registration(registration: SkeletonRegistration, k: int, own: bool) -> Registration:
