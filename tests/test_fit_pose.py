@@ -12,6 +12,7 @@ time.
 """
 
 import numpy as np
+import optimistix as optx
 import pytest
 
 import fleshing_jax as fj
@@ -177,6 +178,26 @@ def test_shape_fit_recovers_the_angles_of_a_clean_sample(skeleton, registration,
     assert fit.num_invalid == 0 and fit.posed.vertices.shape == registration.vertices.shape
 
 
+def test_a_shape_fit_stopped_short_of_its_minimum_is_not_converged(skeleton, registration,
+                                                                   samples):
+    # A solver told to stop at once (rtol = atol = 1: its Cauchy test passes on its first
+    # step) reports success where it started, limb 0 bent 0.7° too far: the posed surface
+    # explains the clean sample there as well as at the truth (a residual test cannot tell),
+    # but the Gauss-Newton step says it is no minimum. (The clean fit's compiled solve: the
+    # tolerances are values.)
+    start = {**SHAPE_TRUTH, 0: fj.LimbPose(50.7, 60.0)}
+    fit = fj.fit_skeleton_pose(registration, skeleton, target=samples[0], limbs=[0, 2],
+                               init=start, rtol=1.0, atol=1.0)
+    assert fit.result == optx.RESULTS.successful and not fit.converged
+    assert "stopped short of a minimum" in fit.message, fit.message
+    assert "limb 0 by 0.7" in fit.message and "limb 2" not in fit.message, fit.message
+    assert fit.stats["predicted_decrease"] > 0.9  # the loss is nearly all that 0.7°
+    # Stopped at once at the truth, the same solve is at its minimum: converged.
+    fit = fj.fit_skeleton_pose(registration, skeleton, target=samples[0], limbs=[0, 2],
+                               init=SHAPE_TRUTH, rtol=1.0, atol=1.0)
+    assert fit.converged, fit.message
+
+
 @pytest.mark.slow
 def test_shape_fit_of_a_noisy_sample(skeleton, registration, samples):
     points, _, diagonal = samples
@@ -317,6 +338,26 @@ def test_the_angle_spread_is_the_sandwich_standard_error():
     message = _undetermined(spread)
     assert "limb 7 ±" in message and "limb 4" not in message and "markers" in message
     assert _undetermined({4: spread[4]}) == ""
+
+
+def test_the_gauss_newton_step_of_a_linear_problem_is_its_offset():
+    # Linear residuals r = J (y - y*) + e, e orthogonal to J's columns: the step is y* - y
+    # exactly, predicting the decrease |J (y - y*)|² of |r|²; a column the residuals do not
+    # depend on (a limb the target does not show) takes no step.
+    from fleshing_jax._fit.stationarity import gauss_newton_step
+
+    rng = np.random.default_rng(0)
+    jac = np.concatenate([rng.normal(size=(60, 3)), np.zeros((60, 1))], axis=1)
+    offset = np.array([0.3, -0.2, 0.1, 5.0])
+    noise = rng.normal(size=60)
+    noise -= jac[:, :3] @ np.linalg.lstsq(jac[:, :3], noise, rcond=None)[0]
+    r = jac @ offset + noise
+    step, decrease = gauss_newton_step(jac, r)
+    np.testing.assert_allclose(step, [-0.3, 0.2, -0.1, 0.0], atol=1e-12)
+    np.testing.assert_allclose(decrease, np.sum((jac @ offset) ** 2) / np.sum(r**2))
+    assert gauss_newton_step(jac, noise)[1] < 1e-20  # at the minimum: no decrease
+    with pytest.raises(ValueError, match="jacobian"):
+        gauss_newton_step(jac, r[:-1])
 
 
 def test_the_distance_to_a_surface_is_to_its_closest_triangle_point():

@@ -259,7 +259,10 @@ def fit_skeleton_pose(
     allows (another shape, a wrong local minimum), when a fitted limb's part of it is not
     explained either way, or when a fitted limb's bend is determined by the target only to
     more than ±1° (its standard error, `stats["angle_spread"]`, degrees by limb: a short, thick
-    limb barely moves its part of a sampled surface), with a message naming the limb.
+    limb barely moves its part of a sampled surface), or when the solve stopped short of a
+    minimum (a Gauss–Newton step from the fitted angles would still turn a limb by more than
+    0.05°, `stats["gauss_newton_step"]`, and lower the loss by more than 1 %), with a message
+    naming the limb.
 
     **Arguments:**
 
@@ -334,8 +337,11 @@ def fit_skeleton_pose(
 
         if solver is None:
             tol = max(SHAPE_TOLERANCE, default_tolerance(dtype))  # float32: its own
-            solver = default_solver("least_squares", dtype, tol if rtol is None else rtol,
-                                    tol if atol is None else atol)
+            # The tolerances as arrays, leaves of the solver: a fit with its own runs the
+            # default's compiled solve.
+            solver = default_solver(
+                "least_squares", dtype,
+                *(jnp.asarray(tol if t is None else t, dtype) for t in (rtol, atol)))
         return fit_to_shape(registration, skeleton, target, ids=ids, targets=targets,
                             limbs=limbs, init=init, method=method,
                             fit_twist=bool(fit_twist), solver=solver, max_steps=max_steps,
