@@ -16,29 +16,35 @@ from jaxtyping import Array, ArrayLike
 from ._numerics import on_device
 
 
-def as_float_array(value: ArrayLike, name: str, shape: tuple[int, ...] | None = None) -> Array:
+def as_float_array(value: ArrayLike, name: str, shape: tuple[int, ...] | None = None, *,
+                   host: bool = False) -> Array:
     """Converts `value` to a floating JAX array, checking its shape.
 
     Integers (and booleans) become the default float type; floating inputs keep their dtype.
     Raises `TypeError` naming `name` for values that are not real numbers (`None`, strings,
     objects, complex numbers: an imaginary part is never dropped silently), and `ValueError`
-    naming `name` when the shape is not `shape`.
+    naming `name` when the shape is not `shape`. `host`: a value that is not a JAX array is
+    returned as a NumPy array of that dtype, not put on the device: for a per-frame argument
+    that a jitted call transfers with its others (a device transfer is about 25 µs a value).
     """
     if isinstance(value, jax.Array) and jnp.issubdtype(value.dtype, jnp.floating):
         array = value
     else:
         if value is None or isinstance(value, str | bytes):
             raise TypeError(f"`{name}` must be a real number or an array of them, got {value!r}.")
-        array = _to_device(value, name)
+        array = _as_float(value, name)
+        if not host and isinstance(array, np.ndarray):
+            # (Put on the device as it is: `jnp.asarray` would compile a program per shape.)
+            array = jax.device_put(array)
     if shape is not None and array.shape != shape:
         expected = "a scalar" if shape == () else f"shape {shape}"
         raise ValueError(f"`{name}` must be {expected}, got shape {array.shape}.")
     return array
 
 
-def _to_device(value, name: str) -> Array:
-    """`value` (not a floating JAX array) as a floating JAX array, converted on the host and
-    put on the device as it is: `jnp.asarray` would compile a program per shape."""
+def _as_float(value, name: str) -> Array | np.ndarray:
+    """`value` (not a floating JAX array) as floating: a NumPy array, converted on the host, or
+    a JAX array of another dtype converted on the device."""
     if isinstance(value, jax.Array):
         host = value
     else:
@@ -57,10 +63,12 @@ def _to_device(value, name: str) -> Array:
     if jnp.issubdtype(host.dtype, jnp.complexfloating):
         raise TypeError(f"`{name}` must be real, got complex values (dtype {host.dtype}).")
     if not jnp.issubdtype(host.dtype, jnp.floating):
+        if isinstance(host, np.ndarray):
+            return host.astype(jnp.result_type(float))
         return jnp.asarray(host, jnp.result_type(float))
     if isinstance(host, np.ndarray) and host.dtype == np.float64 != jnp.result_type(float):
         host = host.astype(np.float32)  # what `jnp.asarray` gives without float64
-    return jax.device_put(host) if isinstance(host, np.ndarray) else jnp.asarray(host)
+    return host if isinstance(host, np.ndarray) else jnp.asarray(host)
 
 
 def _short(value) -> str:
