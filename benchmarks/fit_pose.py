@@ -8,9 +8,14 @@ head and two legs, bends of 10-30°), 5,000 samples of the posed surface as the
 target; the pose recovered from the rest pose by `fj.fit_skeleton_pose(registration, skeleton,
 target=..., limbs=...)` from the clean samples, with 0.5 % (of the diagonal) Gaussian noise,
 and from one side only (the samples whose normals face +x: a partial scan); then spot's rest
-skeleton against a ball (another shape: must not converge). Prints a Markdown table: the
-largest bend and direction errors over the limbs (degrees), the largest standard error of a
-fitted bend (`stats["angle_spread"]`: over ±1° is not converged), `converged`, steps, seconds (the
+skeleton against a ball (another shape: must not converge), and a solve stopped short of its
+minimum (told to stop at once, `rtol = atol = 1`, from the truth with leg 8 bent `SHORT`
+more: it explains the clean samples there, and must not converge). Prints a Markdown table:
+the largest bend and direction errors over the limbs (degrees), the largest standard error of
+a fitted bend (`stats["angle_spread"]`: over ±1° is not converged), the largest Gauss–Newton
+step at the fitted angles (`stats["gauss_newton_step"]`, degrees) and the decrease of the loss
+it predicts (`stats["predicted_decrease"]`: over 0.05° and 1 % is not converged),
+`converged`, steps, seconds (the
 first call includes its compilation; the warm time is the median of the next `WARM` calls of
 the same target), and the load average at the end of each row.
 """
@@ -32,6 +37,7 @@ SAVED_SKELETON = Path(__file__).resolve().parents[1] / "notebooks" / "data" / "s
 # The head and two legs (bend, direction) (spot's legs are short and thick: a
 # hind leg bent 60° flags 5 of its 125 vertices, `benchmarks/posing.py`).
 TRUTH = {0: (10.0, 90.0), 5: (20.0, 180.0), 8: (30.0, 0.0)}
+SHORT = 0.74  # degrees: how far off the stopped solve starts (and stays)
 WARM = 3  # calls after the first, of the same target: their median is the warm time (the
 # machine is shared: the load beside each row)
 
@@ -47,7 +53,7 @@ def errors(fit, truth):
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--float32", action="store_true")
-    parser.add_argument("--only", choices=["clean", "noise", "side", "sphere"],
+    parser.add_argument("--only", choices=["clean", "noise", "side", "sphere", "short"],
                         help="one target's row only (the first call then compiles)")
     args = parser.parse_args()
     if not args.float32:
@@ -70,24 +76,29 @@ def main():
     print(f"spot, {np.dtype(dtype).name}, limbs {sorted(TRUTH)}, diagonal {diagonal:.3f}, "
           f"vertices flagged at the true pose by limb: {flagged}\n")
     print("| target | points | max bend error (°) | max direction error (°) | largest spread (°) "
-          "| converged | steps "
+          "| largest Gauss–Newton step (°), predicted decrease | converged | steps "
           f"| first call (s) | warm call (s, median of {WARM}) | load (1, 5, 15 min) |")
-    print("|---|---:|---:|---:|---:|---|---:|---:|---:|---|")
-    rows = (("clean", points), ("0.5 % noise", noisy), ("one side", partial),
-            ("a sphere (another shape)", other))
-    for name, target in rows:
-        if args.only and not name.startswith({"noise": "0.5", "side": "one",
-                                              "sphere": "a sphere"}.get(args.only, args.only)):
+    print("|---|---:|---:|---:|---:|---:|---|---:|---:|---:|---|")
+    off = {**truth, 8: fj.LimbPose(TRUTH[8][0] + SHORT, TRUTH[8][1])}
+    rows = (("clean", "clean", points, {}), ("noise", "0.5 % noise", noisy, {}),
+            ("side", "one side", partial, {}), ("sphere", "a sphere (another shape)", other, {}),
+            ("short", f"clean, stopped at once {SHORT}° off", points,
+             {"init": off, "rtol": 1.0, "atol": 1.0}))
+    for key, name, target, options in rows:
+        if args.only and key != args.only:
             continue
         seconds = []
         for _ in range(1 + WARM):
             start = time.perf_counter()
-            fit = fj.fit_skeleton_pose(registration, skeleton, target=target, limbs=list(TRUTH))
+            fit = fj.fit_skeleton_pose(registration, skeleton, target=target, limbs=list(TRUTH),
+                                       **options)
             seconds.append(time.perf_counter() - start)
         bend, turn = errors(fit, truth)
         spread = max(fit.stats["angle_spread"].values())
+        step = max(fit.stats["gauss_newton_step"].values())
         count = len(target.vertices) if isinstance(target, trimesh.Trimesh) else len(target)
-        print(f"| {name} | {count} | {bend:.2f} | {turn:.2f} | {spread:.2f} | {fit.converged} | "
+        print(f"| {name} | {count} | {bend:.2f} | {turn:.2f} | {spread:.2f} | {step:.2g}, "
+              f"{fit.stats['predicted_decrease']:.2g} | {fit.converged} | "
               f"{int(fit.num_steps)} | {seconds[0]:.1f} | {np.median(seconds[1:]):.2f} | "
               f"{', '.join(f'{x:.1f}' for x in os.getloadavg())} |", flush=True)
         if not fit.converged:

@@ -72,6 +72,20 @@ def test_unreachable_targets_are_not_reported_as_a_fit(skeleton, registration, i
     assert float(fit.rms) > 1e-3
 
 
+def test_a_solve_stopped_short_of_its_minimum_is_not_converged(skeleton, registration, ids):
+    # A solver told to stop at once (rtol = atol = 1: its Cauchy test passes on its first step)
+    # reports success where it started, limb 0 bent 0.7° too far: its trust region never
+    # shrank (no stall), but the Gauss-Newton step says it is no minimum. (The default fit's
+    # compiled solve: the tolerances are values.)
+    targets = _targets(registration, skeleton, ids, TRUTH)
+    start = {**TRUTH, 0: fj.LimbPose(40.7, 60, 15)}
+    fit = fj.fit_skeleton_pose(registration, skeleton, ids, targets, init=start, rtol=1.0,
+                               atol=1.0)
+    assert fit.result == optx.RESULTS.successful and not fit.converged
+    assert "stopped short of a minimum" in fit.message, fit.message
+    assert "limb 0 by 0.7" in fit.message and "limb 2" not in fit.message, fit.message
+
+
 @pytest.mark.slow
 def test_a_solve_cut_short_is_not_converged(skeleton, registration, ids):
     targets = _targets(registration, skeleton, ids, TRUTH)

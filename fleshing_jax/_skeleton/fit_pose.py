@@ -39,6 +39,7 @@ from .._fit.problem import (
     stall_message,
     trust_radius,
 )
+from .._fit.stationarity import gauss_newton_step
 from .._fleshing.methods import check_method
 from .limb_pose import LimbPose
 from .posing import (
@@ -56,6 +57,12 @@ ADVICE = (
     "the loss is not smooth here (chosen vertices leaving their limb's valid space). Start "
     "closer (`init=`), fit fewer limbs (`limbs=`), or check that the targets are reachable."
 )
+# A fit stopped short of a minimum of its own loss (`_fit.stationarity`): the Gauss–Newton step
+# at the fitted angles turns some limb by more than `SETTLED_STEP` degrees and predicts a
+# decrease of more than `SETTLED_DECREASE` of the loss (a shape fit's: its last stage's).
+SETTLED_STEP, SETTLED_DECREASE = 0.05, 1e-2
+SETTLE_ADVICE = ("Give it more steps (`max_steps=`) or tighter tolerances (`rtol=`, `atol=`), "
+                 "or fit again from the fitted pose (`init=fit.poses`).")
 # Per-point fields of a `Registration` (its `length` and `ends` are shared).
 _PER_POINT = ("points", "arc_length", "offset", "curvature", "valid", "discontinuous")
 
@@ -75,8 +82,10 @@ class SkeletonFit(AbstractFitOutcome):
     - `result`: the `optimistix.RESULTS` of the solve; `num_steps`, `stats`: the solver's.
     - `loss`: the final objective, `rms²`.
     - `stalled`: "" or, for a solve that optimistix calls successful although its steps
-      shrank to nothing without reducing the loss much (no minimum), what happened and what
-      to try.
+      shrank to nothing without reducing the loss much, or although a Gauss–Newton step from
+      its angles would still turn a limb by more than 0.05° and lower the loss by more than
+      1 % (`stats["gauss_newton_step"]`, degrees by limb; `stats["predicted_decrease"]`: no
+      minimum), what happened and what to try.
 
     `converged` is True only when the solver succeeded, did not stall and every chosen vertex
     is valid; `message` says otherwise why not.
@@ -216,6 +225,34 @@ def _linear_state(state):
     return info.jac.as_matrix(), residual
 
 
+def limb_steps(linear, limbs: tuple[int, ...], per_limb: int) -> tuple[dict, float]:
+    """Each fitted limb's Gauss–Newton step at the fitted angles (degrees: the norm of its
+    parameters' step, `_fit.stationarity`) from the solve's last `(J, r)` (`_solve`'s
+    `linear`), and the decrease of the loss the step predicts (a fraction of it); NaN without
+    them (a solver that is not of Gauss–Newton type)."""
+    if linear is None:
+        return {k: float("nan") for k in limbs}, float("nan")
+    step, decrease = gauss_newton_step(*linear)
+    turns = np.rad2deg(np.linalg.norm(step.reshape(len(limbs), per_limb), axis=1))
+    return dict(zip(limbs, turns.tolist())), decrease
+
+
+def unsettled(step: dict, decrease: float) -> str:
+    """"" when the fit stopped at a stationary point of its loss (every limb's Gauss–Newton
+    step `step` (limb → degrees) within `SETTLED_STEP`, or the decrease it predicts `decrease`
+    (a fraction of the loss) within `SETTLED_DECREASE`), else which limbs would still move."""
+    moving = {k: v for k, v in step.items() if v > SETTLED_STEP}
+    if not moving or not decrease > SETTLED_DECREASE:
+        return ""
+    which = ", ".join(f"limb {k} by {v:.2g}°" for k, v in moving.items())
+    return (
+        f"the solve stopped short of a minimum: a Gauss–Newton step from the fitted pose would "
+        f"still turn {which} (at most {SETTLED_STEP}° at a minimum) and lower the loss by "
+        f"{100 * decrease:.2g} % (the fit explains its data, but a pose nearby explains them "
+        f"better). {SETTLE_ADVICE}"
+    )
+
+
 def _default_limbs(skeleton: Skeleton, ids: np.ndarray) -> tuple[int, ...]:
     """The limbs whose regions hold vertices of `ids`, and their ancestors."""
     region = np.asarray(skeleton.region)
@@ -249,7 +286,10 @@ def fit_skeleton_pose(
 
     Nonlinear least squares over the bend, direction and twist of each limb of `limbs`,
     through `pose_skeleton` (each limb's region fleshed with `det J = 1`, children carried).
-    Non-convergence is reported (`converged`, `message`), never raised (unless `throw`).
+    Non-convergence is reported (`converged`, `message`), never raised (unless `throw`);
+    a solve that stopped short of a minimum of its own loss (its steps too small or its
+    tolerances too loose to go on, although a Gauss–Newton step from there would still move a
+    limb) is not converged either.
 
     With `target=`, the objective is a robust (Cauchy) symmetric Chamfer distance between
     the posed vertices and the target, point to plane along the target's normals, solved from
@@ -259,10 +299,7 @@ def fit_skeleton_pose(
     allows (another shape, a wrong local minimum), when a fitted limb's part of it is not
     explained either way, or when a fitted limb's bend is determined by the target only to
     more than ±1° (its standard error, `stats["angle_spread"]`, degrees by limb: a short, thick
-    limb barely moves its part of a sampled surface), or when the solve stopped short of a
-    minimum (a Gauss–Newton step from the fitted angles would still turn a limb by more than
-    0.05°, `stats["gauss_newton_step"]`, and lower the loss by more than 1 %), with a message
-    naming the limb.
+    limb barely moves its part of a sampled surface), with a message naming the limb.
 
     **Arguments:**
 
@@ -331,23 +368,25 @@ def fit_skeleton_pose(
         if not isinstance(init.get(k, LimbPose()), LimbPose):
             raise TypeError(f"`init[{k}]` must be a LimbPose: limb {k} is fitted.")
     dtype = registration.vertices.dtype
-    if target is not None:
-        # Here to avoid an import cycle: the shape's fit builds on this module's pieces.
-        from .fit_shape import SHAPE_TOLERANCE, fit_to_shape
+    if solver is None:
+        tol = default_tolerance(dtype)
+        if target is not None:
+            # Here to avoid an import cycle: the shape's fit builds on this module's pieces.
+            from .fit_shape import SHAPE_TOLERANCE
 
-        if solver is None:
-            tol = max(SHAPE_TOLERANCE, default_tolerance(dtype))  # float32: its own
-            # The tolerances as arrays, leaves of the solver: a fit with its own runs the
-            # default's compiled solve.
-            solver = default_solver(
-                "least_squares", dtype,
-                *(jnp.asarray(tol if t is None else t, dtype) for t in (rtol, atol)))
+            tol = max(SHAPE_TOLERANCE, tol)  # float32: its own
+        # The tolerances as arrays, leaves of the solver: a fit with its own runs the default's
+        # compiled solve.
+        solver = default_solver(
+            "least_squares", dtype,
+            *(jnp.asarray(tol if t is None else t, dtype) for t in (rtol, atol)))
+    if target is not None:
+        from .fit_shape import fit_to_shape
+
         return fit_to_shape(registration, skeleton, target, ids=ids, targets=targets,
                             limbs=limbs, init=init, method=method,
                             fit_twist=bool(fit_twist), solver=solver, max_steps=max_steps,
                             throw=bool(throw))
-    if solver is None:
-        solver = default_solver("least_squares", dtype, rtol, atol)
     if fit_twist is False:
         raise ValueError("`fit_twist=False` is for a shape's fit (`target=`): markers show a "
                          "limb's twist.")
@@ -358,7 +397,9 @@ def fit_skeleton_pose(
     y0 = jnp.stack([parameters_of(init.get(k, LimbPose()), dtype) for k in limbs])
     # (The steps a budget under one static limit: a fit cut short runs the default's program.)
     budget, limit = limited(solver, max_steps)
-    y, radius, result, stats, _ = _solve(problem, budget, y0, limit, bool(throw))
+    y, radius, result, stats, linear = _solve(problem, budget, y0, limit, bool(throw), True)
+    step, decrease = limb_steps(linear, limbs, 3)
+    stats = {**stats, "gauss_newton_step": step, "predicted_decrease": decrease}
 
     def outcome(poses):
         whole = pose_skeleton(registration, skeleton, poses, method=method)
@@ -370,7 +411,8 @@ def fit_skeleton_pose(
     _, loss0 = outcome(start)
     whole, loss = outcome(poses)
     successful = bool(result == optx.RESULTS.successful)
-    stalled = stall_message((loss0, loss), radius, stats["num_steps"], ADVICE)
+    stalled = (stall_message((loss0, loss), radius, stats["num_steps"], ADVICE)
+               or unsettled(step, decrease))
     return SkeletonFit(
         poses=dict(sorted(poses.items())),
         rms=jnp.sqrt(loss),

@@ -40,9 +40,9 @@ pose's vertices, samples of a mesh), from the rest pose:
   bend must be determined by the target to `ANGLE_SPREAD` (its standard error from the last
   stage's Jacobian, `_fit.uncertainty`; `stats["angle_spread"]`): a short, thick limb (spot's
   legs) fitted 15° off explains the target as well as at its true bend. And the solve must
-  have stopped at a minimum of its own loss (`_unsettled`, `_fit.stationarity`): not when the
-  Gauss–Newton step at the fitted angles (from the last stage's `(J, r)`) turns a limb by
-  more than `SETTLED_STEP` *and* predicts more than `SETTLED_DECREASE` of the loss
+  have stopped at a minimum of its own loss (`fit_pose.unsettled`, `_fit.stationarity`): not
+  when the Gauss–Newton step at the fitted angles (from the last stage's `(J, r)`) turns a limb
+  by more than `SETTLED_STEP` *and* predicts more than `SETTLED_DECREASE` of the loss
   (`stats["gauss_newton_step"]`, degrees by limb, `stats["predicted_decrease"]`): a leg 0.7°
   off explains a clean sample as well as the truth does, and a solve that stalled there
   (steps rejected on the piecewise-smooth loss until one tiny enough passed the solver's own
@@ -68,10 +68,17 @@ from scipy.spatial import cKDTree
 
 from .._fit.budget import limited
 from .._fit.problem import check_cloud
-from .._fit.stationarity import gauss_newton_step
 from .._fit.surface import rings, to_surface
 from .._fit.uncertainty import block_spread, covariance
-from .fit_pose import SkeletonFit, _solve, parameters_of, pose_of, restricted
+from .fit_pose import (
+    SkeletonFit,
+    _solve,
+    limb_steps,
+    parameters_of,
+    pose_of,
+    restricted,
+    unsettled,
+)
 from .limb_pose import LimbPose
 from .posing import SkeletonRegistration, pose_skeleton, posed
 from .skeleton import Skeleton, descendants
@@ -109,10 +116,6 @@ AWAY = 0.1
 # bend the target determines more loosely may be far off although the fit explains the target
 # (`_fit.uncertainty`).
 ANGLE_SPREAD = 1.0
-# A fit stopped short of a minimum of its own loss (`_fit.stationarity`): the Gauss–Newton step
-# at the fitted angles turns some limb by more than `SETTLED_STEP` degrees and predicts a decrease
-# of more than `SETTLED_DECREASE` of the last stage's loss.
-SETTLED_STEP, SETTLED_DECREASE = 0.05, 1e-2
 NEIGHBOURS = 12  # for the target's noise level (local planes)
 SHAPE_ADVICE = (
     "Check that the target is this character (same units and place: a scan may need its "
@@ -318,11 +321,11 @@ def fit_to_shape(registration: SkeletonRegistration, skeleton: Skeleton, target,
         loss = loss + np.mean(np.sum((vertices[ids] - np.asarray(targets)) ** 2, axis=-1))
     successful = bool(result == optx.RESULTS.successful)
     # No trust-region stall test (`fit_pose`'s): a solve that stopped short of a minimum is
-    # told by its Gauss–Newton step (`_unsettled`), tested on every successful solve.
+    # told by its Gauss–Newton step (`unsettled`), tested on every successful solve.
     owner = region[nearest]  # the limb (or body, -1) of each target point's nearest vertex
     ahead = _ahead(vertices, triangles, cloud, nearest_to, normals)
     spread = _spreads(linear, limbs, y.shape[-1])
-    step, decrease = _steps(linear, limbs, y.shape[-1])
+    step, decrease = limb_steps(linear, limbs, y.shape[-1])
     stats = {**stats, "angle_spread": spread, "gauss_newton_step": step,
              "predicted_decrease": decrease}
     # A target the fit does not explain is said so even when the solve stopped short (a ball
@@ -331,7 +334,7 @@ def fit_to_shape(registration: SkeletonRegistration, skeleton: Skeleton, target,
     if not message:
         message = _unseen(owner, limbs)
     if successful and not message:
-        message = _unsettled(step, decrease) or _undetermined(spread)
+        message = unsettled(step, decrease) or _undetermined(spread)
     return SkeletonFit(
         poses=poses,
         rms=jnp.sqrt(jnp.asarray(loss, dtype)),
@@ -512,35 +515,6 @@ def _spreads(linear, limbs: tuple[int, ...], per_limb: int) -> dict:
     cov = covariance(*linear, group=3)  # each target point's (or marker's) 3 components
     blocks = [[i * per_limb, i * per_limb + 1] for i in range(len(limbs))]
     return dict(zip(limbs, np.rad2deg(block_spread(cov, blocks)).tolist()))
-
-
-def _steps(linear, limbs: tuple[int, ...], per_limb: int) -> tuple[dict, float]:
-    """Each fitted limb's Gauss–Newton step at the fitted angles (degrees: the norm of its
-    parameters' step, `_fit.stationarity`) from the last stage's `(J, r)`, and the decrease of
-    that stage's loss the step predicts (a fraction of it); NaN without them (a solver that is
-    not of Gauss–Newton type)."""
-    if linear is None:
-        return {k: float("nan") for k in limbs}, float("nan")
-    step, decrease = gauss_newton_step(*linear)
-    turns = np.rad2deg(np.linalg.norm(step.reshape(len(limbs), per_limb), axis=1))
-    return dict(zip(limbs, turns.tolist())), decrease
-
-
-def _unsettled(step: dict, decrease: float) -> str:
-    """"" when the fit stopped at a stationary point of its loss (every limb's Gauss–Newton
-    step `step` (limb → degrees) within `SETTLED_STEP`, or the decrease it predicts `decrease`
-    (a fraction of the loss) within `SETTLED_DECREASE`), else which limbs would still move."""
-    moving = {k: v for k, v in step.items() if v > SETTLED_STEP}
-    if not moving or not decrease > SETTLED_DECREASE:
-        return ""
-    which = ", ".join(f"limb {k} by {v:.2g}°" for k, v in moving.items())
-    return (
-        f"the solve stopped short of a minimum: a Gauss–Newton step from the fitted pose would "
-        f"still turn {which} (at most {SETTLED_STEP}° at a minimum) and lower the loss by "
-        f"{100 * decrease:.2g} % (the posed surface explains the target, but a pose nearby "
-        "explains it better). Give it more steps (`max_steps=`) or tighter tolerances "
-        "(`rtol=`, `atol=`), or fit again from the fitted pose (`init=fit.poses`)."
-    )
 
 
 def _undetermined(spread: dict) -> str:
