@@ -550,14 +550,36 @@ def posed_limbs(registration: SkeletonRegistration, poses: dict, method: str, ch
         # (run only where the reach bound leaves points pending). Posed by the two-phase
         # eager pipeline instead (`_fleshing.eager`), a new angle that left a point pending
         # compiled that fallback on the spot: the tube bent 60° then 90°, 0.09 s then 30 s.
-        pose_limb = _pose_limb if not is_concrete(poses) else _pose_limb_eagerly
-        return {k: pose_limb(reg, target, method, check, on)
-                for k, (reg, target, on) in pairs.items()}
+        if is_concrete(poses):
+            return {k: _pose_limb_eagerly(reg, target, method, check, on)
+                    for k, (reg, target, on) in pairs.items()}
+        posers = _stacked_posers(pairs, method, check)
+        return {k: _posed_by(reg, posers[k]) for k, (reg, _, _) in pairs.items()}
     moved = {}
     for ks, batch in _stacked_groups(pairs):
         out = jax.vmap(lambda p: _pose_limb(p[0], p[1], method, check, p[2]))(batch)
         moved.update({k: jax.tree.map(lambda x, i=i: x[i], out) for i, k in enumerate(ks)})
     return moved
+
+
+def _stacked_posers(pairs: dict, method: str, check: bool) -> dict:
+    """The traced limbs' targets prepared (`limb_poser`), those of one structure and shapes as
+    one batch by `vmap` (every limb's table of a bent spine has its rest table's shapes, the
+    same on every limb of a skeleton), their points then posed each at its own size: dict limb
+    index → `Poser`. A bent limb's preparation is a few hundred small operations, each run
+    one by one by XLA's CPU backend: batched, a frame of spot's 9 limbs runs them once."""
+    args = {k: (reg.ends, reg.points[:1], target, on) for k, (reg, target, on) in pairs.items()}
+    posers = {}
+    for ks, batch in _stacked_groups(args):
+        def prepared(ends, point, target, on):
+            return _limb_poser(ends, point.dtype, target, method, check, on)
+
+        if len(ks) == 1:
+            posers[ks[0]] = prepared(*args[ks[0]])
+            continue
+        out = jax.vmap(prepared)(*batch)
+        posers.update({k: jax.tree.map(lambda x, i=i: x[i], out) for i, k in enumerate(ks)})
+    return posers
 
 
 def _stacked_groups(args: dict, smallest: int = 1) -> list:
@@ -648,9 +670,15 @@ def limb_poser(registration: Registration, target: AbstractSpine, method: str,
     bent spine too, the region's bounds on a bend's changing curvature flagged most of a thin
     leg bent 60°). `checked_on`: see `limb_check`. The check's reach certificate on
     `CERTIFICATE_SAMPLES` samples."""
-    return prepare_target(target, registration.points.dtype, method=method,
-                          check_projection=check, margin=0.0, start=registration.ends,
-                          beyond="rigid", fallback=True, checked_on=checked_on,
+    return _limb_poser(registration.ends, registration.points.dtype, target, method, check,
+                       checked_on)
+
+
+def _limb_poser(ends, dtype, target: AbstractSpine, method: str, check: bool,
+                checked_on: AbstractSpine | None) -> Poser:
+    """`limb_poser` of a region registered in `dtype` with its rest spine's `ends`."""
+    return prepare_target(target, dtype, method=method, check_projection=check, margin=0.0,
+                          start=ends, beyond="rigid", fallback=True, checked_on=checked_on,
                           certificate=CERTIFICATE_SAMPLES)
 
 
