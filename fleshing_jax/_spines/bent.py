@@ -70,6 +70,16 @@ def rotate(axis: Array, angle: Array, v: Array) -> Array:
     return cos * v + sin * jnp.cross(axis, v) + (1 - cos) * dot(axis, v)[..., None] * axis
 
 
+def _rotate_coordinates(axis: Array, angle: Array, v: list[Array]) -> list[Array]:
+    """`rotate` with `v` given as its three coordinates (arrays of `angle`'s shape), and
+    returned so: each point's sine and cosine computed once for all three (see `_table`)."""
+    cos, sin = jnp.cos(angle), jnp.sin(angle)
+    cross = (axis[1] * v[2] - axis[2] * v[1], axis[2] * v[0] - axis[0] * v[2],
+             axis[0] * v[1] - axis[1] * v[0])
+    along = (1 - cos) * (axis[0] * v[0] + axis[1] * v[1] + axis[2] * v[2])
+    return [cos * x + sin * y + along * a for x, y, a in zip(v, cross, axis)]
+
+
 class BentSpine(AbstractTabulatedSpine):
     """`base` bent by `bend` radians from arc length `joint`, ramped up smoothly until `stop`.
 
@@ -273,11 +283,16 @@ class PreparedBent(AbstractSpine):
         r, slope = jax.vmap(self._angles)(flat)
         tangent, k, i, j = jax.vmap(self._turn_frame)(r, slope, t0, k0, i0, j0)
 
-        def moved(s, tangent):  # (Q − 1) T₀ at s
-            return self._turn(self._angles(s)[0], tangent) - tangent
-
-        steps = at.half[:, None] * jnp.einsum("g,ngc->nc", jnp.asarray(GAUSS_WEIGHTS, flat.dtype),
-                                              jax.vmap(jax.vmap(moved))(at.points, at.tangents))
+        # (Q − 1) T₀ at the quadrature points, one coordinate at a time: XLA's CPU backend
+        # computed the rotations' sines and cosines again for each coordinate of a stacked
+        # vector (a fused kernel an element), a quarter of a float32 frame's preparation.
+        r = jax.vmap(jax.vmap(lambda s: self._angles(s)[0]))(at.points)  # (P·4, GAUSS)
+        tangents = [at.tangents[..., c] for c in range(3)]
+        turned = _rotate_coordinates(self.bend_axis, self.bend * r, _rotate_coordinates(
+            self.twist_axis, self.twist * r, tangents))
+        weights = jnp.asarray(GAUSS_WEIGHTS, flat.dtype)
+        steps = jnp.stack([at.half * sum(w * (q[:, g] - t[:, g]) for g, w in enumerate(weights))
+                           for q, t in zip(turned, tangents)], axis=-1)
         c = c0 + jnp.cumsum(steps, axis=0)
 
         def shaped(v):
