@@ -78,15 +78,31 @@ def _cofactors(x):
 
 def _polar(m):
     """Orthogonal polar factor of a non-singular `m` (Higham's scaled Newton iteration)."""
-    def step(_, x):
-        c, det = _cofactors(x)
-        inv_t = c / det
-        gamma = jnp.sqrt(_fro(inv_t) / _fro(x))
-        return 0.5 * (gamma * x + inv_t / gamma)
+    def cross(a, b):  # jnp.cross's arithmetic, on components
+        return [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
 
+    def fro(x):  # _fro's sum, in the same order (row-major)
+        total = x[0] * x[0]
+        for a in x[1:]:
+            total = total + a * a
+        return safe_sqrt(total)
+
+    def step(_, x):
+        rows = x[0:3], x[3:6], x[6:9]
+        c = cross(rows[1], rows[2]) + cross(rows[2], rows[0]) + cross(rows[0], rows[1])
+        det = rows[0][0] * c[0] + rows[0][1] * c[1] + rows[0][2] * c[2]
+        inv_t = [a / det for a in c]
+        gamma = jnp.sqrt(fro(inv_t) / fro(x))
+        return tuple(0.5 * (gamma * a + b / gamma) for a, b in zip(x, inv_t))
+
+    # On the nine entries as scalars: batched over cells (`vmap`), each a (cells,) vector,
+    # so that XLA's CPU backend fuses a step into a few kernels where the (cells, 3, 3)
+    # arrays' cross products, sums and broadcasts took nine (and the ten steps run 180 times
+    # in a warm 3-iteration ARAP of spot: most of its kernels; see `benchmarks/README.md`).
     # A loop, not unrolled: one step to trace and compile where ten made the rotation fit
     # most of the ARAP solve's program.
-    return jax.lax.fori_loop(0, POLAR_STEPS, step, m / _fro(m))
+    x = jax.lax.fori_loop(0, POLAR_STEPS, step, tuple((m / _fro(m)).reshape(9)))
+    return jnp.stack(x).reshape(3, 3)
 
 
 def _smallest_eigenvector(h):
@@ -115,15 +131,22 @@ def _smallest_eigenvector(h):
     return jnp.where(size > 0, v / jnp.where(size > 0, size, 1), eye[0])
 
 
-def _fit_forward(m, reflections):
+def _polar_part(m):
+    """The first part of `fit_rotation`: `(polar factor, m as fitted, usable)`, where a zero
+    `m` is not usable and is fitted as the identity."""
     # Written with finite derivatives everywhere: reverse-over-reverse through `lax.scan`
     # differentiates this primal computation instead of the rule below (the rule gives every
     # first derivative; second ones inside the solver's scan come from here, exact once the
     # Newton iteration has converged).
-    eye = jnp.eye(3, dtype=m.dtype)
     usable = jnp.sum(m * m) > 0
-    m = jnp.where(usable, m, eye)
-    r = q = _polar(m)
+    m = jnp.where(usable, m, jnp.eye(3, dtype=m.dtype))
+    return _polar(m), m, usable
+
+
+def _finish(q, m, usable, reflections):
+    """The rest of `fit_rotation` from `_polar_part`'s: the reflection fixed (if
+    `reflections`), the identity where `m` was not usable or the fit is not finite."""
+    r = q
     if reflections:
         h = q.T @ m
         v = _smallest_eigenvector(0.5 * (h + h.T))
@@ -132,7 +155,7 @@ def _fit_forward(m, reflections):
         flipped = q - 2 * jnp.outer(q @ v, v)
         r = jnp.where(_cofactors(m)[1] < 0, flipped, q)
     good = usable & jnp.all(jnp.isfinite(r))
-    return jnp.where(good, r, eye)
+    return jnp.where(good, r, jnp.eye(3, dtype=m.dtype))
 
 
 @functools.partial(jax.custom_jvp, nondiff_argnums=(1,))
@@ -145,26 +168,27 @@ def fit_rotation(m: Float[Array, "3 3"], reflections: bool = True) -> Float[Arra
     finite wherever the maximiser is unique (no SVD derivative, whose `1/(σᵢ² − σⱼ²)` terms
     are infinite at repeated singular values); the system gets a relative `10 eps` shift so it
     stays finite where the maximiser is not unique. Composes for higher derivatives.
-    `reflections=False`: the polar factor alone, for an `m` known to have `det m ≥ 0`
-    (`fit_rotations`).
+    `reflections=False`: the polar factor alone, for an `m` known to have `det m ≥ 0`.
     """
-    return _fit_forward(m, reflections)
+    return _finish(*_polar_part(m), reflections)
 
 
+@jax.custom_jvp
 def fit_rotations(m: Float[Array, "k 3 3"]) -> Float[Array, "k 3 3"]:
     """`fit_rotation` of each of `m`, the reflection's fix (an eigenvector of each matrix)
     computed only when one of them has `det m < 0` (one test per batch, `lax.cond`): the same
     rotations, bit for bit. On spot's poses no cell needs it, and its warm ARAP (3 iterations,
-    `benchmarks/medial_deform.py`) took 0.72–0.78 instead of 0.86–1.02 ms of CPU."""
+    `benchmarks/medial_deform.py`) took 0.72–0.78 instead of 0.86–1.02 ms of CPU. The polar
+    factors are computed before the test, outside its branches: one copy of their loop in
+    the program rather than one per branch (compiled once)."""
+    parts = jax.vmap(_polar_part)(m)
     reflected = jnp.any(jax.vmap(lambda a: _cofactors(a)[1])(m) < 0)
-    return jax.lax.cond(reflected, jax.vmap(fit_rotation),
-                        jax.vmap(lambda a: fit_rotation(a, False)), m)
+    return jax.lax.cond(reflected, jax.vmap(lambda *a: _finish(*a, True)),
+                        jax.vmap(lambda *a: _finish(*a, False)), *parts)
 
 
-@fit_rotation.defjvp
-def _fit_rotation_jvp(reflections, primals, tangents):
-    (m,), (dm,) = primals, tangents
-    r = fit_rotation(m, reflections)
+def _tangent(r, m, dm):
+    """The derivative of `fit_rotation` at `m` (whose rotation is `r`) along `dm`."""
     s = r.T @ m
     s = 0.5 * (s + s.T)
     eye = jnp.eye(3, dtype=m.dtype)
@@ -176,7 +200,21 @@ def _fit_rotation_jvp(reflections, primals, tangents):
     omega = (c @ rhs) / det
     hat = jnp.array([[0, -omega[2], omega[1]], [omega[2], 0, -omega[0]],
                      [-omega[1], omega[0], 0]], dtype=m.dtype)
-    return r, r @ hat
+    return r @ hat
+
+
+@fit_rotation.defjvp
+def _fit_rotation_jvp(reflections, primals, tangents):
+    (m,), (dm,) = primals, tangents
+    r = fit_rotation(m, reflections)
+    return r, _tangent(r, m, dm)
+
+
+@fit_rotations.defjvp
+def _fit_rotations_jvp(primals, tangents):
+    (m,), (dm,) = primals, tangents
+    r = fit_rotations(m)
+    return r, jax.vmap(_tangent)(r, m, dm)
 
 
 # --- the alternating minimisation ------------------------------------------------------------
