@@ -59,7 +59,10 @@ from .quaternions import matrix_from_quaternion, quaternion_from_matrix
 SOLVERS = ("global", "local")
 ITERATIONS = 20
 SMOOTHNESS = 0.1
-POLAR_STEPS = 10  # scaled Newton: quadratic once close; 10 steps reach κ(M) ≈ 1e12
+# Scaled Newton: quadratic once close. Six steps: on 2,000 random M of each condition number
+# 1e1 to 1e14, the polar factor after 6 steps is within 3.3e-16 (float64) / 2.7e-7 (float32)
+# of the one after 30, as after 10 (2.8e-16 / 2.4e-7): the last steps only round off.
+POLAR_STEPS = 6
 LINEAR_WEIGHT = 0.03  # of the linear deformation in the handles' first-guess rotations
 
 
