@@ -80,7 +80,9 @@ def cumulative_lengths(coefficients: Array, parts: int, count: Array | None = No
 def _partial(coefficients: Array, a: Array, u: Array) -> Array:
     x, w = np.polynomial.legendre.leggauss(GAUSS_NODES)
     nodes = a + (u - a) * jnp.asarray((x + 1) / 2, u.dtype)
-    speed = jnp.linalg.norm(piece_derivative(coefficients, nodes, 1), axis=-1)
+    # (`norm`: a sum over a minor axis of 3 is slow batched on XLA's CPU backend, and this
+    # runs in every Newton step of every point posed on an exact spine, in double precision.)
+    speed = norm(piece_derivative(coefficients, nodes, 1))
     return (u - a) * dot(jnp.asarray(w / 2, u.dtype), speed)
 
 
