@@ -31,13 +31,17 @@ NEWTON_STEPS = 5
 def monomials(u: Array, degree: int, order: int = 0) -> Array:
     """The `order`-th derivative of `(1, u, …, u^degree)`, shape `u.shape + (degree + 1,)`."""
     u = jnp.asarray(u)
+    columns = [jnp.zeros_like(u)] * min(order, degree + 1) + _derived_powers(u, degree, order)
+    return jnp.stack(columns, axis=-1)
+
+
+def _derived_powers(u: Array, degree: int, order: int) -> list[Array]:
+    """The `order`-th derivatives of `u^order, …, u^degree` (the lower powers' vanish)."""
     powers = [jnp.ones_like(u)]
     for _ in range(degree - order):
         powers.append(powers[-1] * u)
     factors = [float(np.prod(np.arange(k - order + 1, k + 1))) for k in range(order, degree + 1)]
-    columns = [jnp.zeros_like(u)] * min(order, degree + 1)
-    columns += [f * p for f, p in zip(factors, powers)]
-    return jnp.stack(columns, axis=-1)
+    return [f * p for f, p in zip(factors, powers)]
 
 
 def fit_matrix(degree: int) -> tuple[np.ndarray, np.ndarray]:
@@ -51,7 +55,13 @@ def fit_matrix(degree: int) -> tuple[np.ndarray, np.ndarray]:
 def piece_derivative(coefficients: Array, u: Array, order: int) -> Array:
     """`d^order P/du^order` of one piece (coefficients (d+1, 3)) at `u` (any shape), (..., 3)."""
     degree = coefficients.shape[-2] - 1
-    return monomials(u, degree, order) @ coefficients
+    u = jnp.asarray(u)
+    # An explicit sum over the powers, not `monomials(…) @ coefficients`: batched, that was a
+    # stack and a small matrix product a point, the two costliest kernels of a float64 pose
+    # (every Newton step of every point's arc-length inverse evaluates it at 8 nodes).
+    terms = [p[..., None] * coefficients[..., k, :]
+             for k, p in enumerate(_derived_powers(u, degree, order), start=order)]
+    return sum(terms[1:], terms[0]) if terms else jnp.zeros(u.shape + (3,), u.dtype)
 
 
 def _gauss(parts: int, dtype):
