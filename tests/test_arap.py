@@ -108,6 +108,16 @@ def test_fit_rotation_derivatives():
     fit = jax.jit(fit_rotation)
     check_grads(fit, (jnp.asarray(rng.normal(size=(3, 3))),), order=2, modes=("fwd",),
                 atol=1e-5, rtol=1e-5)
+    # The batched fit's own rule, to second order, in both of its branches (a reflected
+    # matrix among them, and none).
+    batched = jax.jit(fit_rotations)
+    m = rng.normal(size=(3, 3, 3))
+    m[1] *= -np.sign(np.linalg.det(m[1]))  # det < 0
+    for batch in (m, m * np.sign(np.linalg.det(m))[:, None, None]):
+        check_grads(batched, (jnp.asarray(batch),), order=2, modes=("fwd",), atol=1e-5,
+                    rtol=1e-5)
+        check_grads(batched, (jnp.asarray(batch),), order=1, modes=("rev",), atol=1e-5,
+                    rtol=1e-5)
     # Repeated singular values (the identity; a rank-one matrix plus a multiple of it), where
     # the SVD's derivative is not finite.
     for m in (jnp.eye(3), jnp.outer(jnp.array([1.0, 0, 0]), jnp.array([1.0, 0, 0])) + 0.1 *
