@@ -280,7 +280,8 @@ def test_a_small_limb_fitted_wrongly_is_not_explained():
 
 def test_a_solve_traces_its_residuals_once():
     # The solver evaluates and linearises the residuals where it starts and in its step: one
-    # trace of them serves both (`_residuals`), so that a fit's posing is traced once.
+    # trace of the posing serves both, so that a fit's posing is traced once. Its Jacobian
+    # from one forward pass for both parameters, each moving its own row (`dependence`).
     import equinox as eqx
     import jax.numpy as jnp
     import optimistix as optx
@@ -291,15 +292,22 @@ def test_a_solve_traces_its_residuals_once():
 
     class Toy(eqx.Module):
         target: jnp.ndarray
+        seeds: jnp.ndarray = eqx.field(default_factory=lambda: jnp.ones((1, 2), bool))
+        moves: jnp.ndarray = eqx.field(default_factory=lambda: jnp.eye(2, dtype=bool))
 
-        def __call__(self, y, args=None):
+        def vertices(self, y):
             traced.append(None)
-            return jnp.sin(y) - self.target
+            return jnp.stack([jnp.sin(y), y**3], axis=-1)
+
+        def residuals(self, vertices):
+            return vertices[:, 0] - self.target
 
     solver = optx.LevenbergMarquardt(1e-10, 1e-10)
-    y, _, result, _, _ = _solve(Toy(jnp.asarray([0.3, -0.2])), solver, jnp.zeros(2), 16, False)
+    y, _, result, _, (jacobian, _) = _solve(Toy(jnp.asarray([0.3, -0.2])), solver,
+                                            jnp.zeros(2), 16, False, True)
     assert result == optx.RESULTS.successful
     np.testing.assert_allclose(np.sin(np.asarray(y)), [0.3, -0.2], atol=1e-9)
+    np.testing.assert_allclose(jacobian, np.diag(np.cos(np.asarray(y))), atol=1e-12)
     assert len(traced) == 1
 
 

@@ -9,6 +9,11 @@ forward mode (one `vmap` of `jvp` over the parameters' basis: the primal compute
 it) the linear function is a matrix product, and the loop carries the matrix. A minimiser
 (BFGS: the fits without correspondences) needs only the gradient, one reverse pass, and keeps
 the residuals as they are (`for_solver`).
+
+Where parameters move disjoint parts of an intermediate (a skeleton's limbs, each moving its
+own vertices and its descendants'), several share one forward pass through it (`compressed`:
+the Jacobian's columns coloured, as sparse finite differences do), and the full columns are
+rebuilt from which rows each parameter moves before the cheap rest of the residuals.
 """
 
 from __future__ import annotations
@@ -19,7 +24,7 @@ import jax
 import jax.numpy as jnp
 import optimistix as optx
 from jax.flatten_util import ravel_pytree
-from jaxtyping import PyTree
+from jaxtyping import Array, PyTree
 
 
 def materialised(residuals: Callable[[PyTree], PyTree]) -> Callable:
@@ -46,6 +51,40 @@ def materialised(residuals: Callable[[PyTree], PyTree]) -> Callable:
         value, columns = jax.vmap(pushed, out_axes=(None, -1))(basis)
         step = ravel_pytree(dy)[0]
         return value, jax.tree.map(lambda column: column @ step, columns)
+
+    return function
+
+
+def compressed(inner: Callable[[PyTree], Array], outer: Callable[[Array], PyTree],
+               seeds: Array, moves: Array) -> Callable:
+    """`outer(inner(y))` as `materialised` makes it (its `jvp` `J ẏ`, the Jacobian by forward
+    mode), with one forward pass through `inner` per row of `seeds` rather than per parameter.
+
+    `inner`: `y` → an (m, …) array (a posed mesh's vertices), the costly part; `outer`: that
+    array → the residuals (a pytree; cheap beside `inner`). `seeds` (c, p) of 0 and 1: the
+    parameters (`y` flattened, p) that share each pass, each parameter in exactly one;
+    `moves` (m, p) bool: which parameters each row of `inner`'s output depends on. Parameters
+    that share a seed must never move the same row: a row's tangent from a seed is then its
+    one parameter's column, taken where `moves` says (exact: the other parameters' tangents
+    are zeros there). The p full columns are then pushed through `outer`."""
+
+    @jax.custom_jvp
+    def function(y, args=None):
+        return outer(inner(y))
+
+    @function.defjvp
+    def _jvp(primals, tangents):
+        y, _ = primals
+        dy, _ = tangents
+        flat, unravel = ravel_pytree(y)
+        x, pushed = jax.vmap(lambda seed: jax.jvp(inner, (y,), (unravel(seed),)),
+                             out_axes=(None, 0))(seeds.astype(flat.dtype))
+        shape = (moves.shape[1], moves.shape[0]) + (1,) * (pushed.ndim - 2)
+        columns = jnp.where(moves.T.reshape(shape), pushed[jnp.argmax(seeds, axis=0)], 0)
+        value, out = jax.vmap(lambda column: jax.jvp(outer, (x,), (column,)),
+                              out_axes=(None, -1))(columns)
+        step = ravel_pytree(dy)[0]
+        return value, jax.tree.map(lambda column: column @ step, out)
 
     return function
 

@@ -73,6 +73,7 @@ from .._fit.uncertainty import block_spread, covariance
 from .fit_pose import (
     SkeletonFit,
     _solve,
+    dependence,
     limb_steps,
     parameters_of,
     pose_of,
@@ -193,6 +194,8 @@ class ShapeProblem(eqx.Module):
     sigma: Array  # (): the Cauchy scale of the stage (`STAGES`)
     markers: Array  # (k,) rows of the marker vertices (k = 0: none)
     marker_targets: Array  # (k, 3)
+    seeds: Array  # (c, L·p), moves (n, L·p): the parameters' dependence (`fit_pose.dependence`)
+    moves: Array
     limbs: tuple[int, ...] = eqx.field(static=True)
     method: str = eqx.field(static=True)
 
@@ -206,11 +209,15 @@ class ShapeProblem(eqx.Module):
         full = self.parameters(y)
         return {**self.held, **{k: pose_of(full[i]) for i, k in enumerate(self.limbs)}}
 
-    def __call__(self, y, args=None):
+    def vertices(self, y: Array) -> Array:
+        """The restricted registration's vertices (n, 3) posed at `y`."""
         # Without the global projection check (as the markers' fit): the result's validity is
         # checked on the whole mesh afterwards.
-        vertices = posed(self.registration, self.skeleton, self.poses(y), self.method, False,
-                         stacked=True).vertices
+        return posed(self.registration, self.skeleton, self.poses(y), self.method, False,
+                     stacked=True).vertices
+
+    def residuals(self, vertices: Array) -> tuple:
+        """The residuals of the posed `vertices` (n, 3): the target's, then the markers'."""
         surface = jnp.concatenate([vertices[self.moving], self.still])
         # The target to the posed surface itself (its triangles), not to its vertices: zero at
         # the true pose, however far apart the vertices (`_fit.surface`).
@@ -224,6 +231,9 @@ class ShapeProblem(eqx.Module):
             diff = vertices[self.markers] - self.marker_targets
             out = (*out, diff.reshape(-1) / (np.sqrt(self.markers.shape[0]) * self.sigma))
         return out
+
+    def __call__(self, y, args=None):
+        return self.residuals(self.vertices(y))
 
 
 def _still(triangles: np.ndarray, region: np.ndarray, moving_limbs: list[int], rng):
@@ -286,7 +296,9 @@ def fit_to_shape(registration: SkeletonRegistration, skeleton: Skeleton, target,
     problem = ShapeProblem(
         small, skeleton, held, starts[:, 2], rows[: len(moving)], jnp.asarray(rest[still]),
         jnp.asarray(faces), jnp.asarray(ring), *_padded(cloud[solved]),
-        jnp.zeros((), dtype), rows[len(moving):], marker_targets, limbs, method)
+        jnp.zeros((), dtype), rows[len(moving):], marker_targets,
+        *dependence(skeleton, limbs, 3 if fit_twist else 2, np.concatenate([moving, markers])),
+        limbs, method)
     y = starts if fit_twist else starts[:, :2]
     steps = 0
     kept = np.concatenate([moving, still])
