@@ -65,3 +65,27 @@ def test_a_minimiser_keeps_the_residuals_as_they_are():
     function = for_solver(_residuals, optx.LevenbergMarquardt(1e-8, 1e-8))
     assert function is not _residuals
     np.testing.assert_array_equal(function(Y), _residuals(Y))
+
+
+def test_compressed_passes_give_the_function_s_derivatives():
+    # Rows moved by disjoint parameters (as a skeleton's limbs of one depth move their own
+    # vertices): parameters 0 and 1 share a pass, so do 2 and 3; row 2 depends on none.
+    from jax.test_util import check_grads
+
+    from fleshing_jax._fit.jacobian import compressed
+
+    def inner(y):  # (4,) -> (3, 2)
+        return jnp.stack([jnp.stack([jnp.sin(y[0]) * y[2], y[2] ** 2]),
+                          jnp.stack([jnp.exp(y[1]), y[1] * y[3]]), jnp.ones(2)])
+
+    def outer(x):
+        return (jnp.cos(x[:, 0]) + x[:, 1] ** 3, jnp.sum(x**2))
+
+    seeds = jnp.asarray([[1, 1, 0, 0], [0, 0, 1, 1]])
+    moves = jnp.asarray([[1, 0, 1, 0], [0, 1, 0, 1], [0, 0, 0, 0]], bool)
+    function = compressed(inner, outer, seeds, moves)
+    y = jnp.asarray([0.3, -0.7, 1.2, 0.4])
+    for got, want in zip(jax.jacfwd(function)(y), jax.jacfwd(lambda y: outer(inner(y)))(y)):
+        np.testing.assert_allclose(got, want, rtol=1e-14)
+    check_grads(function, (y,), order=2, modes=("fwd",))
+    check_grads(function, (y,), order=1, modes=("rev",))
