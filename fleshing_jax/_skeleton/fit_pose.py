@@ -325,8 +325,9 @@ def fit_skeleton_pose(
     tolerances too loose to go on, although a Gauss–Newton step from there would still move a
     limb) is not converged either.
 
-    With `target=`, the objective is a robust (Cauchy) symmetric Chamfer distance between
-    the posed vertices and the target, point to plane along the target's normals, solved from
+    With `target=`, the objective is a robust (Cauchy) distance from each target point to the
+    posed triangles, point to plane along the nearest triangle's normal (the posed-to-target
+    direction is checked in the verdict, not solved: `_skeleton/fit_shape.py`), solved from
     `init` (the rest pose) at a decreasing robust scale (`_skeleton/fit_shape.py`): a partial
     scan (one side seen) and stray points are tolerated. `converged` is then also False when
     more than 2 % of the target lies farther from the posed surface than its own noise level
