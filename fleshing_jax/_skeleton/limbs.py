@@ -5,7 +5,8 @@ its child limbs):
 
 1. The shortest-path tree of the medial graph from the level's root (for the body its hub,
    where the limbs meet: the thickest sphere unless that is an end such as an insect's head,
-   `hub`; where the limb leaves its parent for a limb), and its branches by *reach*
+   `hub`, or a thick part beyond a thin neck finds more limbs, `_thick_parts`; where the
+   limb leaves its parent for a limb), and its branches by *reach*
    (geodesic distance plus radius: how far the surface lies along the tree), each branch
    running from a tip (the sphere reaching farthest in its subtree) towards the root.
 2. Along the path from the root to a tip, the *core*: its spheres up to the end of their
@@ -85,15 +86,40 @@ def find_limbs(centers: np.ndarray, radii: np.ndarray, edges: np.ndarray) -> lis
     _, labels = csgraph.connected_components(graph, directed=False)
     largest = np.flatnonzero(labels == np.argmax(np.bincount(labels)))
     thickest = int(largest[np.argmax(radii[largest])])
-    limbs: list[LimbPath] = []
-    _split(graph, centers, radii, largest, thickest, -1, limbs, depth=1)
-    root = hub(graph, centers, radii, largest, thickest, limbs)
-    if root != thickest:
-        limbs = []
-        _split(graph, centers, radii, largest, root, -1, limbs, depth=1)
+    first: list[LimbPath] = []
+    _split(graph, centers, radii, largest, thickest, -1, first, depth=1)
+    root = hub(graph, centers, radii, largest, thickest, first)
+    limbs = first
+    for other in [root] * (root != thickest) + _thick_parts(radii, thickest, first, root):
+        found: list[LimbPath] = []
+        _split(graph, centers, radii, largest, other, -1, found, depth=1)
+        if other == root or _count(found) > _count(limbs):  # (the hub's replace the first)
+            limbs = found
     if not limbs:
         limbs = tube(graph, centers, radii, largest)
     return limbs
+
+
+def _thick_parts(radii, thickest: int, limbs: list[LimbPath], root: int) -> list[int]:
+    """The body's other candidate roots: the thickest sphere of each limb found from the
+    thickest sphere (`limbs`) that is at least `CORE` times as thick as it (not `root`, the
+    hub): a thick part beyond a thin neck. Cheburashka's torso lies below a thicker head:
+    from the head, the tips are its ears and one limb holding the torso with every arm and
+    leg, and the hub stays in the head. The root kept is the one that the most limbs leave,
+    then the one that finds the most limbs (`_count`; the hub on a tie)."""
+    parts = []
+    for limb in limbs:
+        top = int(limb.spheres[np.argmax(radii[limb.spheres])])
+        if (limb.parent == -1 and radii[top] >= CORE * radii[thickest] and top != root
+                and top not in parts):
+            parts.append(top)
+    return parts
+
+
+def _count(limbs: list[LimbPath]) -> tuple[int, int]:
+    """`(limbs leaving the body, all limbs)`: a body's candidate root is better the more limbs
+    leave it (the thorax's six legs, head and abdomen, against the abdomen's one thorax)."""
+    return sum(limb.parent == -1 for limb in limbs), len(limbs)
 
 
 def hub(graph, centers, radii, nodes, thickest: int, limbs: list[LimbPath]) -> int:
@@ -277,10 +303,19 @@ def _same_limb(centers, radii, path, limbs, graph) -> int | None:
     flat ear: its rim's tips each a path, side by side), whose spheres are joined by the
     medial mesh's edges to most of the path's own spheres (`SHEET`), at least two of them.
     Legs side by side, touching at the top, are two limbs; so are an insect's antennae from
-    a shared base (a quarter of their own spheres joined)."""
+    a shared base (a quarter of their own spheres joined). A path that widens past a neck
+    (a sphere before its thickest less than `CORE` times as thick) into a limb at most twice
+    as thick, its thickest sphere inside that limb, runs through the limb's thick part: a
+    head reached by a second strip of the neck and its other near-equal sphere, running on
+    into an ear (cheburashka's, from its torso), is the head's route, and the head's level
+    finds the ear. (Horns side by side are thickest at their bases: no neck before.)"""
+    widest = int(np.argmax(radii[path]))
+    necked = np.any(radii[path[:widest]] < CORE * radii[path[widest]])
     for k, spheres in enumerate(limbs):
         held = sphere_gaps(centers[path], centers[spheres], radii[spheres]) < 0
         if held.mean() >= 0.5 or held[-1]:
+            return k
+        if necked and held[widest] and radii[spheres].max() <= 2 * radii[path[widest]]:
             return k
         own = np.setdiff1d(path, spheres)
         if len(own) >= 2:
