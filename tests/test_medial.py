@@ -296,6 +296,28 @@ def test_pairs_evaluated_in_blocks_match_one_pass(monkeypatch):
                                - np.einsum("ij,ij->i", weights, radii[spheres]), best, atol=1e-12)
 
 
+def test_compiled_pair_distances_are_the_closed_forms_bit_for_bit():
+    """`UnionPrimitives.distance` (one compiled loop, `pairs`) gives the NumPy closed forms'
+    values of `closest` bit for bit, the primitives in any order, with a lone sphere, a cone
+    of nested spheres, a slab without tangent planes and points on a cone's axis."""
+    rng = np.random.default_rng(11)
+    centres, radii = rng.normal(size=(8, 3)), rng.uniform(0.2, 0.6, 8)
+    centres[5], radii[5] = centres[4] + 0.05, radii[4] / 2  # nested in sphere 4
+    centres[6], radii[6] = centres[2] + [0.05, 0, 0], radii[2] + 0.3  # no tangent planes
+    edges = np.array([[0, 1], [0, 2], [1, 2], [4, 5], [2, 6], [1, 6]])
+    union = UnionPrimitives(centres, radii, edges, np.array([[0, 1, 2], [1, 2, 6]]))
+    assert 0 in union.kind  # sphere 3 and sphere 7 are in no edge
+    points = np.concatenate([1.5 * rng.normal(size=(60, 3)), (centres[:1] + centres[1:2]) / 2,
+                             centres])
+    pts = np.tile(np.arange(len(points)), len(union.kind))
+    prim = np.repeat(np.arange(len(union.kind)), len(points))
+    expected = union.closest(points, pts, prim)[0]
+    assert np.isfinite(expected).sum() > len(points) and np.isinf(expected).any()
+    order = rng.permutation(len(pts))
+    got = union.distance(points, pts[order], prim[order])
+    np.testing.assert_array_equal(got.view(np.int64), expected[order].view(np.int64))
+
+
 def test_candidate_search_and_pruning_keep_every_closest_pair(monkeypatch):
     """The fit's candidates (`candidates`): `ball_pairs` in blocks finds exactly the pairs
     of a k-d tree's ball queries, primitives ascending; after the spheres move, the pairs

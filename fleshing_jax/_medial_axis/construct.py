@@ -40,11 +40,11 @@ def medial_mesh(mesh, spheres: int = 200, *, seed: int = 0, samples: int = 20_00
        Last, every centre is put inside the surface (told by rays: `surface.ray_inside`)
        and no sphere overhangs it by more than the farthest sample lies outside the union.
 
-    Deterministic for a given `seed` (NumPy and SciPy only; no threads involved). Computed
-    on the mesh moved near the origin and scaled by a power of two to a diagonal near 1
-    (`unit.UnitFrame`, an exact map): a mesh scaled by a power of two or moved by a
-    multiple of it gives the same spheres, bit for bit; one scaled by 10 gives spheres as
-    close to the surface, but the collapses' order among near ties may differ.
+    Deterministic for a given `seed` (NumPy, SciPy and a loop compiled by numba, `pairs`;
+    no threads). Computed on the mesh moved near the origin and scaled by a power of two to
+    a diagonal near 1 (`unit.UnitFrame`, an exact map): a mesh scaled by a power of two or
+    moved by a multiple of it gives the same spheres, bit for bit; one scaled by 10 gives
+    spheres as close to the surface, but the collapses' order among near ties may differ.
 
     **Arguments:**
 

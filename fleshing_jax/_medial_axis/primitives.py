@@ -270,9 +270,11 @@ def bounding_spheres(centers, radii, edges, faces):
 class UnionPrimitives:
     """The primitives of a medial mesh, for evaluating (point, primitive) pairs: the bounding
     spheres of `bounding_spheres` (`kind`, `index`, `centre`, `radius`, one per primitive)
-    and the per-cone and per-slab quantities, computed once."""
+    and the per-cone and per-slab quantities, computed once, in float64 (as `distance`'s
+    compiled loop)."""
 
     def __init__(self, centers, radii, edges, faces):
+        centers, radii = np.asarray(centers, np.float64), np.asarray(radii, np.float64)
         self.centers, self.radii = centers, radii
         self.edges, self.faces = edges, faces
         self.kind, self.index, self.centre, self.radius = bounding_spheres(centers, radii,
@@ -301,18 +303,20 @@ class UnionPrimitives:
         return in_blocks(self._closest_block, points, pts, prim)
 
     def distance(self, points, pts, prim):
-        """The signed distances `(M,)` alone of `closest` (the same values; without the
-        attaining spheres and weights, which cost as much again to fill)."""
-        return in_blocks(self._distance_block, points, pts, prim)
+        """The signed distances `(M,)` alone of `closest` (the same values, bit for bit;
+        without the attaining spheres and weights), in one compiled loop
+        (`pairs.pair_distances`); the primitives in any order."""
+        # (Imported here: numba's import, 0.2 s, only where distances are measured.)
+        from .pairs import pair_distances
 
-    def _distance_block(self, p, prim):
-        value = np.empty(len(p))
-        lone, cone, slab = self._slices(prim)
-        j = self.index[prim[lone]]
-        value[lone] = norm(p[lone] - self.centers[j]) - self.radii[j]
-        value[cone] = self.cones.distance(p[cone], self.index[prim[cone]])
-        value[slab] = self.slabs.distance(p[slab], self.index[prim[slab]])
-        return value
+        def table(x, dtype=np.float64):
+            return np.ascontiguousarray(x, dtype)
+
+        out = np.empty(len(pts))
+        pair_distances(table(points), table(pts, np.int64), table(prim, np.int64), self.kind,
+                       self.index, table(self.centers), table(self.radii),
+                       self.cones.columns, self.slabs.test, self.slabs.table, out)
+        return out
 
     def _slices(self, prim):
         """The slices of the spheres, cones and slabs among ascending primitives `prim`."""
