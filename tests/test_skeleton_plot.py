@@ -107,6 +107,22 @@ def test_the_up_axis_is_guessed_from_the_legs(spot, animal):
         assert ax.get_zlim()[1] == pytest.approx(high[axis], abs=0.02)
 
 
+def test_the_up_axis_is_the_one_the_feet_stand_on():
+    """A toy built as cheburashka is (y up): a head up, two arms down and out, two short feet
+    forwards (+z) on the floor. The limbs' directions, summed, point along the feet (the old
+    guess, `-z`); the two limb ends on the bounding box's bottom face say `+y`."""
+    def line(start, end):
+        start, end = np.asarray(start, float), np.asarray(end, float)
+        return fj.Limb(fj.Line(np.linalg.norm(end - start), origin=start, tangent=end - start),
+                       0.01)
+    limbs = (line([0.5, 0.6, 0.5], [0.5, 1.0, 0.5]), line([0.5, 0.5, 0.5], [0.1, 0.3, 0.5]),
+             line([0.5, 0.5, 0.5], [0.9, 0.3, 0.5]), line([0.4, 0.05, 0.5], [0.4, 0.02, 0.9]),
+             line([0.6, 0.05, 0.5], [0.6, 0.02, 0.9]))
+    box = np.array([[x, y, z] for x in (0, 1) for y in (0, 1) for z in (0, 1)], float)
+    skeleton = fj.Skeleton(limbs, np.arange(8) % 6 - 1, box)
+    assert guess_up(box, skeleton) == "+y"
+
+
 def test_up_rotations_are_proper_and_turn_up_to_vertical():
     for up in ("x", "y", "z", "-x", "+y", "-z", [0.3, -1.0, 2.0], (0, -2, 0), [0, 0, -1]):
         turn = up_rotation(up)

@@ -20,6 +20,7 @@ from .regions import spine_samples
 from .skeleton import Skeleton
 
 BODY = (0.62, 0.62, 0.62)  # the body's grey
+GROUND = 0.05  # a limb end this close to a face of the bounding box (of its extent) stands on it
 # The limbs' colours: matplotlib's qualitative tab10, its grey (index 7) left out so that no
 # limb looks like the body; past 9 limbs tab20 (its two greys left out), past 18 hues evenly
 # spaced.
@@ -63,13 +64,27 @@ def limb_points(skeleton: Skeleton) -> list[tuple[np.ndarray, np.ndarray]]:
 
 
 def guess_up(mesh, skeleton: Skeleton, points=None) -> str:
-    """The model's up axis, guessed: a character stands on its legs, so the body's limbs
-    (parent −1) point down on the whole. `up` is the signed coordinate axis (`"+y"`, `"-z"`, …)
-    nearest to minus the sum of their unit directions, from joint to tip, when that sum is at
-    least one limb long; else (no limbs, or limbs that cancel out) `default_up(mesh)` of
-    `plot_medial`: `"y"` for a mesh read from an OBJ file, else `"z"`. `points`: the
-    skeleton's `limb_points`, when computed already."""
+    """The model's up axis, guessed: a character stands on its feet. `up` is the signed
+    coordinate axis pointing away from the face of the mesh's bounding box that the most
+    limb ends (the tips of limbs without children) lie on, within `GROUND` of its extent,
+    when at least two do and no other face holds as many (cheburashka's two feet below its
+    head, arms and ears: its limbs' directions, summed, pointed along its forward feet).
+    Else it is the one nearest to minus the sum of the body's limbs' (parent −1) unit
+    directions, from joint to tip, when that sum is at least one limb long; else (no limbs,
+    or limbs that cancel out) `default_up(mesh)` of `plot_medial`: `"y"` for a mesh read
+    from an OBJ file, else `"z"`. `points`: the skeleton's `limb_points`, when computed
+    already."""
     points = limb_points(skeleton) if points is None else points
+    ends = np.array([spine[-1] for k, (spine, _) in enumerate(points)
+                     if not skeleton.children(k)]).reshape(-1, 3)
+    vertices = np.asarray(skeleton.vertices, np.float64)
+    low, high = vertices.min(axis=0), vertices.max(axis=0)
+    near = GROUND * (high - low)
+    # Per face (rows: the low faces, then the high ones): the limb ends lying on it.
+    counts = np.stack([np.sum(ends - low < near, axis=0), np.sum(high - ends < near, axis=0)])
+    side, axis = np.unravel_index(np.argmax(counts), counts.shape)
+    if counts[side, axis] >= 2 and np.sum(counts == counts[side, axis]) == 1:
+        return ("+" if side == 0 else "-") + "xyz"[axis]
     total = np.zeros(3)
     for limb, (spine, joint) in zip(skeleton.limbs, points):
         if limb.parent == -1:
@@ -187,11 +202,12 @@ def plot_skeleton(mesh, skeleton: Skeleton, *, ax=None, up=None, elev: float = 1
       in the order they were added (`ax.computed_zorder = False`).
     - `up`: the model's vertical axis: `"x"`, `"y"`, `"z"`, optionally signed (`"-y"`: the
       model is upside down), or a `(3,)` vector. Default (`None`): guessed from the skeleton,
-      as a character stands on its legs: the signed axis nearest to minus the sum of the
-      body's limbs' unit directions (each from joint to tip), when that sum is at least one
-      limb long (spot, `fj.data.spot()`: `"+y"`; the procedural quadruped and the table:
-      `"+z"`); else `"y"` for a mesh read from an OBJ file and `"z"` for any other, as
-      `fj.plot_medial` guesses. (A rule on the bounding box fails here: spot's extents are
+      as a character stands on its feet (`guess_up`): away from the bounding box's face
+      that the most limb ends lie on, at least two (spot's hooves, cheburashka's feet:
+      `"+y"`; the procedural quadruped: `"+z"`); else the signed axis nearest to minus the
+      sum of the body's limbs' unit directions (each from joint to tip), when that sum is
+      at least one limb long; else `"y"` for a mesh read from an OBJ file and `"z"` for any
+      other, as `fj.plot_medial` guesses. (The box's extents alone say nothing: spot's are
       about (0.94, 1.69, 1.72), its up axis y neither the smallest nor the largest.)
     - `elev`, `azim`: the view in degrees (matplotlib's). `azim` default: the side view,
       turned 30° towards the front, across the longer horizontal extent.
