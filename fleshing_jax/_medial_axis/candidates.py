@@ -30,6 +30,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
+from .pairs import attaining, lower_and_keep, pruned
 from .primitives import UnionPrimitives
 from .rows import norm
 
@@ -165,11 +166,10 @@ def search(points, union: UnionPrimitives, params, margin: float,
     blocks = ball_blocks(points, union.centre, union.radius, upper + 2 * margin,
                          union.in_boxes)
     for pts, prim, value in _measured(blocks, points, union):
-        np.minimum.at(best, pts, value)
         # Only the pairs within the band of the best so far (a superset of the final band):
-        # on a sphere, all pairs at once took 1.5 GB.
-        # (Positions and `take`, not a boolean mask per array: 5× faster, the same pairs.)
-        near = np.flatnonzero(value <= best[pts] + 2 * margin)
+        # on a sphere, all pairs at once took 1.5 GB. (One compiled loop: `best` lowered by
+        # the block's pairs, then theirs kept.)
+        near = lower_and_keep(best, pts, value, 2 * margin)
         pts, prim, value = pts.take(near), prim.take(near), value.take(near)
         found_pts.append(pts), found_prim.append(prim), found_val.append(value)
         held += len(pts)
@@ -257,13 +257,12 @@ def prune(candidates: Candidates, union: UnionPrimitives, params, n_points: int,
     moved = norm(params[:, :3] - candidates.anchor[:, :3]) + np.abs(
         params[:, 3] - candidates.anchor[:, 3])
     pts, prim, value = candidates.pts, candidates.prim, candidates.value
-    change = _primitive_moves(union, moved)[prim]
+    change = _primitive_moves(union, moved)
     upper = np.full(n_points, np.inf) if upper is None else upper.copy()
     # The spheres and cones: the pairs before the first slab's (the primitives ascend, kinds
-    # in order), a slice rather than a selection (the same pairs, no copies).
-    solid = np.searchsorted(prim, np.searchsorted(union.kind, 2))
-    np.minimum.at(upper, pts[:solid], value[:solid] + change[:solid])
-    keep = np.flatnonzero(value - change <= upper[pts] + tolerance)
+    # in order). One compiled loop (`pairs.pruned`).
+    solid = int(np.searchsorted(prim, np.searchsorted(union.kind, 2)))
+    keep = pruned(pts, prim, value, change, solid, upper, tolerance)
     return pts.take(keep), prim.take(keep)
 
 
@@ -271,15 +270,10 @@ def closest(points, pts, prim, union: UnionPrimitives):
     """Each sample's distance to the union `(N,)`, and its closest primitive's spheres and
     weights `(N, 3)`, from candidate pairs (every sample has one)."""
     value = union.distance(points, pts, prim)
-    best = np.full(len(points), np.inf)
-    np.minimum.at(best, pts, value)
-    # One attaining pair per sample: of several, the last in the pairs' order (NumPy's
-    # assignment with repeated indices keeps the last write), i.e. the one of the largest
-    # primitive (a sample meets a primitive in at most one pair, or in equal duplicates),
-    # whatever the order of the samples within a primitive.
-    hit = np.flatnonzero(value == best[pts])
-    pick = np.empty(len(points), dtype=np.int64)
-    pick[pts[hit]] = hit
+    # One attaining pair per sample: of several, the last in the pairs' order, i.e. the one
+    # of the largest primitive (a sample meets a primitive in at most one pair, or in equal
+    # duplicates), whatever the order of the samples within a primitive.
+    best, pick = attaining(pts, value, len(points))
     # Spheres and weights of the attaining pairs only (evaluated again: cheaper than filling
     # them for every pair). `pick` follows the pairs' order, so its primitives ascend.
     pick.sort()

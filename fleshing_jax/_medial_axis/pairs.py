@@ -94,3 +94,50 @@ def pair_distances(points, pts, prim, kind, index, centers, radii, cone, test, t
             out[k] = _cone(px, py, pz, cone, i)
         else:
             out[k] = _slab(px, py, pz, test, table, i)
+
+
+@numba.njit(cache=True)
+def lower_and_keep(best, pts, value, band):
+    """`candidates.search`'s step per block: `best[pts] = min(best[pts], value)` in the pairs'
+    order (as `np.minimum.at`), then the positions `(K,)` of the pairs with `value <=
+    best[pts] + band`, ascending."""
+    for k in range(len(pts)):
+        best[pts[k]] = _least(best[pts[k]], value[k])
+    keep = np.empty(len(pts), np.int64)
+    count = 0
+    for k in range(len(pts)):
+        if value[k] <= best[pts[k]] + band:
+            keep[count] = k
+            count += 1
+    return keep[:count]
+
+
+@numba.njit(cache=True)
+def pruned(pts, prim, value, change, solid: int, upper, tolerance: float):
+    """`candidates.prune`'s selection: `upper[pts] = min(upper[pts], value + change[prim])`
+    over the first `solid` pairs (spheres and cones) in order, then the positions `(K,)` of
+    the pairs with `value − change[prim] <= upper[pts] + tolerance`, ascending."""
+    for k in range(solid):
+        upper[pts[k]] = _least(upper[pts[k]], value[k] + change[prim[k]])
+    keep = np.empty(len(pts), np.int64)
+    count = 0
+    for k in range(len(pts)):
+        if value[k] - change[prim[k]] <= upper[pts[k]] + tolerance:
+            keep[count] = k
+            count += 1
+    return keep[:count]
+
+
+@numba.njit(cache=True)
+def attaining(pts, value, points: int):
+    """`candidates.closest`'s choice: each sample's least `value` `(points,)` (as
+    `np.minimum.at`) and the position `(points,)` of its last pair attaining it (as NumPy's
+    assignment with repeated indices: the last write stays)."""
+    best = np.full(points, np.inf)
+    for k in range(len(pts)):
+        best[pts[k]] = _least(best[pts[k]], value[k])
+    pick = np.zeros(points, np.int64)
+    for k in range(len(pts)):
+        if value[k] == best[pts[k]]:
+            pick[pts[k]] = k
+    return best, pick
