@@ -159,8 +159,10 @@ def test_cap_holes_closes_and_keeps_order():
     closed = fj.extrusion(np.c_[np.cos(np.arange(12) / 2), np.sin(np.arange(12) / 2)], 2.0, 4)
     m = len(closed.faces)
     opened = trimesh.Trimesh(closed.vertices[:-2], closed.faces[: m - 24], process=False)
+    opened.metadata["file_type"] = "obj"  # as read from an OBJ file: y up, kept
     assert not opened.is_watertight
     capped = fj.cap_holes(opened)
+    assert capped.metadata["file_type"] == "obj" and capped.metadata is not opened.metadata
     assert capped.is_watertight and capped.is_winding_consistent
     np.testing.assert_array_equal(capped.vertices[: len(opened.vertices)], opened.vertices)
     np.testing.assert_array_equal(capped.faces[: len(opened.faces)], opened.faces)

@@ -13,7 +13,9 @@ def cap_holes(mesh: trimesh.Trimesh) -> trimesh.Trimesh:
     faces come first too, so a deformation of the input carries over to the capped mesh.
     Suited to roughly planar holes such as the bottom of the Stanford bunny.
 
-    **Returns:** a new `Trimesh` (unchanged copy if the mesh had no boundary).
+    **Returns:** a new `Trimesh` (unchanged copy if the mesh had no boundary), with a copy of
+    the input's `metadata` (where it was read from: an OBJ file's y-up convention, which
+    `fj.plot_skeleton` and `fj.plot_medial` follow, is kept).
     """
     faces = np.asarray(mesh.faces)
     edges = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
@@ -47,4 +49,6 @@ def cap_holes(mesh: trimesh.Trimesh) -> trimesh.Trimesh:
         vertices.append(np.asarray(mesh.vertices)[loop].mean(axis=0, keepdims=True))
         new_faces.append(np.stack([loop, np.roll(loop, -1), np.full_like(loop, next_index)], 1))
         next_index += 1
-    return trimesh.Trimesh(np.concatenate(vertices), np.concatenate(new_faces), process=False)
+    capped = trimesh.Trimesh(np.concatenate(vertices), np.concatenate(new_faces), process=False)
+    capped.metadata.update(dict(getattr(mesh, "metadata", None) or {}))
+    return capped

@@ -70,10 +70,10 @@ def guess_up(mesh, skeleton: Skeleton, points=None) -> str:
     when at least two do and no other face holds as many (cheburashka's two feet below its
     head, arms and ears: its limbs' directions, summed, pointed along its forward feet).
     Else it is the one nearest to minus the sum of the body's limbs' (parent −1) unit
-    directions, from joint to tip, when that sum is at least one limb long; else (no limbs,
-    or limbs that cancel out) `default_up(mesh)` of `plot_medial`: `"y"` for a mesh read
-    from an OBJ file, else `"z"`. `points`: the skeleton's `limb_points`, when computed
-    already."""
+    directions, from joint to tip, when that sum is at least two limbs long (legs agreeing;
+    the bunny's head and haunch, 1.6 long, pointed sideways); else (no limbs, or limbs
+    that do not agree) `default_up(mesh)` of `plot_medial`: `"y"` for a mesh read from an
+    OBJ file, else `"z"`. `points`: the skeleton's `limb_points`, when computed already."""
     points = limb_points(skeleton) if points is None else points
     ends = np.array([spine[-1] for k, (spine, _) in enumerate(points)
                      if not skeleton.children(k)]).reshape(-1, 3)
@@ -90,7 +90,7 @@ def guess_up(mesh, skeleton: Skeleton, points=None) -> str:
         if limb.parent == -1:
             direction = spine[-1] - joint
             total += direction / max(float(np.linalg.norm(direction)), 1e-300)
-    if np.linalg.norm(total) < 1.0:
+    if np.linalg.norm(total) < 2.0:
         return default_up(mesh)
     axis = int(np.argmax(np.abs(total)))
     return ("-" if total[axis] > 0 else "+") + "xyz"[axis]
@@ -206,8 +206,8 @@ def plot_skeleton(mesh, skeleton: Skeleton, *, ax=None, up=None, elev: float = 1
       that the most limb ends lie on, at least two (spot's hooves, cheburashka's feet:
       `"+y"`; the procedural quadruped: `"+z"`); else the signed axis nearest to minus the
       sum of the body's limbs' unit directions (each from joint to tip), when that sum is
-      at least one limb long; else `"y"` for a mesh read from an OBJ file and `"z"` for any
-      other, as `fj.plot_medial` guesses. (The box's extents alone say nothing: spot's are
+      at least two limbs long; else `"y"` for a mesh read from an OBJ file and `"z"` for
+      any other, as `fj.plot_medial` guesses. (The box's extents alone say nothing: spot's are
       about (0.94, 1.69, 1.72), its up axis y neither the smallest nor the largest.)
     - `elev`, `azim`: the view in degrees (matplotlib's). `azim` default: the side view,
       turned 30° towards the front, across the longer horizontal extent.
