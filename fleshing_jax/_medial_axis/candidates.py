@@ -30,7 +30,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
-from .pairs import attaining, lower_and_keep, pruned
+from .pairs import attaining, lower_and_keep, near_tiles, pruned, tile_pairs
 from .primitives import UnionPrimitives
 from .rows import norm
 
@@ -80,28 +80,15 @@ def ball_blocks(points, centre, radius, extra=None, boxes=None):
     # largest margin (its NaNs left out: `fmax`) takes none of its samples.
     low, high = np.nanmin(padded[:3], axis=2), np.nanmax(padded[:3], axis=2)  # (3, tiles)
     largest = np.fmax.reduce(padded[3], axis=1)
-    gap = np.sqrt(sum(np.square(np.maximum(np.maximum(low[k] - c[:, k, None],
-                                                      c[:, k, None] - high[k]), 0))
-                      for k in range(3)))
-    near = gap <= radius[:, None] + (largest + 2 * slack)  # (P, tiles)
+    near = near_tiles(c, low, high, (radius, largest + 2 * slack))  # (P, tiles), compiled
     if boxes is not None:
         prim, tile = np.nonzero(near)
         near[prim, tile] = boxes(prim, low[:, tile] + origin[:, None],
                                  high[:, tile] + origin[:, None])
-    x, y, z, reach = padded.astype(np.float32)
+    lanes = tuple(np.ascontiguousarray(x) for x in padded.astype(np.float32))
     c, radius = c.astype(np.float32), (radius + slack).astype(np.float32)
-    shift = TILE.bit_length() - 1
-    for start in range(0, len(centre), rows):
-        prim, tile = np.nonzero(near[start:start + rows])  # primitives ascending
-        prim += start
-        at = c.take(prim, axis=0)
-        square = np.square(x.take(tile, axis=0) - at[:, :1])
-        square += np.square(y.take(tile, axis=0) - at[:, 1:2])
-        square += np.square(z.take(tile, axis=0) - at[:, 2:])
-        limit = radius.take(prim)[:, None] + reach.take(tile, axis=0)
-        inside = np.flatnonzero((square <= limit * limit) & (limit >= 0))
-        which = inside >> shift
-        yield order.take((tile.take(which) << shift) | (inside & (TILE - 1))), prim.take(which)
+    for start in range(0, len(centre), rows):  # (a compiled loop: primitives ascending)
+        yield tile_pairs(near, start, min(start + rows, len(centre)), lanes, c, radius, order)
 
 
 def _spread_bits(bits: int):

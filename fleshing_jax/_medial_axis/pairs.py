@@ -141,3 +141,68 @@ def attaining(pts, value, points: int):
         if value[k] == best[pts[k]]:
             pick[pts[k]] = k
     return best, pick
+
+
+@numba.njit(cache=True)
+def _largest(a, b):
+    """`np.maximum(a, b)` of two floats (NaN if `a` is NaN; `a` on a tie)."""
+    return a if (a >= b or a != a) else b
+
+
+@numba.njit(cache=True)
+def near_tiles(centre, low, high, reach):
+    """`candidates.ball_blocks`'s first test `(P, tiles)`: whether the distance of
+    `centre[i]` to tile `t`'s box `low[:, t]`–`high[:, t]`, summed and rooted as
+    `np.sqrt(sum(np.square(np.maximum(np.maximum(low − c, c − high), 0))))`, is at most
+    `reach[i, t]`, given as `(radius (P,), bound (tiles,))`: `radius[i] + bound[t]`."""
+    radius, bound = reach
+    near = np.empty((len(centre), low.shape[1]), np.bool_)
+    for i in range(len(centre)):
+        for t in range(low.shape[1]):
+            total = 0.0
+            for k in range(3):
+                side = _largest(_largest(low[k, t] - centre[i, k], centre[i, k] - high[k, t]),
+                                0.0)
+                total = total + side * side
+            near[i, t] = np.sqrt(total) <= radius[i] + bound[t]
+    return near
+
+
+@numba.njit(cache=True)
+def _inside(x, y, z, reach, centre, radius, i, t, lane):
+    """`candidates.ball_blocks`'s float32 test of sample `lane` of tile `t` against
+    primitive `i`."""
+    dx = x[t, lane] - centre[i, 0]
+    dy = y[t, lane] - centre[i, 1]
+    dz = z[t, lane] - centre[i, 2]
+    square = dx * dx
+    square += dy * dy
+    square += dz * dz
+    limit = radius[i] + reach[t, lane]
+    return square <= limit * limit and limit >= 0
+
+
+@numba.njit(cache=True)
+def tile_pairs(near, start: int, stop: int, tiles, centre, radius, order):
+    """`candidates.ball_blocks`' pairs `(pts, prim)` of primitives `start` to `stop`: the
+    samples of their `near` tiles (`tiles = (x, y, z, reach)`, each `(tiles, TILE)` float32,
+    the samples' positions in `order`) within reach, primitives then tiles then lanes
+    ascending (as `np.nonzero` and `np.flatnonzero` give them)."""
+    x, y, z, reach = tiles
+    width = x.shape[1]
+    count = 0
+    for i in range(start, stop):
+        for t in range(near.shape[1]):
+            if near[i, t]:
+                for lane in range(width):
+                    count += _inside(x, y, z, reach, centre, radius, i, t, lane)
+    pts, prim = np.empty(count, np.int64), np.empty(count, np.int64)
+    count = 0
+    for i in range(start, stop):
+        for t in range(near.shape[1]):
+            if near[i, t]:
+                for lane in range(width):
+                    if _inside(x, y, z, reach, centre, radius, i, t, lane):
+                        pts[count], prim[count] = order[t * width + lane], i
+                        count += 1
+    return pts, prim
