@@ -30,7 +30,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
-from .pairs import attaining, lower_and_keep, near_tiles, pruned, tile_pairs
+from .pairs import attaining, in_band, lowered_band, near_tiles, pruned, tile_pairs
 from .primitives import UnionPrimitives
 from .rows import norm
 
@@ -152,12 +152,12 @@ def search(points, union: UnionPrimitives, params, margin: float,
     # distance is `inf` there, never in the band.)
     blocks = ball_blocks(points, union.centre, union.radius, upper + 2 * margin,
                          union.in_boxes)
-    for pts, prim, value in _measured(blocks, points, union):
+    for pts, prim in blocks:
         # Only the pairs within the band of the best so far (a superset of the final band):
         # on a sphere, all pairs at once took 1.5 GB. (One compiled loop: `best` lowered by
         # the block's pairs, then theirs kept.)
-        near = lower_and_keep(best, pts, value, 2 * margin)
-        pts, prim, value = pts.take(near), prim.take(near), value.take(near)
+        pts, prim, value = lowered_band(best, pts, prim, union.distance(points, pts, prim),
+                                        2 * margin)
         found_pts.append(pts), found_prim.append(prim), found_val.append(value)
         held += len(pts)
         if held > 2 * PAIRS and margin > floor:  # narrowed early: memory stays capped
@@ -167,40 +167,14 @@ def search(points, union: UnionPrimitives, params, margin: float,
             found_pts, found_prim, found_val = [pts[near]], [prim[near]], [value[near]]
             held = near.sum()
     pts, prim, value = (np.concatenate(x) for x in (found_pts, found_prim, found_val))
-    gap = value - best[pts]
-    keep = np.flatnonzero(gap <= 2 * margin)
-    if len(keep) > PAIRS:
+    kept = in_band(best, pts, prim, value, 2 * margin)
+    if len(kept[0]) > PAIRS:
+        gap = value - best[pts]
+        keep = np.flatnonzero(gap <= 2 * margin)
         margin = _narrowed(gap[keep], margin, floor)
         keep = keep[gap[keep] <= 2 * margin]
-    return Candidates(pts.take(keep), prim.take(keep), value.take(keep), params, margin)
-
-
-MEASURED = 1 << 18  # about the pairs whose distances `_measured` takes at once
-
-
-def _measured(blocks, points, union: UnionPrimitives):
-    """The blocks `(pts, prim)` of `ball_blocks`, each with its pairs' distances to the
-    `union` `(pts, prim, value)`: measured over several blocks at once (about `MEASURED`
-    pairs; the same values): one block's pairs fill its last `in_blocks` part only partly,
-    and measured block by block, spot's eight searches took 1.89 s instead of 1.51 s."""
-    batch, size = [], 0
-    for block in blocks:
-        batch.append(block)
-        size += len(block[0])
-        if size >= MEASURED:
-            yield from _split(batch, points, union)
-            batch, size = [], 0
-    yield from _split(batch, points, union)
-
-
-def _split(batch, points, union: UnionPrimitives):
-    """The blocks of `batch` with their distances, measured at once (see `_measured`)."""
-    if not batch:
-        return
-    value = union.distance(points, *(np.concatenate(x) for x in zip(*batch)))
-    cuts = np.cumsum([len(pts) for pts, _ in batch])[:-1]
-    for (pts, prim), part in zip(batch, np.split(value, cuts)):
-        yield pts, prim, part
+        kept = pts.take(keep), prim.take(keep), value.take(keep)
+    return Candidates(*kept, params, margin)
 
 
 def upper_bound(points, union: UnionPrimitives, neighbours: int = 8):

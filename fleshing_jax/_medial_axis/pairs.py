@@ -97,10 +97,17 @@ def pair_distances(points, pts, prim, kind, index, centers, radii, cone, test, t
 
 
 @numba.njit(cache=True)
-def lower_and_keep(best, pts, value, band):
+def _kept(pts, prim, value, keep, count: int):
+    """The pairs at positions `keep[:count]`: `(pts, prim, value)`."""
+    keep = keep[:count]
+    return pts[keep], prim[keep], value[keep]
+
+
+@numba.njit(cache=True)
+def lowered_band(best, pts, prim, value, band: float):
     """`candidates.search`'s step per block: `best[pts] = min(best[pts], value)` in the pairs'
-    order (as `np.minimum.at`), then the positions `(K,)` of the pairs with `value <=
-    best[pts] + band`, ascending."""
+    order (as `np.minimum.at`), then the pairs `(pts, prim, value)` with `value <= best[pts]
+    + band`, in their order."""
     for k in range(len(pts)):
         best[pts[k]] = _least(best[pts[k]], value[k])
     keep = np.empty(len(pts), np.int64)
@@ -109,7 +116,20 @@ def lower_and_keep(best, pts, value, band):
         if value[k] <= best[pts[k]] + band:
             keep[count] = k
             count += 1
-    return keep[:count]
+    return _kept(pts, prim, value, keep, count)
+
+
+@numba.njit(cache=True)
+def in_band(best, pts, prim, value, band: float):
+    """The pairs `(pts, prim, value)` with `value − best[pts] <= band`, in their order
+    (`candidates.search`'s last filter)."""
+    keep = np.empty(len(pts), np.int64)
+    count = 0
+    for k in range(len(pts)):
+        if value[k] - best[pts[k]] <= band:
+            keep[count] = k
+            count += 1
+    return _kept(pts, prim, value, keep, count)
 
 
 @numba.njit(cache=True)
