@@ -13,7 +13,14 @@ from jax.test_util import check_grads
 
 import fleshing_jax as fj
 from fleshing_jax._fleshing.reach import REACH_SAMPLES
-from fleshing_jax._skeleton.posing import CERTIFICATE_SAMPLES, limb_poser, limb_target
+from fleshing_jax._skeleton.posing import (
+    CERTIFICATE_SAMPLES,
+    CERTIFIED_FROM,
+    _limb_poser,
+    certificate_samples,
+    limb_poser,
+    limb_target,
+)
 
 
 def _pose(registration, skeleton, poses):
@@ -152,10 +159,15 @@ def test_volume_kept_and_no_crack(tube, skeleton, registration):
     assert np.max(_stretch(tube, rest, vertices)) < 1.5
 
 
-def test_float32_posing_reads_its_rest_spines_from_tables(tube, skeleton, registration):
+@pytest.fixture(scope="module")
+def single(tube, skeleton):
+    """The tube registered in float32 (the per-frame path's dtype)."""
+    return fj.register_skeleton(tube, skeleton, margin=0.06, dtype=jnp.float32)
+
+
+def test_float32_posing_reads_its_rest_spines_from_tables(tube, skeleton, registration, single):
     # The per-frame path: float32 vertices, the bent spines built on tabulated rest spines.
     poses = {0: fj.LimbPose(60, 90, 30), 1: fj.LimbPose(30, 180), 2: fj.LimbPose(50, 0)}
-    single = fj.register_skeleton(tube, skeleton, margin=0.06, dtype=jnp.float32)
     assert all(isinstance(rest, fj.LookedUpSpine) for rest in single.rests)
     # In float64 the rest spines are exact, and tabulated only for the projection check.
     assert all(check is None for check in single.checks)
@@ -294,6 +306,38 @@ def test_past_its_range_a_limb_stays_whole_and_is_flagged_inexact(tube, skeleton
     assert _stretch(tube, rest, folded).max() < 5
     np.testing.assert_array_equal(valid, ~past)
     np.testing.assert_array_equal(folded[region != k], rest[region != k])
+
+
+def test_a_large_region_s_check_gives_the_sampled_test_s_flags(single, monkeypatch):
+    """A region of `CERTIFIED_FROM` rows or more is certified on its valid region's own
+    samples; on looked-up frames (float32) its points are bent, the pending ones tested at
+    images placed from there, and all placed (`Poser.pose`, `PLACED_APART_FROM` points on):
+    the flags are those of the sampled test run on every point, folded (some fail it) and
+    bent less (none do)."""
+    from fleshing_jax._fleshing import pipeline
+
+    monkeypatch.setattr(pipeline, "PLACED_APART_FROM", 0)  # (read when tracing)
+    k, reg = 0, single.registrations[0]
+    assert certificate_samples(CERTIFIED_FROM - 1) == CERTIFICATE_SAMPLES
+
+    @jax.jit
+    def flags(target):
+        poser = _limb_poser(reg.ends, jnp.float32, target, "radial", True, None,
+                            certificate_samples(CERTIFIED_FROM))
+        assert poser.region.reach.bounds.shape == (REACH_SAMPLES,)
+        images, valid = poser.pose(reg)
+        bent = poser.bend(reg)
+        clear = jax.vmap(poser.region.clear)(images, bent.arc_length)  # every point's
+        sampled = (bent.certified | bent.pending) & clear
+        return valid, poser.rigid(reg, images, sampled)[1], bent.certified, bent.pending
+
+    for angle, rejected in ((175.0, True), (60.0, False)):
+        valid, expected, certified, pending = map(np.asarray, flags(
+            limb_target(single, k, fj.LimbPose(angle, 0))))
+        np.testing.assert_array_equal(valid, expected)
+        assert (pending & ~valid).any() == rejected
+        # (Both ways of passing are taken: at 60°, 79 points certified, 113 tested.)
+        assert pending.any() and certified.any() != rejected
 
 
 @pytest.fixture(scope="module")

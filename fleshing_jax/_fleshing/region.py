@@ -45,6 +45,8 @@ Lines (no cut locus) and arcs (the axis, `1 − k·d > δ κ`; wrapping handled 
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -161,18 +163,21 @@ class ValidRegion(eqx.Module):
         return c, norm(x - c), i
 
 
-def clear_where(needed: Array, region: ValidRegion, values: Array, inputs: PyTree) -> Array:
+def clear_where(needed: Array, region: ValidRegion, values: Array, inputs: PyTree,
+                place: Callable | None = None) -> Array:
     """`values` (n,) bool with entry `i` replaced by `region.clear(*inputs[i])` wherever
     `needed[i]` (`update_where`), `inputs` the points' images and their arc lengths on the
-    target (`((n, 3), (n,))`, as they were placed: never bent again here): the pruned test
-    first, the sampled one on the points it does not certify only (on spot's head, none)."""
+    target (`((n, 3), (n,))`, as they were placed: never bent again here), or with `place`,
+    what it makes them of (one point's `inputs` → `(image, s₁)`): the pruned test first, the
+    sampled one on the points it does not certify only (on spot's head, none)."""
+    place = (lambda one: one) if place is None else place
 
     def surely(one):
-        return region.surely_clear(*one)
+        return region.surely_clear(*place(one))
 
     # Cheap a point: in larger chunks than the sampled test's, fewer trips of the loop.
     sure = update_where(needed, surely, jnp.zeros_like(needed), inputs, chunk=SURE_CHUNK)
-    return update_where(needed & ~sure, lambda one: region.clear(*one), values | sure,
+    return update_where(needed & ~sure, lambda one: region.clear(*place(one)), values | sure,
                         inputs)
 
 

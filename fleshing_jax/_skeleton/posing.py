@@ -569,10 +569,13 @@ def _stacked_posers(pairs: dict, method: str, check: bool) -> dict:
     index → `Poser`. A bent limb's preparation is a few hundred small operations, each run
     one by one by XLA's CPU backend: batched, a frame of spot's 9 limbs runs them once."""
     args = {k: (reg.ends, reg.points[:1], target, on) for k, (reg, target, on) in pairs.items()}
+    # One certificate for all, the largest region's (`certificate_samples`), as eagerly (every
+    # limb padded to the largest's rows): one batch still.
+    certificate = certificate_samples(max(reg.points.shape[0] for reg, _, _ in pairs.values()))
     posers = {}
     for ks, batch in _stacked_groups(args):
         def prepared(ends, point, target, on):
-            return _limb_poser(ends, point.dtype, target, method, check, on)
+            return _limb_poser(ends, point.dtype, target, method, check, on, certificate)
 
         if len(ks) == 1:
             posers[ks[0]] = prepared(*args[ks[0]])
@@ -669,17 +672,25 @@ def limb_poser(registration: Registration, target: AbstractSpine, method: str,
     margin keeps edges whole on the rest side, the registration's: with the margin on the
     bent spine too, the region's bounds on a bend's changing curvature flagged most of a thin
     leg bent 60°). `checked_on`: see `limb_check`. The check's reach certificate on
-    `CERTIFICATE_SAMPLES` samples."""
+    `certificate_samples` samples."""
     return _limb_poser(registration.ends, registration.points.dtype, target, method, check,
-                       checked_on)
+                       checked_on, certificate_samples(registration.points.shape[0]))
 
 
 def _limb_poser(ends, dtype, target: AbstractSpine, method: str, check: bool,
-                checked_on: AbstractSpine | None) -> Poser:
-    """`limb_poser` of a region registered in `dtype` with its rest spine's `ends`."""
+                checked_on: AbstractSpine | None, certificate: int | None) -> Poser:
+    """`limb_poser` of a region registered in `dtype` with its rest spine's `ends`, its
+    reach certificate on `certificate` samples (`certificate_samples`)."""
     return prepare_target(target, dtype, method=method, check_projection=check, margin=0.0,
                           start=ends, beyond="rigid", fallback=True, checked_on=checked_on,
-                          certificate=CERTIFICATE_SAMPLES)
+                          certificate=certificate)
+
+
+def certificate_samples(rows: int) -> int | None:
+    """The samples of the reach certificate of a bent limb's region of `rows` rows (static):
+    `CERTIFICATE_SAMPLES` for a small one, the valid region's own (`None`: its samples,
+    evaluated once for both) from `CERTIFIED_FROM` rows on."""
+    return None if rows >= CERTIFIED_FROM else CERTIFICATE_SAMPLES
 
 
 # The samples of a bent limb's reach certificate (`_fleshing.reach`), against the 384 of its
@@ -690,6 +701,11 @@ def _limb_poser(ends, dtype, target: AbstractSpine, method: str, check: bool,
 # the pruned test than its S² pairs). Spot's 9 limbs, each bent 0-180° in 3 directions (39
 # poses, float32; limbs 0 and 8 in float64), and all 9 at once (15 poses): the same flags.
 CERTIFICATE_SAMPLES = 32
+# A large region's certificate is the valid region's own, on its 384 samples: its S² pairs
+# cost a frame the same at any size, and at 32 samples it left nearly every point of a thick
+# part to the pruned test (spot's head at 104,644 vertices bent 10°: 17,491 of its 17,812
+# points, none at 384: 17.2 → 13.2 ms of CPU a frame, with `Poser.pose`'s placing apart).
+CERTIFIED_FROM = 8192
 
 
 def _pose_limb(registration, target, method, check=True, checked_on=None):
