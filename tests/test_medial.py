@@ -318,6 +318,26 @@ def test_compiled_pair_distances_are_the_closed_forms_bit_for_bit():
     np.testing.assert_array_equal(got.view(np.int64), expected[order].view(np.int64))
 
 
+def test_closest_points_on_triangles_match_trimesh():
+    """`SurfaceQuery`'s exact test (`triangles.closest_on_faces`) finds trimesh's closest
+    points, in every region (face, edges, vertices), and names the feature they lie on."""
+    rng = np.random.default_rng(3)
+    corners = rng.normal(size=(40, 3, 3))
+    points = 2 * rng.normal(size=(400, 3))
+    faces = np.repeat(np.arange(40), 10)
+    from fleshing_jax._medial_axis.triangles import closest_on_faces
+
+    a, b, c = (np.ascontiguousarray(corners[:, k]) for k in range(3))
+    distance, closest, feature = closest_on_faces(points, faces, a, b, c)
+    expected = trimesh.triangles.closest_point(corners[faces], points)
+    np.testing.assert_allclose(closest, expected, atol=1e-12)
+    np.testing.assert_allclose(distance, np.linalg.norm(points - expected, axis=1), atol=1e-12)
+    assert set(np.unique(feature)) == set(range(7))
+    for k, corner in ((1, a), (2, b), (3, c)):  # a vertex's closest point is the vertex
+        np.testing.assert_allclose(closest[feature == k], corner[faces[feature == k]],
+                                   atol=1e-12)
+
+
 def test_candidate_search_and_pruning_keep_every_closest_pair(monkeypatch):
     """The fit's candidates (`candidates`): `ball_pairs` in blocks finds exactly the pairs
     of a k-d tree's ball queries, primitives ascending; after the spheres move, the pairs
