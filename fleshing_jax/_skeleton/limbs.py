@@ -304,13 +304,13 @@ def _same_limb(centers, radii, path, limbs, graph) -> int | None:
     medial mesh's edges to most of the path's own spheres (`SHEET`), at least two of them.
     Legs side by side, touching at the top, are two limbs; so are an insect's antennae from
     a shared base (a quarter of their own spheres joined). A path that widens past a neck
-    (a sphere before its thickest less than `CORE` times as thick) into a limb at most twice
+    (a sphere before its thickest less than `WAIST` times as thick) into a limb at most twice
     as thick, its thickest sphere inside that limb, runs through the limb's thick part: a
     head reached by a second strip of the neck and its other near-equal sphere, running on
     into an ear (cheburashka's, from its torso), is the head's route, and the head's level
     finds the ear. (Horns side by side are thickest at their bases: no neck before.)"""
     widest = int(np.argmax(radii[path]))
-    necked = np.any(radii[path[:widest]] < CORE * radii[path[widest]])
+    necked = np.any(radii[path[:widest]] < WAIST * radii[path[widest]])
     for k, spheres in enumerate(limbs):
         held = sphere_gaps(centers[path], centers[spheres], radii[spheres]) < 0
         if held.mean() >= 0.5 or held[-1]:
