@@ -226,3 +226,45 @@ def tile_pairs(near, start: int, stop: int, tiles, centre, radius, order):
                         pts[count], prim[count] = order[t * width + lane], i
                         count += 1
     return pts, prim
+
+
+@numba.njit(cache=True)
+def _span(v, d, half, size):
+    """`_Slabs.in_boxes`'s `span`: `v·d`, `|v|·half`, `|v|·size` (each `v` a 3-tuple)."""
+    return ((v[0] * d[0] + v[2] * d[2]) + v[1] * d[1],
+            (abs(v[0]) * half[0] + abs(v[2]) * half[2]) + abs(v[1]) * half[1],
+            (abs(v[0]) * size[0] + abs(v[2]) * size[2]) + abs(v[1]) * size[1])
+
+
+@numba.njit(cache=True)
+def slab_boxes(test, i, low, high):
+    """`_Slabs.in_boxes` `(M,)` for slabs `i (M,)` (`test`: `_Slabs.test`) and boxes `low
+    (3, M)` to `high (3, M)`: the same bounds, operation for operation."""
+    keep = np.empty(len(i), np.bool_)
+    for k in range(len(i)):
+        s = i[k]
+        middle = ((low[0, k] + high[0, k]) / 2, (low[1, k] + high[1, k]) / 2,
+                  (low[2, k] + high[2, k]) / 2)
+        half = ((high[0, k] - low[0, k]) / 2, (high[1, k] - low[1, k]) / 2,
+                (high[2, k] - low[2, k]) / 2)
+        d = (middle[0] - test[0, s], middle[1] - test[1, s], middle[2] - test[2, s])
+        size = ((abs(middle[0]) + abs(test[0, s])) + half[0],
+                (abs(middle[1]) + abs(test[1, s])) + half[1],
+                (abs(middle[2]) + abs(test[2, s])) + half[2])
+        centre, width, magnitude = _span((test[3, s], test[4, s], test[5, s]), d, half, size)
+        lift_low = _largest(abs(centre) - width, 0.0)
+        lift_high = abs(centre) + width
+        p1 = (test[6, s], test[7, s], test[8, s])
+        p2 = (test[9, s], test[10, s], test[11, s])
+        k1, k2 = test[12, s], test[13, s]
+        inside = test[14, s] > 0
+        for v, slope, bound in ((p1, k1, -FOOT), (p2, k2, -FOOT),
+                                ((-(p1[0] + p2[0]), -(p1[1] + p2[1]), -(p1[2] + p2[2])),
+                                 -(k1 + k2), -1 - FOOT)):
+            centre, width, size_v = _span(v, d, half, size)
+            lift = slope * lift_low if slope >= 0 else slope * lift_high
+            largest = centre + width - lift
+            allowance = 1e-8 * (size_v + abs(slope) * (lift_high + magnitude))
+            inside = inside and largest >= bound - allowance
+        keep[k] = inside
+    return keep

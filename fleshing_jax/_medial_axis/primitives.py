@@ -141,31 +141,14 @@ class _Slabs:
 
         Those coordinates are `P_k·d − k_k |m·d|` (`d = p − c0`), linear in `d` and in the
         lift `|m·d|`, so each one's range over a box follows from its middle and
-        half-sizes."""
-        columns = np.take(self.test, i, axis=1)
-        c0, m, p1, p2 = (columns[k:k + 3] for k in range(0, 12, 3))
-        k1, k2, ok = columns[12:]
-        middle, half = (low + high) / 2, (high - low) / 2
-        d = middle - c0
-        size = np.abs(middle) + np.abs(c0) + half
+        half-sizes (`v·d` at the middle, `|v|·half` its largest change, and `|v|·(|middle| +
+        |c0| + half)` the size of its terms, for the round-off's allowance of `1e-8` of it)."""
+        # (One compiled loop, `pairs.slab_boxes`; imported here as in `UnionPrimitives`.)
+        from .pairs import slab_boxes
 
-        def span(v):
-            """The value of `v·d` `(M,)` at the boxes' middles, its largest change over
-            the boxes, and a bound of the magnitude of its terms."""
-            return column_dot(v, d), column_dot(np.abs(v), half), column_dot(np.abs(v), size)
-
-        centre, width, magnitude = span(m)
-        lift_low = np.maximum(np.abs(centre) - width, 0)  # `|m·d|` over a box
-        lift_high = np.abs(centre) + width
-        keep = ok > 0
-        for v, k, bound in ((p1, k1, -FOOT), (p2, k2, -FOOT), (-(p1 + p2), -(k1 + k2),
-                                                                -1 - FOOT)):
-            # The largest of `v·d − k |m·d|` over a box (a coordinate, or minus their sum).
-            centre, width, size_v = span(v)
-            largest = centre + width - np.where(k >= 0, k * lift_low, k * lift_high)
-            allowance = 1e-8 * (size_v + np.abs(k) * (lift_high + magnitude))
-            keep &= largest >= bound - allowance
-        return keep
+        return slab_boxes(self.test, np.ascontiguousarray(i, np.int64),
+                          np.ascontiguousarray(low, np.float64),
+                          np.ascontiguousarray(high, np.float64))
 
     def closest(self, p, i):
         """`distance`, and the barycentric coordinates `(M, 3)` of the interpolated sphere
