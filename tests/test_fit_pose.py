@@ -11,6 +11,8 @@ programs of their own (fewer steps, other limbs: 15–20 s each) are `slow`, for
 time.
 """
 
+import re
+
 import numpy as np
 import optimistix as optx
 import pytest
@@ -204,7 +206,10 @@ def test_a_shape_fit_stopped_short_of_its_minimum_is_not_converged(skeleton, reg
                                init=start, rtol=1.0, atol=1.0)
     assert fit.result == optx.RESULTS.successful and not fit.converged
     assert "stopped short of a minimum" in fit.message, fit.message
-    assert "limb 0 by 0.7" in fit.message and "limb 2" not in fit.message, fit.message
+    # (0.68°: the last stage's points, each fitted limb's part of the sample, place the
+    # sampled loss's minimum within 0.02° of the truth.)
+    assert re.search(r"limb 0 by 0\.(7|6[89])", fit.message), fit.message
+    assert "limb 2" not in fit.message, fit.message
     assert fit.stats["predicted_decrease"] > 0.9  # the loss is nearly all that 0.7°
     # Stopped at once at the truth, the same solve is at its minimum: converged.
     fit = fj.fit_skeleton_pose(registration, skeleton, target=samples[0], limbs=[0, 2],

@@ -20,7 +20,7 @@ pose's vertices, samples of a mesh), from the rest pose:
   is; a partial scan simply has no points on its unseen side.
 - **The solve's points.** At most `SOLVE_POINTS` of the target, shared out by the part of
   the posed surface each lies nearest to (a fitted limb with what it carries, or the body)
-  as each stage starts (`_shares`): a limb's bend depends on its own part only, and a short
+  before the last stage (`_shares`): a limb's bend depends on its own part only, and a short
   leg's part is small (spot's, 270 of 5,000 samples). A uniform sample kept a third of it:
   with 0.5 % noise the legs' bends were determined to ±4.9° and ±3.3° and fitted 6–8° off;
   with all of it, ±2.5° and 2°, which is the data's own bound (the Cramér–Rao bound of
@@ -338,14 +338,6 @@ def fit_to_shape(registration: SkeletonRegistration, skeleton: Skeleton, target,
     kept = np.concatenate([moving, still])
     owners = _owners(skeleton, limbs)
     for i, sigma in enumerate(STAGES):
-        if i:
-            # The target's points shared out by the parts they lie nearest to as the last
-            # stage left the pose (from the rest pose, a uniform sample: a limb far from its
-            # part of the target owns others).
-            whole = pose_skeleton(registration, skeleton, problem.poses(y), method=method)
-            owner = owners[region[cKDTree(np.asarray(whole.vertices)).query(cloud)[1]]]
-            problem = eqx.tree_at(lambda p: (p.cloud, p.weights), problem,
-                                  _padded(cloud[_shares(owner, SOLVE_POINTS, rng)]))
         problem = eqx.tree_at(lambda p: p.sigma, problem, jnp.asarray(sigma * diagonal, dtype))
         last = i == len(STAGES) - 1
         # Each stage's step budget is a value (`_fit.budget`): the stages share one compiled
@@ -357,9 +349,20 @@ def fit_to_shape(registration: SkeletonRegistration, skeleton: Skeleton, target,
         if i == len(STAGES) - 2:
             # (The whole mesh posed eagerly, by the programs that pose the result below.)
             whole = pose_skeleton(registration, skeleton, problem.poses(y), method=method)
-            y, tried = _restarted(problem, solver, y, linear, max_steps,
-                                  np.asarray(whole.vertices)[kept], region[kept])
-            steps += tried
+            surface, parts = np.asarray(whole.vertices)[kept], region[kept]
+            # Neither when the body's part of the target is itself unexplained (`MISPLACED`):
+            # another shape, or a scan not aligned, which no limb's start explains (a ball's
+            # fit tried 8 starts for nothing) and whose parts are no limb's.
+            if _body_level(*_parts(problem, linear, surface, parts)) <= MISPLACED:
+                y, tried = _restarted(problem, solver, y, linear, max_steps, surface, parts)
+                steps += tried
+                # The last stage's points shared out by the parts they lie nearest to here.
+                # (The stages before keep the uniform sample: from the rest pose a limb far
+                # from its part owns others, and re-chosen before the middle stage, spot's
+                # clean fit took 45 steps, not 36.)
+                owner = owners[region[cKDTree(np.asarray(whole.vertices)).query(cloud)[1]]]
+                problem = eqx.tree_at(lambda p: (p.cloud, p.weights), problem,
+                                      _padded(cloud[_shares(owner, SOLVE_POINTS, rng)]))
     poses = dict(sorted(problem.poses(y).items()))
     whole = pose_skeleton(registration, skeleton, poses, method=method)
     vertices = np.asarray(whole.vertices)
@@ -406,6 +409,7 @@ def fit_to_shape(registration: SkeletonRegistration, skeleton: Skeleton, target,
 _distances = eqx.filter_jit(to_surface)
 
 
+
 def _loss(linear) -> float:
     return float(jnp.sum(linear[1] ** 2))
 
@@ -433,12 +437,8 @@ def _restarted(problem: ShapeProblem, solver, y: Array, linear, max_steps: int,
     over `ANGLE_SPREAD`), each until a start lowers the loss: with noise every part of the
     target lies at its noise level and none is stuck (spot's legs with 0.5 % noise stopped
     5° and 13° short of their bends from rest, the loss at the truth lower). `(y, steps
-    taken)`; the best start's solve is to be continued. None is tried when the body's part of
-    the target is itself unexplained (`MISPLACED`): another shape, or a scan not aligned,
-    which no limb's start explains (a ball's fit tried 8 starts for nothing)."""
+    taken)`; the best start's solve is to be continued."""
     best, taken = _loss(linear), 0
-    if _body_level(*_parts(problem, linear, surface, region)) > MISPLACED:
-        return y, taken
     short, limit = limited(solver, max_steps, min(max_steps, COARSE_STEPS))
     spread = _spreads(linear, problem.limbs, y.shape[-1])
     loose = {i for i, k in enumerate(problem.limbs) if spread[k] > ANGLE_SPREAD}
