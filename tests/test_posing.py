@@ -196,6 +196,13 @@ def test_float32_posing_reads_its_rest_spines_from_tables(tube, skeleton, regist
     exact, valid = _pose(registration, skeleton, poses)
     np.testing.assert_array_equal(np.asarray(posed.valid), valid)
     np.testing.assert_allclose(np.asarray(posed.vertices), exact, atol=2e-5)  # (length 6)
+    # Folded past its range, limb 2's sections are carried: their positions read from the
+    # bent spine's table in float32, integrated in float64.
+    folded = fj.pose_skeleton(single, skeleton, {2: fj.LimbPose(175, 0)})
+    exact, valid = _pose(registration, skeleton, {2: fj.LimbPose(175, 0)})
+    assert not valid.all()
+    np.testing.assert_array_equal(np.asarray(folded.valid), valid)
+    np.testing.assert_allclose(np.asarray(folded.vertices), exact, atol=2e-5)
     region = np.asarray(skeleton.region)
     rest = np.asarray(tube.vertices, np.float32)
     np.testing.assert_array_equal(np.asarray(posed.vertices)[region == -1], rest[region == -1])

@@ -227,13 +227,15 @@ class PreparedBent(AbstractSpine):
         integral = self.positions[m] + half * jnp.asarray(GAUSS_WEIGHTS, s.dtype) @ values
         return jnp.where(s <= self.joint, c0, jnp.where(s >= self.stop, rigid, integral))
 
-    def carried(self, x: Array, s: Array) -> Array:
+    def carried(self, x: Array, s: Array, table: SpineTable | None = None) -> Array:
         """`x` (3,) moved rigidly with the cross-section at arc length `s`: `C₁(s) + Q(s) (x −
         C₀(s))` (itself before the joint, the rigid part's motion past the stop). Where the
         fleshing cannot place a point (it was not registered on the base), this places it as
-        a cross-section of the bent limb there moves."""
+        a cross-section of the bent limb there moves. `table`: this spine's (`_table`), where
+        the caller made it: `C₁(s)` read from it, not integrated (float32 posing)."""
         c0 = self.base._jet(s)[0]
-        return self._position(s, c0) + self._turn(self._angles(s)[0], x - c0)
+        c1 = self._position(s, c0) if table is None else table.jet(s)[0]
+        return c1 + self._turn(self._angles(s)[0], x - c0)
 
     def _turned(self, s: Array, base, integrate: bool = True):
         """`_jet_and_normals` at `s` from the base's there (`integrate`: as `_position`)."""
