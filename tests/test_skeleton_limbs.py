@@ -243,3 +243,26 @@ def test_a_slanted_border_with_a_parent_limb_is_levelled_at_a_chain_s_top_only()
     out_limbs, out_region = levelled([*limbs, horn], beside, vertices, normals, adjacency,
                                      [0, 1], 0.05)
     assert np.array_equal(out_region, beside) and out_limbs[1] is limbs[1]
+
+
+def test_within_reach_reads_only_the_samples_that_could_fail_and_agrees_with_in_reach():
+    """`regions.within_reach` skips the samples whose curvature no point near them could
+    exceed; its verdicts are `in_reach`'s on arcs from straight to curled (every point
+    within, some not, none), with margins from 0 up."""
+    from fleshing_jax._skeleton.regions import in_reach, within_reach
+
+    rng = np.random.default_rng(0)
+    t = np.linspace(0.0, 1.0, 512)
+    verdicts = []
+    for k in (0.0, 0.5, 2.0, 6.0, 12.0):
+        bend = max(k, 1e-12)
+        samples = np.c_[np.sin(bend * t) / bend, (1 - np.cos(bend * t)) / bend, 0 * t]
+        curvature = k * rng.uniform(0.5, 1.5, len(t))
+        for spread in (0.01, 0.1, 0.3):
+            points = samples[rng.integers(0, len(t), 500)] + rng.normal(0, spread, (500, 3))
+            for margin in (0.0, 0.02):
+                expected = in_reach(points, samples, curvature, margin)[0]
+                np.testing.assert_array_equal(
+                    within_reach(points, samples, curvature, margin, chunk=128), expected)
+                verdicts.append(expected.mean())
+    assert min(verdicts) < 0.9 and max(verdicts) == 1.0  # cases with points beyond the reach

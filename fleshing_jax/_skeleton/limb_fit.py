@@ -9,7 +9,7 @@ import numpy as np
 
 from .fit import extend_beyond, fit_bspline
 from .limbs import LimbPath
-from .regions import REACH, in_reach, limb_region, spine_samples
+from .regions import REACH, in_reach, limb_region, spine_samples, within_reach
 from .visible import box_diagonal, moves_visibly
 
 # Every limb's spine has one static structure (count of control points, subdivisions per
@@ -123,9 +123,9 @@ def reach_needed(spine, part, vertices, arc, margin, chunk=2048):
     around the foot). Else (k,) the largest distance of the region's vertices to the spine
     points near them, around the arc lengths `arc` (for a straighter fit)."""
     s, points, curvature = map(np.asarray, spine_samples(spine))
-    within, far = in_reach(vertices[part.vertices], points, curvature, margin, chunk)
-    if within.all():
-        return None
+    if within_reach(vertices[part.vertices], points, curvature, margin, chunk).all():
+        return None  # (most regions: the distances to every sample are not needed)
+    _, far = in_reach(vertices[part.vertices], points, curvature, margin, chunk)
     # Over a window of arc lengths: the refitted spine's feet move a little.
     window = len(s) // 16
     padded = np.pad(far, window, mode="edge")
