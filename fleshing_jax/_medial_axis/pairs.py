@@ -1,20 +1,22 @@
-"""The signed distances of (point, primitive) pairs of a medial mesh, in one compiled loop.
+"""Loops over (point, primitive) pairs of a medial mesh, compiled by numba.
 
 `UnionPrimitives.distance` measures millions of pairs (spot at 200 spheres: 1.7–2.6M in each
 of the fit's candidate searches, and its evaluations, the envelope and `medial_distance`
 besides). In NumPy every operation of the closed forms is a pass over the pairs, after
-gathering each pair's primitive quantities; here one loop, compiled by numba, reads them in
-place: 85 → 18 ms for the 1.7M pairs of one of spot's searches (4.7×).
+gathering each pair's primitive quantities; here one loop reads them in place: 85 → 18 ms
+for the 1.7M pairs of one of spot's searches (4.7×). The candidate search's tests (tiles,
+samples, slabs' boxes) and filters, `prune`'s bounds and `closest`'s choice are loops too.
 
 The arithmetic is that of `primitives` (the lone sphere's `norm`, `_Cones._parts`,
 `_Slabs.distance` and `_Slabs._parts`), each operation in the same order on the same float64
 numbers: the same values, bit for bit (IEEE operations and square roots; numba contracts no
 multiply-add into a fused one without `fastmath`), which the fit's ties need (see
 `_Slabs._parts`). `np.minimum`'s and `np.maximum`'s NaN and signed-zero rules are written
-out (`_least`, and the cone's `max(·, 0)`).
+out (`_least`, and the cone's `max(·, 0)`), and division as NumPy's (`error_model="numpy"`:
+infinities and NaN, never an exception).
 
-Compiled on first use and cached beside this file (`cache=True`): a later process loads it
-in about 0.1 s (plus numba's import, 0.2 s).
+Compiled on first use (about 3 s with `triangles`) and cached beside this file
+(`cache=True`): a later process loads them in 0.1–0.3 s, plus numba's import (0.2 s).
 """
 
 from __future__ import annotations
@@ -25,13 +27,13 @@ import numpy as np
 from .primitives import FOOT
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")
 def _least(a, b):
     """`np.minimum(a, b)` of two floats (NaN if either is NaN; `a` on a tie)."""
     return a if (a <= b or a != a) else b
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")
 def _cone(px, py, pz, cone, i):
     """`_Cones.distance` of one point to cone `i` (`cone`: `_Cones.columns`)."""
     d0x, d0y, d0z = px - cone[0, i], py - cone[1, i], pz - cone[2, i]
@@ -52,7 +54,7 @@ def _cone(px, py, pz, cone, i):
     return _least(_least(end0, end1), lateral)
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")
 def _slab(px, py, pz, test, table, i):
     """`_Slabs.distance` of one point to slab `i` (`test`, `table`: `_Slabs.test`, `.table`):
     `inf` where the foot's coordinates put it off the triangle."""
@@ -78,7 +80,7 @@ def _slab(px, py, pz, test, table, i):
     return np.inf
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")
 def pair_distances(points, pts, prim, kind, index, centers, radii, cone, test, table, out):
     """`out[k]`: the signed distance of `points[pts[k]]` to primitive `prim[k]` (`kind` 0, 1,
     2: lone sphere, cone, slab, number `index` among its kind; the tables of `_Cones` and
@@ -96,14 +98,14 @@ def pair_distances(points, pts, prim, kind, index, centers, radii, cone, test, t
             out[k] = _slab(px, py, pz, test, table, i)
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")
 def _kept(pts, prim, value, keep, count: int):
     """The pairs at positions `keep[:count]`: `(pts, prim, value)`."""
     keep = keep[:count]
     return pts[keep], prim[keep], value[keep]
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")
 def lowered_band(best, pts, prim, value, band: float):
     """`candidates.search`'s step per block: `best[pts] = min(best[pts], value)` in the pairs'
     order (as `np.minimum.at`), then the pairs `(pts, prim, value)` with `value <= best[pts]
@@ -119,7 +121,7 @@ def lowered_band(best, pts, prim, value, band: float):
     return _kept(pts, prim, value, keep, count)
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")
 def in_band(best, pts, prim, value, band: float):
     """The pairs `(pts, prim, value)` with `value − best[pts] <= band`, in their order
     (`candidates.search`'s last filter)."""
@@ -132,7 +134,7 @@ def in_band(best, pts, prim, value, band: float):
     return _kept(pts, prim, value, keep, count)
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")
 def pruned(pts, prim, value, change, solid: int, upper, tolerance: float):
     """`candidates.prune`'s selection: `upper[pts] = min(upper[pts], value + change[prim])`
     over the first `solid` pairs (spheres and cones) in order, then the positions `(K,)` of
@@ -148,7 +150,7 @@ def pruned(pts, prim, value, change, solid: int, upper, tolerance: float):
     return keep[:count]
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")
 def attaining(pts, value, points: int):
     """`candidates.closest`'s choice: each sample's least `value` `(points,)` (as
     `np.minimum.at`) and the position `(points,)` of its last pair attaining it (as NumPy's
@@ -163,13 +165,13 @@ def attaining(pts, value, points: int):
     return best, pick
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")
 def _largest(a, b):
     """`np.maximum(a, b)` of two floats (NaN if `a` is NaN; `a` on a tie)."""
     return a if (a >= b or a != a) else b
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")
 def near_tiles(centre, low, high, reach):
     """`candidates.ball_blocks`'s first test `(P, tiles)`: whether the distance of
     `centre[i]` to tile `t`'s box `low[:, t]`–`high[:, t]`, summed and rooted as
@@ -188,7 +190,7 @@ def near_tiles(centre, low, high, reach):
     return near
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")
 def _inside(x, y, z, reach, centre, radius, i, t, lane):
     """`candidates.ball_blocks`'s float32 test of sample `lane` of tile `t` against
     primitive `i`."""
@@ -202,7 +204,7 @@ def _inside(x, y, z, reach, centre, radius, i, t, lane):
     return square <= limit * limit and limit >= 0
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")
 def tile_pairs(near, start: int, stop: int, tiles, centre, radius, order):
     """`candidates.ball_blocks`' pairs `(pts, prim)` of primitives `start` to `stop`: the
     samples of their `near` tiles (`tiles = (x, y, z, reach)`, each `(tiles, TILE)` float32,
@@ -228,7 +230,7 @@ def tile_pairs(near, start: int, stop: int, tiles, centre, radius, order):
     return pts, prim
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")
 def _span(v, d, half, size):
     """`_Slabs.in_boxes`'s `span`: `v·d`, `|v|·half`, `|v|·size` (each `v` a 3-tuple)."""
     return ((v[0] * d[0] + v[2] * d[2]) + v[1] * d[1],
@@ -236,7 +238,7 @@ def _span(v, d, half, size):
             (abs(v[0]) * size[0] + abs(v[2]) * size[2]) + abs(v[1]) * size[1])
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")
 def slab_boxes(test, i, low, high):
     """`_Slabs.in_boxes` `(M,)` for slabs `i (M,)` (`test`: `_Slabs.test`) and boxes `low
     (3, M)` to `high (3, M)`: the same bounds, operation for operation."""
