@@ -24,7 +24,7 @@ pose's vertices, samples of a mesh), from the rest pose:
   leg's part is small (spot's, 270 of 5,000 samples). A uniform sample kept a third of it:
   with 0.5 % noise the legs' bends were determined to ±4.9° and ±3.3° and fitted 6–8° off;
   with all of it, ±2.5° and 2°, which is the data's own bound (the Cramér–Rao bound of
-  the legs' 5,000 samples at that noise, ±2.2–2.8°, `benchmarks/fit_pose.py`).
+  the legs' 5,000 samples at that noise, ±2.0–2.8°, `benchmarks/fit_pose.py`).
 - **Continuation in σ.** From the rest pose a limb may lie a fifth of the diagonal from its
   target, where a small σ would see only outliers. The solve runs at σ = 10 %, 3 % and 1 % of
   the target's diagonal in turn, each stage from the last (one compiled program: σ and the
@@ -169,7 +169,7 @@ def _shares(owner: np.ndarray, count: int, rng) -> np.ndarray:
     gets an equal share, a part smaller than its share all of its points and what it leaves
     to the others. Only a limb's own points depend on its angles: a uniform sample of 1,500 of
     spot's 5,000 left 270 of its legs' 820, their bends' standard errors ±4.9° and ±3.3°
-    with 0.5 % noise (over the legs' every point, the data's bound is ±2.2–2.8°)."""
+    with 0.5 % noise (over the legs' every point, the data's bound is ±2.0–2.8°)."""
     parts = sorted((np.flatnonzero(owner == k) for k in np.unique(owner)), key=len)
     kept, left = [], count
     for i, ids in enumerate(parts):
