@@ -78,14 +78,19 @@ def limb_region(spine, cut: float, tip: np.ndarray, arc, radius, vertices, adjac
     """
     s, points, curvature = map(np.asarray, spine_samples(spine))
     tree = cKDTree(points)
-    # A vertex farther from every sample than the reach's largest radius is in no region's
-    # reach: its nearest sample is not searched for (most of a large mesh, for each limb
-    # tried: 75 % of the bunny's skeleton's region time); its arc length is NaN, found
+    # A vertex outside the parent's region, or farther from every sample than the reach's
+    # largest radius (outside their box grown by it), is in no candidate region: its
+    # nearest sample is not searched for (most of a large mesh, for each limb tried: the
+    # search was 75 % of the bunny's skeleton's region time); its arc length is NaN, found
     # below if it borders the region. (`owned` regions are bounded by the focal distance
-    # alone: searched in full.)
+    # alone: searched wherever allowed.)
     bound = np.inf if owned is not None else max(reach_factor, REACH) * float(np.max(radius))
-    distance, nearest = tree.query(vertices, distance_upper_bound=bound)
-    searched = nearest < len(s)
+    searched = np.asarray(allowed, bool) & np.all(
+        (vertices > points.min(axis=0) - bound) & (vertices < points.max(axis=0) + bound), axis=1)
+    distance, nearest = np.full(len(vertices), np.inf), np.zeros(len(vertices), np.int64)
+    distance[searched], nearest[searched] = tree.query(vertices[searched],
+                                                       distance_upper_bound=bound)
+    searched &= nearest < len(s)
     nearest = np.where(searched, nearest, 0)
     along = np.where(searched, s[nearest], np.nan)
     local = np.interp(along, arc, radius)
