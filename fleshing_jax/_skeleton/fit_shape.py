@@ -409,7 +409,6 @@ def fit_to_shape(registration: SkeletonRegistration, skeleton: Skeleton, target,
 _distances = eqx.filter_jit(to_surface)
 
 
-
 def _loss(linear) -> float:
     return float(jnp.sum(linear[1] ** 2))
 
