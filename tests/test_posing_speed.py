@@ -72,3 +72,25 @@ def test_a_frame_without_the_projection_check_places_the_same_vertices(skeleton,
     assert np.sum(~fast) == np.sum(~ok) > 0
     with pytest.raises(TypeError, match="check_projection"):
         fj.pose_skeleton(registration, skeleton, poses, check_projection="no")
+
+
+def test_a_pose_of_python_numbers_is_kept_as_the_general_path_keeps_it():
+    """Python numbers take `LimbPose`'s quick path (a frame's poses, built every frame): its
+    angles must be what the general path makes of the same values as NumPy scalars (the same
+    types, dtypes and values: the same compiled frame), and values it does not take (past a
+    turn, not finite, bools) still refused by name."""
+    for angles in ((60.0, 10.0, 5.0), (45, -170, 0), (-360.0, 359.5, 360)):
+        quick = fj.LimbPose(*angles)
+        general = fj.LimbPose(*(np.asarray(a) for a in angles))
+        for name in ("bend", "direction", "twist"):
+            a, b = getattr(quick, name), getattr(general, name)
+            assert type(a) is type(b) and a.dtype == b.dtype and a == b, name
+        assert quick.towards is None
+        assert jax.tree.structure(quick) == jax.tree.structure(general)
+    for bad, match in (((361.0,), "full turn"), ((0.0, 0.0, -400),
+                                                  "full turn"), ((np.inf,), "finite"),
+                       ((0.0, float("nan")), "finite"), ((True,), "an angle")):
+        with pytest.raises((ValueError, TypeError), match=match):
+            fj.LimbPose(*bad)
+    # A direction past a turn takes the general path: kept as given.
+    assert float(fj.LimbPose(10.0, 720.0).direction) == 720.0
