@@ -218,22 +218,27 @@ def test_gradients_of_the_angles(skeleton, registration, posed_child):
         poses = {0: fj.LimbPose(angles[0], angles[1], angles[2])}
         if posed_child:
             poses[1] = fj.LimbPose(angles[3])
-        return fj.pose_skeleton(registration, skeleton, poses).vertices[tip, 2]
+        posed = fj.pose_skeleton(registration, skeleton, poses)
+        return posed.vertices[tip, 2], posed
 
     angles = np.array([40.0, 90.0, 10.0, 20.0][: 4 if posed_child else 3])
     # (Jitted: one program for the value and gradient; unjitted, value_and_grad compiled the
     # pose's linearisation and transpose as programs of their own, 5 s more.)
-    value, gradient = jax.jit(jax.value_and_grad(tip_height))(jnp.asarray(angles))
-    # Traced, each limb is posed at its own bucket size (limb 0's 192 of the 384 its
-    # registration is padded to for the eager calls): the eager pose's value.
+    (value, posed), gradient = jax.jit(jax.value_and_grad(tip_height, has_aux=True))(
+        jnp.asarray(angles))
+    # Traced, each limb is posed at its own size (limb 0's rows, not the 384 its registration
+    # is padded to for the eager calls, nor their bucket): the eager pose's vertices and flags.
     from fleshing_jax._skeleton.posing import _limb_registration
 
     own = _limb_registration(registration, 0, True).points.shape[0]
-    assert own < registration.registrations[0].points.shape[0]
-    assert float(value) == pytest.approx(float(tip_height(angles)), rel=0, abs=1e-12)
+    assert own == registration.indices[0].shape[0] < registration.registrations[0].points.shape[0]
+    eager_value, eager = tip_height(angles)
+    assert float(value) == pytest.approx(float(eager_value), rel=0, abs=1e-12)
+    np.testing.assert_allclose(posed.vertices, eager.vertices, rtol=0, atol=1e-12)
+    np.testing.assert_array_equal(posed.valid, eager.valid)
     eps = 1e-3
     for i, step in enumerate(eps * np.eye(len(angles))):  # central differences, eager path
-        difference = (tip_height(angles + step) - tip_height(angles - step)) / (2 * eps)
+        difference = (tip_height(angles + step)[0] - tip_height(angles - step)[0]) / (2 * eps)
         assert float(gradient[i]) == pytest.approx(float(difference), rel=1e-6, abs=1e-9)
     assert abs(float(gradient[0])) > 1e-3 and abs(float(gradient[1])) > 1e-4
 

@@ -540,9 +540,10 @@ def posed_limbs(registration: SkeletonRegistration, poses: dict, method: str, ch
     spines a padded shape) posed as one batch by `vmap`, so that a traced program holds one
     limb's code, not one per limb (a fit's objective, compiled with its derivatives)."""
     targets = {k: limb_target(registration, k, pose) for k, pose in poses.items()}
-    # Traced poses (a jitted frame, a gradient) pose each limb at its own bucket size, not the
-    # largest limb's it is padded to for the eager calls' shared programs: on spot's 100k
-    # vertices a leg's 4.9k vertices were posed as 24.6k.
+    # Traced poses (a jitted frame, a gradient) pose each limb at its own size, not the largest
+    # limb's bucket it is padded to for the eager calls' shared programs (on spot's 100k
+    # vertices a leg's 4.9k vertices were posed as 24.6k), nor its own bucket (its shapes are
+    # the frame's program's alone: the head's 17.8k were posed as 24.6k).
     own = not (stacked or is_concrete(poses))
     # (Unchecked, no spine to check on: nor in the batches' structure, a fit's limbs grouped.)
     pairs = {k: (_limb_registration(registration, k, own), target,
@@ -574,8 +575,9 @@ def _stacked_posers(pairs: dict, method: str, check: bool) -> dict:
     one by one by XLA's CPU backend: batched, a frame of spot's 9 limbs runs them once."""
     args = {k: (reg.ends, reg.points[:1], target, on) for k, (reg, target, on) in pairs.items()}
     # One certificate for all, the largest region's (`certificate_samples`), as eagerly (every
-    # limb padded to the largest's rows): one batch still.
-    certificate = certificate_samples(max(reg.points.shape[0] for reg, _, _ in pairs.values()))
+    # limb padded to the largest's rows, a bucket): one batch still.
+    certificate = certificate_samples(max(bucket(reg.points.shape[0])
+                                          for reg, _, _ in pairs.values()))
     posers = {}
     for ks, batch in _stacked_groups(args):
         def prepared(ends, point, target, on):
@@ -602,9 +604,9 @@ def _stacked_groups(args: dict, smallest: int = 1) -> list:
 
 
 def _limb_registration(registration: SkeletonRegistration, k: int, own: bool) -> Registration:
-    """Limb `k`'s `Registration`, at its own bucket size if `own` (else as registered)."""
+    """Limb `k`'s `Registration`, at its own size if `own` (else as registered: padded)."""
     reg = registration.registrations[k]
-    return unpad_batch(reg, bucket(registration.indices[k].shape[0])) if own else reg
+    return unpad_batch(reg, registration.indices[k].shape[0]) if own else reg
 
 
 def limb_target(registration: SkeletonRegistration, k: int, pose) -> AbstractSpine:
