@@ -29,8 +29,10 @@ import importlib.util
 import os
 import pickle
 import tempfile
+import threading
 from collections import OrderedDict
 from pathlib import Path
+from typing import NamedTuple
 
 import equinox as eqx
 import jax
@@ -148,6 +150,17 @@ def _program(folder: Path, key: str, fun, avals):
     return exported, outlines[0]
 
 
+class _Loaded(NamedTuple):
+    """A kept program in memory: `exported` (`jax.export`'s), `jitted` (its call, jitted),
+    the `outline` of its output (`_outline`), and the thread `prepare` compiles it in (`None`
+    where none was started; joined by every call, at once when it is done)."""
+
+    exported: jax.export.Exported
+    jitted: object
+    outline: object
+    compiling: threading.Thread | None
+
+
 def _uncommitted(array):
     """`array` not committed to its device, as `jit` returns from uncommitted arguments (a
     loaded program's outputs are committed: mixed with uncommitted arrays in eager operations,
@@ -173,13 +186,14 @@ def persistent(fun=None, *, compiler_options: dict | None = None):
     jitted = eqx.filter_jit(fun, compiler_options=compiler_options)
     name = f"{fun.__module__}.{fun.__qualname__}"
 
-    @functools.wraps(fun)
-    def call(*args):
+    def program(args, arrays):
+        """`(key, leaves, loaded)` of a call on `args` (`arrays` tells its traced leaves):
+        `loaded` a `_Loaded`, `None` where the program is not kept (`jitted` then)."""
         folder = _folder()
-        dynamic, static = eqx.partition(args, eqx.is_array)
+        dynamic, static = eqx.partition(args, arrays)
         leaves, treedef = jax.tree.flatten(dynamic)
         if folder is None or any(isinstance(a, jax.core.Tracer) for a in leaves):
-            return jitted(*args)
+            return None, leaves, None
         # What decides the trace, hashable: compared in memory on every call (a few
         # microseconds), written out as the file's key only for a program not loaded yet.
         constants, constants_def = jax.tree.flatten(static)
@@ -190,7 +204,7 @@ def persistent(fun=None, *, compiler_options: dict | None = None):
         loaded = _loaded.pop(key, None)
         if loaded is None and (key in _unkept or " at 0x" in repr(signature)):
             # (An object printed by its address, another in each process: no key on disk.)
-            return jitted(*args)
+            return key, leaves, None
         if loaded is None:
             avals = [jax.ShapeDtypeStruct(shape, dtype, weak_type=weak)
                      for shape, dtype, weak in signature[-1]]
@@ -198,19 +212,65 @@ def persistent(fun=None, *, compiler_options: dict | None = None):
             def flat(*leaves):
                 return fun(*eqx.combine(jax.tree.unflatten(treedef, leaves), static))
 
-            program = _program(folder, _key(name, signature), flat, avals)
-            if program is None:
+            exported = _program(folder, _key(name, signature), flat, avals)
+            if exported is None:
                 _unkept.add(key)
-                return jitted(*args)
-            exported, outline = program
-            loaded = jax.jit(exported.call, compiler_options=compiler_options), outline
+                return key, leaves, None
+            loaded = _Loaded(exported[0], jax.jit(exported[0].call,
+                                                  compiler_options=compiler_options),
+                             exported[1], None)
         _loaded[key] = loaded  # the most recent last
         while len(_loaded) > LOADED:
             _loaded.popitem(last=False)
-        program, outline = loaded
-        outputs = program(*leaves)
+        return key, leaves, loaded
+
+    @functools.wraps(fun)
+    def call(*args):
+        key, leaves, loaded = program(args, eqx.is_array)
+        if loaded is None:
+            return jitted(*args)
+        if loaded.compiling is not None:  # (`prepare` compiles it: waited for, not twice)
+            loaded.compiling.join()
+        outputs = loaded.jitted(*leaves)
         if not any(getattr(a, "committed", False) for a in leaves):
             outputs = [_uncommitted(a) for a in outputs]
-        return _filled(outline, outputs)
+        return _filled(loaded.outline, outputs)
 
+    def prepare(*args):
+        """Starts compiling the program of a later `call(*args)` in a thread of its own
+        (XLA's compile runs outside Python's lock, so another program is traced meanwhile);
+        `args` may hold `jax.ShapeDtypeStruct`s for arrays. Returns the call's output with a
+        `jax.ShapeDtypeStruct` for each array (what the next program's `prepare` takes), or
+        `None` where the program is not kept (no cache folder: the call compiles it)."""
+        key, leaves, loaded = program(args, _abstract_or_array)
+        if loaded is None:
+            return None
+        if loaded.compiling is None:
+            avals = [_abstract(a) for a in leaves]  # (weak types as the call's: its key)
+            compiling = threading.Thread(target=_compile, args=(loaded.jitted, avals),
+                                         daemon=True)
+            compiling.start()
+            _loaded[key] = loaded._replace(compiling=compiling)
+        return _filled(loaded.outline, [_abstract(a) for a in loaded.exported.out_avals])
+
+    call.prepare = prepare
     return call
+
+
+def _abstract_or_array(x) -> bool:
+    return isinstance(x, jax.ShapeDtypeStruct) or eqx.is_array(x)
+
+
+def _abstract(x) -> jax.ShapeDtypeStruct:
+    """`x`'s shape, dtype and weak type."""
+    return jax.ShapeDtypeStruct(np.shape(x), x.dtype, weak_type=bool(getattr(x, "weak_type",
+                                                                             False)))
+
+
+def _compile(jitted, avals) -> None:
+    """`jitted` compiled for `avals` (JAX keeps it for the call); a failure is left to the
+    call, which compiles it again and raises there."""
+    try:
+        jitted.lower(*avals).compile()
+    except Exception:  # noqa: BLE001 (the call compiles it again and raises there)
+        pass

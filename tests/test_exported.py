@@ -157,3 +157,25 @@ def test_a_program_jax_cannot_export_is_jitted(folder):
     np.testing.assert_array_equal(doubled_on_the_host(x), 2 * x + 1)
     assert traces == ["callback", "callback"]  # the export's trace, then jit's (once)
     assert list(folder.iterdir()) == []
+
+
+def test_prepare_compiles_ahead_from_shapes(folder, monkeypatch):
+    # `prepare` traces once (from shapes, or arrays), compiles in a thread, and returns the
+    # output's shapes: the call then neither traces nor compiles again (a skeleton's
+    # registration chains its programs so). Without a folder: `None`, nothing started.
+    from jax._src import compiler
+
+    scale, x = Scale(jnp.asarray(1.5, jnp.float64), 2), np.linspace(0.0, 1.0, 5)
+    shapes = scaled_module.prepare(Scale(jax.ShapeDtypeStruct((), jnp.float64), 2),
+                                   jax.ShapeDtypeStruct((5,), jnp.float64))
+    assert traces == ["module"] and isinstance(shapes[0], Scale) and shapes[0].power == 3
+    assert shapes[0].factor.shape == (5,) and shapes[0].factor.dtype == jnp.float64
+    for loaded in _exported._loaded.values():
+        loaded.compiling.join()
+    compiles = []
+    monkeypatch.setattr(compiler, "compile_or_get_cached", lambda *a, **k: compiles.append(a))
+    out, _ = scaled_module(scale, x)
+    assert traces == ["module"] and compiles == []
+    np.testing.assert_array_equal(out.factor, 1.5 * x)
+    monkeypatch.setattr(_exported, "_folder", lambda: None)
+    assert scaled_module.prepare(scale, x) is None

@@ -70,4 +70,15 @@ class Program:
         self.quick = jit(fun, compiler_options=QUICK_COMPILE)
 
     def __call__(self, *args, quick: bool = True):
-        return (self.quick if quick and top_level() else self.optimised)(*args)
+        return self._pick(quick)(*args)
+
+    def prepare(self, *args, quick: bool = True):
+        """For a kept program: starts compiling it for a later call on `args` (arrays or
+        `jax.ShapeDtypeStruct`s), in a thread (`_exported.persistent`), and returns the call's
+        output as `jax.ShapeDtypeStruct`s; `None` where nothing was started (not kept, or no
+        cache folder: the call compiles it)."""
+        prepare = getattr(self._pick(quick), "prepare", None)
+        return None if prepare is None else prepare(*args)
+
+    def _pick(self, quick: bool):
+        return self.quick if quick and top_level() else self.optimised

@@ -164,11 +164,12 @@ def register_skeleton(mesh, skeleton: Skeleton, *, margin: float | None = None,
     size = bucket(max([int(np.sum(region == k)) for k in range(len(skeleton.limbs))], default=0))
     # (Each limb's rows gathered on the host: on the device, one program per region size.)
     rows = np.asarray(points)
-    for k, limb in enumerate(skeleton.limbs):
+    # (Each limb's floats cast on the host: on the device, one program per array shape.)
+    spines = [jax.device_put(cast_floats(jax.tree.map(np.asarray, limb.spine),
+                                         points.dtype))._bucketed() for limb in skeleton.limbs]
+    _compile_ahead(spines, jax.ShapeDtypeStruct((size, 3), points.dtype), margin)
+    for k, (limb, spine) in enumerate(zip(skeleton.limbs, spines)):
         ids = np.flatnonzero(region == k).astype(np.int32)
-        # (Its floats cast on the host: on the device, one program per array shape.)
-        spine = jax.device_put(cast_floats(jax.tree.map(np.asarray, limb.spine),
-                                           points.dtype))._bucketed()
         tabled = tabulates(spine, points.dtype)  # (its length not computed again)
         batch = jax.device_put(pad_batch(rows[ids], size))
         prepared, table, length = _rests(spine, tabulable(spine))
@@ -212,6 +213,24 @@ def register_skeleton(mesh, skeleton: Skeleton, *, margin: float | None = None,
                                 tuple(indices), tuple(joints),
                                 tuple(stops), points, margin, tuple(zones),
                                 on_device(_triangles(faces), np.int32), fingerprint(skeleton))
+
+
+def _compile_ahead(spines: list, batch: jax.ShapeDtypeStruct, margin: Array) -> None:
+    """Starts compiling `register_skeleton`'s programs for the limbs' rest `spines` and
+    padded `batch`, each in a thread as soon as it is traced (`_exported.persistent`'s
+    `prepare`), so that each compiles while the next is traced (without a cache folder: each
+    compiled by its first call)."""
+    for spine in spines:  # (one program each for all limbs of a bucket: started once)
+        rests = _rests.prepare(spine, tabulable(spine))
+        if rests is None:
+            return
+        prepared, table, _ = rests
+        tabled = tabulates(spine, batch.dtype)
+        _registration.prepare(prepared, batch, margin, table.table if tabled else None,
+                              quick=batch.shape[0] <= QUICK_BATCH)
+        _frames_at.prepare(table if tabled else prepared,
+                           jax.ShapeDtypeStruct(batch.shape[:1], batch.dtype),
+                           jax.ShapeDtypeStruct((), batch.dtype))
 
 
 def _triangles(faces: np.ndarray) -> np.ndarray:
