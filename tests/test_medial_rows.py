@@ -51,3 +51,30 @@ def test_sorted_rows_and_keys(k):
     np.testing.assert_array_equal(keys, rows @ (n ** np.arange(k - 1, -1, -1)))
     order = np.lexsort(rows.T[::-1])
     assert np.all(np.diff(keys[order]) >= 0)  # the rows' lexicographic order
+
+
+def test_edge_loops_are_numpy_s_bit_for_bit():
+    # The collapses' per-edge loops (`edge_loops`) against the NumPy forms they replace:
+    # the summed quadrics, and the cheapest of four options (a negative radius never chosen,
+    # a NaN error picked first as by `np.argmin`, ties to the first).
+    from fleshing_jax._medial_axis.edge_loops import cheapest, edge_quadrics
+    from fleshing_jax._medial_axis.simplify import _error
+
+    rng = np.random.default_rng(3)
+    n, e = 50, 400
+    spheres, b = rng.normal(size=(n, 4)), rng.normal(size=(n, 4))
+    A, c = rng.normal(size=(n, 4, 4)) * 10.0 ** rng.integers(-6, 6, (n, 1, 1)), rng.normal(size=n)
+    i, j = rng.integers(0, n, (e, 2)).T  # (columns of the edges, as `simplify` passes)
+    Ae, be, ce, si, sj = edge_quadrics(spheres, A, b, c, i, j)
+    for x, y in ((Ae, A[i] + A[j]), (be, b[i] + b[j]), (ce, c[i] + c[j]), (si, spheres[i]),
+                 (sj, spheres[j])):
+        np.testing.assert_array_equal(x, y)
+    options = [rng.normal(size=(e, 4)) for _ in range(4)]
+    options[2][:20] = options[1][:20]  # ties
+    options[3][20:30, 0] = np.nan  # a NaN error
+    errors = np.stack([np.where(x[:, 3] >= 0, np.maximum(_error(Ae, be, ce, x), 0), np.inf)
+                       for x in options], 1)
+    pick = np.argmin(errors, axis=1)
+    error, chosen = cheapest(Ae, be, ce, *options)
+    np.testing.assert_array_equal(error, errors[np.arange(e), pick])
+    np.testing.assert_array_equal(chosen, np.stack(options, 1)[np.arange(e), pick])

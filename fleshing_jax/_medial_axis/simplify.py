@@ -89,31 +89,22 @@ def _error(A, b, c, m):
 
 def _edge_costs(spheres, A, b, c, edges, k, length_weight, scale, stable, hausdorff=0.0,
                 uncovered=None):
-    i, j = edges[:, 0], edges[:, 1]
-    # (`np.take`, not `A[i]`: the same rows, several times faster in NumPy 2.4.)
-    Ae = np.take(A, i, axis=0) + np.take(A, j, axis=0)
-    be = np.take(b, i, axis=0) + np.take(b, j, axis=0)
-    ce = c[i] + c[j]
-    si, sj = np.take(spheres, i, axis=0), np.take(spheres, j, axis=0)
+    # (Numba loops, `edge_loops`: the quadrics summed and the options priced in one pass.)
+    from .edge_loops import cheapest, edge_quadrics
+
+    Ae, be, ce, si, sj = edge_quadrics(spheres, A, b, c, edges[:, 0], edges[:, 1])
     mid = (si + sj) / 2
     eps = 1e-6 * np.trace(Ae, axis1=1, axis2=2) / 4 + 1e-300
     reg = Ae + eps[:, None, None] * np.eye(4)
     best = np.linalg.solve(reg, (eps[:, None] * mid - be)[..., None])[..., 0]
-    # The four options, each an (e, 4) array of its own: stacked into one (e, 4, 4) array,
-    # the copy and einsum's strided rows took a fifth of the time (the same values).
-    options = (best, si, sj, mid)
-    errors = np.stack([np.where(x[:, 3] >= 0, np.maximum(_error(Ae, be, ce, x), 0), np.inf)
-                       for x in options], 1)
-    pick = np.argmin(errors, axis=1)
-    rows = np.arange(len(edges))
-    chosen = np.select([(pick == k)[:, None] for k in range(3)], options[:3], options[3])
+    # The cheapest of the four options (`_error`, a negative radius never chosen).
+    error, chosen = cheapest(Ae, be, ce, best, si, sj, mid)
     length = norm(si[:, :3] - sj[:, :3])
     dr = np.abs(si[:, 3] - sj[:, 3])
     stability = np.clip((length - dr) / np.where(length > 0, length, 1.0), 0, 1)
     # Saturated: ratios above `stable` count as 1 (see the module's notes).
     stability = np.minimum(stability / stable, 1.0) if stable > 0 else stability
-    error = errors[rows, pick] / scale**2
-    cost = error + k + length_weight * (length / scale) ** 2
+    cost = error / scale**2 + k + length_weight * (length / scale) ** 2
     if uncovered is not None:  # see `simplify`'s `hausdorff`
         cost = cost + hausdorff * (uncovered(edges, chosen) / scale) ** 2
     return cost * stability**2, chosen
