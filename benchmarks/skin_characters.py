@@ -1,0 +1,157 @@
+"""The rig `fj.skeleton` finds on characters modelled in Blender, not by us (issue 45).
+
+    python benchmarks/skin_characters.py --bpy /path/to/venv-with-bpy/bin/python \
+        [--seeds 4] [--spheres 200] [--figures DIR]
+
+Our procedural characters share one way of building a surface (`_medial_axis.characters`).
+Here a human and a horned cow are modelled as an artist blocks a character out in Blender:
+a stick figure of joints with a radius each, its skin modifier's quad surface, subdivided
+twice (`pip install bpy` in another environment: `--bpy` names its Python; the meshes are
+made there). Each gets `fj.skeleton` at medial seeds 0 … n−1 (holes from the skin's branch
+points capped by `fj.cap_holes`). Prints a Markdown table: limbs, chains from the body and
+their lengths, and which of the tips an animator would pose (head, hands, feet; muzzle,
+horns, tail, hooves) lie in a limb of their own, outside the body.
+"""
+
+from __future__ import annotations
+
+import argparse
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+# Joints (x, y, z; z up) and their radii; edges between joints. Tips: (name, joint, nudge
+# outwards to the surface).
+HUMAN = {
+    "joints": {
+        "pelvis": ((0, 0, 1.0), 0.15), "chest": ((0, 0, 1.35), 0.17),
+        "neck": ((0, 0, 1.55), 0.06), "head": ((0, 0.02, 1.75), 0.11),
+        **{f"{s}{name}": ((sign * x, 0, z), r) for s, sign in (("l", 1), ("r", -1))
+           for name, x, z, r in (("shoulder", 0.2, 1.45, 0.06), ("elbow", 0.45, 1.45, 0.045),
+                                 ("wrist", 0.7, 1.45, 0.035), ("hand", 0.8, 1.45, 0.04))},
+        **{f"{s}{name}": ((sign * 0.1, y, z), r) for s, sign in (("l", 1), ("r", -1))
+           for name, y, z, r in (("hip", 0, 0.95, 0.08), ("knee", 0.02, 0.5, 0.06),
+                                 ("ankle", 0, 0.08, 0.045), ("toe", 0.15, 0.04, 0.04))},
+    },
+    "bones": [("pelvis", "chest"), ("chest", "neck"), ("neck", "head")]
+    + [(a if a in ("chest", "pelvis") else s + a, s + b) for s in "lr" for a, b in (
+        ("chest", "shoulder"), ("shoulder", "elbow"), ("elbow", "wrist"), ("wrist", "hand"),
+        ("pelvis", "hip"), ("hip", "knee"), ("knee", "ankle"), ("ankle", "toe"))],
+    "tips": [("head", "head", (0, 0, 0.1)), ("left hand", "lhand", (0.04, 0, 0)),
+             ("right hand", "rhand", (-0.04, 0, 0)), ("left foot", "ltoe", (0, 0.04, 0)),
+             ("right foot", "rtoe", (0, 0.04, 0))],
+}
+COW = {
+    "joints": {
+        "rump": ((-0.5, 0, 1.0), 0.28), "belly": ((0, 0, 1.05), 0.3),
+        "chest": ((0.5, 0, 1.05), 0.28), "neck": ((0.75, 0, 1.25), 0.14),
+        "head": ((0.95, 0, 1.3), 0.13), "muzzle": ((1.15, 0, 1.15), 0.09),
+        "lhorn": ((0.95, 0.15, 1.5), 0.03), "rhorn": ((0.95, -0.15, 1.5), 0.03),
+        "tail": ((-0.75, 0, 1.1), 0.04), "tail tip": ((-0.85, 0, 0.7), 0.025),
+        **{f"{leg}{name}": ((x + dx, y, z), r) for leg, x, y in (
+            ("front left ", 0.45, 0.15), ("front right ", 0.45, -0.15),
+            ("hind left ", -0.45, 0.15), ("hind right ", -0.45, -0.15))
+           for name, dx, z, r in (("hip", 0, 0.85, 0.1), ("knee", -0.05 * (x < 0), 0.45, 0.06),
+                                  ("hoof", 0, 0.05, 0.06))},
+    },
+    "bones": [("rump", "belly"), ("belly", "chest"), ("chest", "neck"), ("neck", "head"),
+              ("head", "muzzle"), ("head", "lhorn"), ("head", "rhorn"), ("rump", "tail"),
+              ("tail", "tail tip")]
+    + [(top if a == "top" else leg + a, leg + b) for leg, top in (
+        ("front left ", "chest"), ("front right ", "chest"), ("hind left ", "rump"),
+        ("hind right ", "rump")) for a, b in (("top", "hip"), ("hip", "knee"), ("knee", "hoof"))],
+    "tips": [("muzzle", "muzzle", (0, 0, 0)), ("left horn", "lhorn", (0, 0, 0)),
+             ("right horn", "rhorn", (0, 0, 0)), ("tail", "tail tip", (0, 0, 0))]
+    + [(f"{leg}hoof", f"{leg}hoof", (0, 0, 0)) for leg in (
+        "front left ", "front right ", "hind left ", "hind right ")],
+}
+CHARACTERS = {"human": HUMAN, "cow": COW}
+
+
+def blender_side(out: Path):
+    """Runs under Blender's Python: each character's skinned, subdivided, triangulated mesh
+    and its tips into `out` (.npz)."""
+    import bpy  # noqa: I001 (bmesh is importable once bpy is)
+    import bmesh
+
+    arrays = {}
+    for name, figure in CHARACTERS.items():
+        bpy.ops.wm.read_factory_settings(use_empty=True)
+        names = list(figure["joints"])
+        mesh = bpy.data.meshes.new(name)
+        mesh.from_pydata([figure["joints"][n][0] for n in names],
+                         [(names.index(a), names.index(b)) for a, b in figure["bones"]], [])
+        obj = bpy.data.objects.new(name, mesh)
+        bpy.context.scene.collection.objects.link(obj)
+        obj.modifiers.new("skin", "SKIN")
+        for vertex, n in zip(obj.data.skin_vertices[0].data, names):
+            vertex.radius = (figure["joints"][n][1],) * 2
+        obj.data.skin_vertices[0].data[0].use_root = True
+        obj.modifiers.new("subdivision", "SUBSURF").levels = 2
+        evaluated = obj.evaluated_get(bpy.context.evaluated_depsgraph_get()).to_mesh()
+        surface = bmesh.new()
+        surface.from_mesh(evaluated)
+        bmesh.ops.triangulate(surface, faces=surface.faces[:])
+        arrays[f"{name}_vertices"] = np.array([v.co[:] for v in surface.verts])
+        arrays[f"{name}_faces"] = np.array([[v.index for v in f.verts] for f in surface.faces])
+        arrays[f"{name}_tips"] = np.array([np.add(figure["joints"][joint][0], nudge)
+                                           for _, joint, nudge in figure["tips"]])
+    np.savez(out, **arrays)
+
+
+def rig_table(data: Path, seeds: int, spheres: int, figures: Path | None):
+    import trimesh
+
+    import fleshing_jax as fj
+
+    arrays = np.load(data)
+    print("| character | vertices | seed | limbs | limbs per chain | tips in a limb of their own |")
+    print("|---|---:|---:|---:|---|---|")
+    for name, figure in CHARACTERS.items():
+        mesh = trimesh.Trimesh(arrays[f"{name}_vertices"], arrays[f"{name}_faces"],
+                               process=False)
+        mesh = mesh if mesh.is_watertight else fj.cap_holes(mesh)
+        vertices = np.asarray(mesh.vertices)
+        tips = [int(np.argmin(np.linalg.norm(vertices - p, axis=1)))
+                for p in arrays[f"{name}_tips"]]
+        for seed in range(seeds):
+            skeleton = fj.skeleton(mesh, spheres=spheres, seed=seed)
+            at = [int(skeleton.region[v]) for v in tips]
+            own = [k != -1 and at.count(k) == 1 for k in at]
+            missed = [tip[0] + (" (body)" if k == -1 else f" (limb {k}, shared)")
+                      for tip, k, ok in zip(figure["tips"], at, own) if not ok]
+            tops = [k for k, limb in enumerate(skeleton.limbs) if limb.parent == -1]
+            per_chain = [sum(skeleton.chain(j)[0] == k for j in range(len(skeleton.limbs)))
+                         for k in tops]
+            print(f"| {name} | {len(vertices):,} | {seed} | {len(skeleton.limbs)} | "
+                  f"{'/'.join(map(str, per_chain))} | {sum(own)} of {len(own)}"
+                  + (f": not {', '.join(missed)}" if missed else "") + " |", flush=True)
+            if figures is not None:
+                figures.mkdir(parents=True, exist_ok=True)
+                fj.plot_skeleton(mesh, skeleton).savefig(
+                    figures / f"skin-{name}-{seed}.png", dpi=80)
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--bpy", help="a Python with `bpy` installed")
+    parser.add_argument("--blender-side", type=Path, help=argparse.SUPPRESS)
+    parser.add_argument("--seeds", type=int, default=4)
+    parser.add_argument("--spheres", type=int, default=200)
+    parser.add_argument("--figures", type=Path)
+    args = parser.parse_args()
+    if args.blender_side is not None:
+        return blender_side(args.blender_side)
+    if args.bpy is None:
+        parser.error("--bpy is required: the meshes are modelled in Blender")
+    with tempfile.TemporaryDirectory() as scratch:
+        data = Path(scratch) / "characters.npz"
+        subprocess.run([args.bpy, __file__, "--blender-side", str(data)], check=True)
+        rig_table(data, args.seeds, args.spheres, args.figures)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
