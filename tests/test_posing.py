@@ -208,6 +208,24 @@ def test_float32_posing_reads_its_rest_spines_from_tables(tube, skeleton, regist
     np.testing.assert_array_equal(np.asarray(posed.vertices)[region == -1], rest[region == -1])
 
 
+def test_a_bent_limb_s_frames_are_fit_from_its_table_s_values_at_its_nodes(single):
+    """In float32 a bent limb's frames' table is fit from the values its spine's table was fit
+    to at its nodes (`fast_evaluator_at_nodes`), not from that table read back there: the same
+    frames, to single precision's round-off, over the whole search range."""
+    from fleshing_jax._fleshing.target import TargetFrames
+
+    @jax.jit
+    def frames(target):
+        table, at_nodes = target._prepare()._table_at_nodes()
+        s = jnp.linspace(table.lo, table.hi, 101)
+        return [jax.vmap(TargetFrames(table, jnp.float32(0.3), True, nodes))(s)
+                for nodes in (at_nodes, None)]
+
+    fit, read = frames(limb_target(single, 2, fj.LimbPose(50.0, 30.0, 10.0)))
+    for a, b in zip(fit, read, strict=True):
+        np.testing.assert_allclose(a, b, rtol=0, atol=2e-6)  # (the tube: 6 long, 0.3 across)
+
+
 @pytest.mark.parametrize("posed_child", [False, pytest.param(True, marks=pytest.mark.slow)])
 def test_gradients_of_the_angles(skeleton, registration, posed_child):
     # Limb 0's three angles, its child carried by its end motion; with `-m slow` the child's

@@ -29,7 +29,7 @@ from .._batching.quick import Program, compiling
 from .._checks import as_margin, as_points, as_twist, is_concrete
 from .._numerics import cast_floats, dot, norm, per_component
 from .._spines.spine import AbstractSpine
-from .._spines.table import SpineTable, fast_evaluator, runs_whole, tabulates
+from .._spines.table import SpineTable, fast_evaluator_at_nodes, runs_whole, tabulates
 from .eager import pose_eagerly, register_eagerly
 from .ends import EndFrames, aligned_twist, check_beyond, end_band, rigid_beyond, target_ends
 from .maps import BEND, UNBEND, WHOLE
@@ -203,8 +203,9 @@ class Poser(eqx.Module):
         # Tabulated from the spine table (its nodes are the table's, so no exact evaluation),
         # but for lines and arcs: cheap to evaluate exactly, and checked without the table,
         # so that none is built (half the preparation's compilation of an arc).
-        self.target = target if closed else fast_evaluator(target)
-        self.frames = TargetFrames(self.target, twist, tabulate=tabulates(target))
+        self.target, at_nodes = (target, None) if closed else fast_evaluator_at_nodes(target)
+        self.frames = TargetFrames(self.target, twist, tabulate=tabulates(target),
+                                   at_nodes=at_nodes)
         self.method, self.check_projection = method, check_projection
         use = check_projection and not closed
         checked = self.target if checked_on is None or not use else _own_table(checked_on)

@@ -13,6 +13,7 @@ one `sincos` a point instead of 44 table reads, the most expensive part of a pos
 from __future__ import annotations
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 from jaxtyping import Array
 
@@ -27,8 +28,13 @@ from .reach import search_range
 def target_frame(spine: AbstractSpine, twist: Array, s: Array) -> tuple[Array, ...]:
     """`(C (3,), I (3,), J (3,), k in (I, J) (2,))` of a prepared `spine` at `s`, with its
     normals turned by `twist` radians."""
-    (c, _, k), normals = spine.jet_and_normals(s)
-    i, j = twist_normals(normals, twist)
+    return frame_of(*spine.jet_and_normals(s), twist)
+
+
+def frame_of(jet: tuple[Array, Array, Array], normals: tuple[Array, Array],
+             twist: Array) -> tuple[Array, ...]:
+    """`target_frame` from the spine's `jet` `(C, T, k)` and `normals` `(I, J)` (each (3,))."""
+    (c, _, k), (i, j) = jet, twist_normals(normals, twist)
     return c, i, j, jnp.stack([dot(k, i), dot(k, j)])
 
 
@@ -37,7 +43,9 @@ class TargetFrames(eqx.Module):
 
     **Arguments:** `spine`: the target (an `AbstractSpine` or its `SpineTable`); `twist`: scalar
     radians; `tabulate`: look the frames up in a table (single precision; for an arc, its
-    `Sinusoid`) rather than evaluate `spine` at every point.
+    `Sinusoid`) rather than evaluate `spine` at every point; `at_nodes`: where `spine` is a
+    `SpineTable` that a spine made of itself, the values `(jet, normals)` it was fit to at its
+    nodes (`table.fast_evaluator_at_nodes`), from which the frames' table is fit on its pieces.
 
     **Attributes:** `length`; `lo`, `hi`: the target's closest-point search range, where frames
     are defined.
@@ -47,10 +55,19 @@ class TargetFrames(eqx.Module):
     twist: Array
     table: PiecewiseCubic | Sinusoid | None
 
-    def __init__(self, spine: AbstractSpine | SpineTable, twist: Array, tabulate: bool = False):
+    def __init__(self, spine: AbstractSpine | SpineTable, twist: Array, tabulate: bool = False,
+                 at_nodes: tuple | None = None):
         self.spine, self.twist = spine._prepare(), twist
         self.table = None
-        if tabulate:
+        if tabulate and at_nodes is not None:
+            # The frames at the table's nodes from the values it was fit to there: read back
+            # from its cubics (coefficients times the nodes' powers), XLA fused the values'
+            # making (a bent limb's rotations) into every read of them, a tenth of a float32
+            # frame of spot's leg.
+            frames = jax.vmap(jax.vmap(lambda jet, normals: jnp.concatenate(
+                frame_of(jet, normals, twist))))(*at_nodes)
+            self.table = self.spine.cubics.refit(frames)
+        elif tabulate:
             prepared = self.spine  # (not `self` in a lambda: the module is not frozen yet)
             self.table = tabulated(
                 prepared, lambda s: jnp.concatenate(target_frame(prepared, twist, s))

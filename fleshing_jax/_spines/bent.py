@@ -267,17 +267,18 @@ class PreparedBent(AbstractSpine):
     def _torsion(self, s: Array) -> Array:
         return torsion_of(self._jet, s)
 
-    def _table(self) -> SpineTable | None:
+    def _table_at_nodes(self) -> tuple[SpineTable | None, tuple | None]:
         """On a tabulated base (`LookedUpSpine`, float32 posing), the bent spine's table on the
         base table's own pieces (the same search range: before the joint the spine is the
         base, past its end the base moved rigidly), from the base's values at their nodes,
         turned: `T₁ = Q T₀`, `k₁ = Q k₀ + Q′ T₀`, `(I₁, J₁) = Q (I₀, J₀)`, and
         `C₁ = C₀ + ∫ (Q − 1) T₀` by Gauss–Legendre between consecutive nodes (exactly `C₀` up to
         the joint). A few rotations a node, where evaluating the bent spine there would
-        integrate its position from the nearest break and continue it past its ends."""
+        integrate its position from the nearest break and continue it past its ends; with
+        those values at its nodes, `(jet, normals)`."""
         base = self.base
         if not (isinstance(base, LookedUpSpine) and base.samples is not None):
-            return None
+            return None, None
         table, at = base.table, base.samples  # the base's values there, read once
         nodes = at.arc_length
         flat = nodes.reshape(-1)
@@ -300,8 +301,8 @@ class PreparedBent(AbstractSpine):
         def shaped(v):
             return v.reshape(nodes.shape + (3,))
 
-        jet = (shaped(c), shaped(tangent), shaped(k))
-        return table.refit(jet, (shaped(i), shaped(j)))
+        jet, normals = (shaped(c), shaped(tangent), shaped(k)), (shaped(i), shaped(j))
+        return table.refit(jet, normals), (jet, normals)
 
     def default_samples(self) -> int:
         return self.base.default_samples()

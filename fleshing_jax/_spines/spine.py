@@ -139,7 +139,13 @@ class AbstractSpine(eqx.Module):
     def _table(self):
         """This (prepared) spine's `table.SpineTable` if it has a cheaper way to build it than
         evaluating itself at the table's nodes (`bent`); `None` (the default) otherwise."""
-        return None
+        return self._table_at_nodes()[0]
+
+    def _table_at_nodes(self):
+        """`(_table(), (jet, normals))`: the table and the values it was fit to at its nodes,
+        each (P, 4, 3), from which other tables on its pieces are fit (`TargetFrames`);
+        `(None, None)` (the default) for a spine without a table of its own."""
+        return None, None
 
     def _tabulable(self) -> bool:
         """Whether the batched single-precision paths may evaluate this spine through a table of

@@ -299,8 +299,17 @@ def fast_evaluator(spine: AbstractSpine) -> AbstractSpine | SpineTable:
     """What the batched paths search: the prepared `spine` itself in double precision (and for
     polylines and lines), its `SpineTable` in single precision (the spine's dtype, cast to the
     points'; see `tabulates`)."""
+    return fast_evaluator_at_nodes(spine)[0]
+
+
+def fast_evaluator_at_nodes(spine: AbstractSpine) -> tuple[AbstractSpine | SpineTable,
+                                                          tuple | None]:
+    """`(fast_evaluator(spine), at_nodes)`: `at_nodes` the values `(jet, normals)` (each (P, 4,
+    3)) that a table the spine made of itself was fit to at its nodes (a bent limb's:
+    `AbstractSpine._table_at_nodes`), else `None`. A table of other values on its pieces is fit
+    from them (`_fleshing.target.TargetFrames`), not from the table read back at its nodes."""
     spine = spine._prepare()
     if not tabulates(spine):
-        return spine
-    own = spine._table()
-    return SpineTable(spine) if own is None else own
+        return spine, None
+    own, at_nodes = spine._table_at_nodes()
+    return (SpineTable(spine), None) if own is None else (own, at_nodes)
