@@ -53,11 +53,11 @@ def test_sorted_rows_and_keys(k):
     assert np.all(np.diff(keys[order]) >= 0)  # the rows' lexicographic order
 
 
-def test_edge_loops_are_numpy_s_bit_for_bit():
-    # The collapses' per-edge loops (`edge_loops`) against the NumPy forms they replace:
+def test_quadric_loops_are_numpy_s_bit_for_bit():
+    # The collapses' per-edge loops (`quadric_loops`) against the NumPy forms they replace:
     # the summed quadrics, and the cheapest of four options (a negative radius never chosen,
     # a NaN error picked first as by `np.argmin`, ties to the first).
-    from fleshing_jax._medial_axis.edge_loops import cheapest, edge_quadrics
+    from fleshing_jax._medial_axis.quadric_loops import cheapest, edge_quadrics
     from fleshing_jax._medial_axis.simplify import _error
 
     rng = np.random.default_rng(3)
@@ -78,3 +78,27 @@ def test_edge_loops_are_numpy_s_bit_for_bit():
     error, chosen = cheapest(Ae, be, ce, *options)
     np.testing.assert_array_equal(error, errors[np.arange(e), pick])
     np.testing.assert_array_equal(chosen, np.stack(options, 1)[np.arange(e), pick])
+
+
+def test_contact_quadrics_are_the_einsums_bit_for_bit():
+    # The contacts' quadrics (a numba loop) against the NumPy sums they replaced.
+    from types import SimpleNamespace
+
+    from fleshing_jax._medial_axis.simplify import contact_quadrics
+
+    rng = np.random.default_rng(4)
+    s, n = 300, 200
+    normals = rng.normal(size=(s, 3))
+    normals /= np.linalg.norm(normals, axis=1)[:, None]
+    axis = SimpleNamespace(normals=normals, points=rng.normal(size=(s, 3)),
+                           weights=rng.uniform(0, 1e-3, s), contacts=rng.integers(0, s, (n, 4)))
+    nn, p, w = (x[axis.contacts] for x in (axis.normals, axis.points, axis.weights))
+    vec = np.concatenate([-nn, -np.ones((n, 4, 1))], axis=2)
+    delta = np.einsum("ijk,ijk->ij", nn, p)
+    M = np.concatenate([np.broadcast_to(np.eye(3), (n, 4, 3, 3)), nn[..., None]], -1)
+    slide = 0.7
+    A = np.einsum("ij,ijk,ijl->ikl", w, vec, vec) + slide * np.einsum("ij,ijak,ijal->ikl", w, M, M)
+    b = np.einsum("ij,ij,ijk->ik", w, delta, vec) - slide * np.einsum("ij,ijak,ija->ik", w, M, p)
+    c = np.einsum("ij,ij->i", w, delta**2) + slide * np.einsum("ij,ija,ija->i", w, p, p)
+    for x, y in zip(contact_quadrics(axis, slide), (A, b, c)):
+        np.testing.assert_array_equal(x, y)
