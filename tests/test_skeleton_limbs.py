@@ -107,6 +107,24 @@ def test_a_limb_reached_through_a_thicker_limb_is_its_child():
     assert len(found) == 7  # the head, its ears, two legs, two arms
 
 
+def test_a_limb_entered_through_a_crease_starts_past_it_and_runs_to_its_own_tip():
+    """A crease where a leg meets the body holds a medial sphere far thinner than either
+    (a cow modelled in Blender: a tenth of its leg), and the shortest-path tree may enter
+    the leg through it, and reach part of the body's inside through the leg's top. The leg's
+    path starts at its first sphere at least `CREASE` times as thick as the leg, and its
+    spine runs to its own tip, not into the body's spheres hanging below its top (it ran
+    from the crease into the chest, and the cow's front legs were left in the body)."""
+    g = _Graph()
+    torso = g.add(*_chain([0, 0, 0], [0.4, 0, 0], 9, 0.08, 0.08))
+    crease = g.add(*_chain([0.35, -0.085, 0.03], [0.35, -0.085, 0.03], 1, 0.002, 0.002),
+                   link_to=torso[7])
+    leg = g.add(*_chain([0.35, -0.1, 0], [0.35, -0.4, 0], 8, 0.025, 0.02), link_to=crease[0])
+    g.add(*_chain([0.3, 0, 0.07], [0.05, 0, 0.07], 4, 0.045, 0.045), link_to=leg[0])
+    centers, radii, edges = g.arrays()
+    (found,) = find_limbs(centers, radii, edges)
+    assert found.path[0] == leg[0] and found.path[-1] == leg[-1], found.path
+
+
 def test_a_slanted_border_with_the_body_is_levelled_across_the_limb():
     """A limb whose border with the body runs at a slant (the body down one side of it, as
     spot's shoulder runs down its front leg's outer side) had its joint past the border's

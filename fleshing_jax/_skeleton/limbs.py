@@ -52,6 +52,7 @@ ELONGATION = 1.0
 # A child limb is at most this fraction of its parent's thickest radius: it grows from the
 # parent's thick part (a horn on a head), where a limb that tapers (a tail) has none.
 THINNER = 0.5
+CREASE = 0.15  # a crease's spheres are thinner than this fraction of the limb's thickest
 MAX_DEPTH = 3  # body, limbs, their children, grandchildren
 # A path is another route to a limb whose spheres share medial edges with this fraction of its
 # own (a flat ear's rim paths: 0.67-1; an insect's antennae from one base: 0.25; legs: < 0.35).
@@ -174,6 +175,11 @@ def _split(graph, centers, radii, nodes, root, parent, limbs, depth):
         if len(cut) == 0 or cut[0] == 0:
             continue
         path, last_inside = chain[: cut[0]][::-1], int(chain[cut[0]])  # path: out … tip
+        # A crease where a limb meets its parent holds medial spheres far thinner than either:
+        # the tree may enter the limb through one (a modelled cow's leg, through a sphere a
+        # tenth as thick as the leg), whose spine would then start at the crease. The path
+        # starts at its first sphere at least `CREASE` times as thick as its thickest.
+        path = path[int(np.argmax(radii[path] >= CREASE * radii[path].max())):]
         group_spheres = [np.concatenate(g[0]) for g in groups]
         same = _same_limb(centers, radii, path, group_spheres, graph)
         if same is not None:
@@ -226,6 +232,9 @@ def _split(graph, centers, radii, nodes, root, parent, limbs, depth):
         children = np.array([v for c in limbs[index + 1 :] for v in c.spheres], int)
         own = np.setdiff1d(spheres, children)
         own = np.intersect1d(own, _subtree(path[0], predecessors, distance, spheres))
+        # Not the parent's thick spheres hanging below the limb's top in the tree (the cow's
+        # chest, reached through its front leg's top): a limb is no thicker than its path.
+        own = own[radii[own] <= radii[path].max()]
         if len(children):
             outside = sphere_gaps(centers[own], centers[children], radii[children]) >= 0
             own = own[outside] if outside.any() else own
