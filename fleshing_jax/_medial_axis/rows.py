@@ -59,14 +59,20 @@ def cross(a, b):
 def sorted_rows(rows):
     """Integer `rows (m, k)` sorted within each row: `np.sort(rows, axis=1)`, by columns for
     `k` of 2 or 3 (several times faster on such short rows; the same values)."""
-    if rows.shape[1] == 2:
-        a, b = rows[:, 0], rows[:, 1]
-        return np.stack([np.minimum(a, b), np.maximum(a, b)], 1)
+    if rows.shape[1] not in (2, 3):
+        return np.sort(rows, axis=1)
+    # (Each column written in place: `np.stack` of the columns took 3× as long.)
+    out = np.empty(rows.shape, rows.dtype)
+    a, b = rows[:, 0], rows[:, 1]
+    low, high = out[:, 0], out[:, -1]
+    np.minimum(a, b, out=low)
+    np.maximum(a, b, out=high)
     if rows.shape[1] == 3:
-        a, b, c = rows[:, 0], rows[:, 1], rows[:, 2]
-        low, high = np.minimum(np.minimum(a, b), c), np.maximum(np.maximum(a, b), c)
-        return np.stack([low, a + b + c - low - high, high], 1)
-    return np.sort(rows, axis=1)
+        c = rows[:, 2]
+        np.minimum(low, c, out=low)
+        np.maximum(high, c, out=high)
+        np.subtract(a + b + c - low, high, out=out[:, 1])
+    return out
 
 
 def row_keys(rows, n: int):
