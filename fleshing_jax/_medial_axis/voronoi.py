@@ -134,10 +134,12 @@ def initial_medial_axis(query: SurfaceQuery, points, normals, weights, sample_fa
     good = ring_kept & (size >= 3) & ~np.isin(key[start], hull_keys)
     group = np.repeat(np.arange(len(start)), size)
     member = good[group]
-    key, owner, group = key[member], owner[member], group[member]
+    rings = key[start[good]]  # the Delaunay edge of each face kept
+    owner, group = owner[member], group[member]
     faces = np.zeros((0, 3), dtype=np.int64)
-    if len(key):
-        i, j = np.divmod(key, n_points)
+    if len(rings):
+        # Each face's frame once, not once per vertex (spot: 56k frames, not 270k).
+        i, j = np.divmod(rings, n_points)
         pi, pj = np.take(points, i, axis=0), np.take(points, j, axis=0)
         axis = pj - pi
         axis /= norm(axis)[:, None]
@@ -147,8 +149,10 @@ def initial_medial_axis(query: SurfaceQuery, points, normals, weights, sample_fa
         e1 = cross(axis, helper)
         e1 /= norm(e1)[:, None]
         e2 = cross(axis, e1)
-        offset = np.take(centre, owner, axis=0) - (pi + pj) / 2
-        angle = np.arctan2(np.einsum("ij,ij->i", offset, e2), np.einsum("ij,ij->i", offset, e1))
+        ring = np.repeat(np.arange(len(rings)), size[good])  # each vertex's face
+        offset = np.take(centre, owner, axis=0) - np.take((pi + pj) / 2, ring, axis=0)
+        angle = np.arctan2(np.einsum("ij,ij->i", offset, np.take(e2, ring, axis=0)),
+                           np.einsum("ij,ij->i", offset, np.take(e1, ring, axis=0)))
         order = np.lexsort((angle, group))
         owner, group = owner[order], group[order]
         first = np.r_[True, group[1:] != group[:-1]]
