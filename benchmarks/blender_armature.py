@@ -1,11 +1,12 @@
 """Our jointed pose against Blender's armature on the same joint rotations (issues 45/46).
 
     python benchmarks/blender_armature.py --bpy /path/to/venv-with-bpy/bin/python \
-        [--character biped|spot] [--figure benchmarks/figures/skeleton-biped-vs-blender.png]
+        [--character biped|spot|human] [--figure benchmarks/figures/skeleton-biped-vs-blender.png]
 
 The procedural biped's skeleton (`fj.skeleton`, 200 spheres): one leg posed at its hip 40°,
 knee 70°, ankle 20°, one arm at its shoulder, elbow and wrist alike, the head 30° (float64);
-or spot's (`fj.skeleton`): its head turned 45°, a front leg lifted 45°, a hind leg 60°.
+or spot's (`fj.skeleton`): its head turned 45°, a front leg lifted 45°, a hind leg 60°; or
+the human modelled in Blender (`skin_characters.py`): a leg, an arm and the head forwards.
 Blender (`pip install bpy` in another environment: `--bpy` names its Python) gets one bone
 per limb (head at the limb's bend start, tail where its bend is complete), a still body
 bone, automatic heat weights, and as each bone's rotation the rotation our pose gives that
@@ -26,14 +27,20 @@ from pathlib import Path
 import numpy as np
 
 
-def biped_poses(fj, skeleton):
-    """The biped (`characters.biped`, its own skeleton): a leg at hip 40°, knee 70°, ankle
-    20°, an arm at shoulder, elbow and wrist alike, the head 30°."""
+def _longest_chains(skeleton) -> dict:
+    """Each chain's top limb → the longest chain of limbs from it to an end."""
     chains = {}
     for k in range(len(skeleton.limbs)):
         chain = skeleton.chain(k)
         if len(chain) > len(chains.get(chain[0], ())):
             chains[chain[0]] = chain
+    return chains
+
+
+def biped_poses(fj, skeleton):
+    """The biped (`characters.biped`, its own skeleton): a leg at hip 40°, knee 70°, ankle
+    20°, an arm at shoulder, elbow and wrist alike, the head 30°."""
+    chains = _longest_chains(skeleton)
 
     def tip(chain):
         spine = skeleton.limbs[chain[-1]].spine
@@ -62,7 +69,37 @@ def spot_poses(fj, skeleton):
         front: fj.LimbPose(45.0, towards=ahead), hind: fj.LimbPose(60.0, towards=-ahead)}
 
 
-def ours(out: Path, character: str):
+def human_poses(fj, skeleton):
+    """The human modelled in Blender (`skin_characters.py`, z up, +y ahead; its own skeleton):
+    its left leg at hip 40° forwards, knee 70° backwards, ankle 20° forwards, its left arm
+    at shoulder, elbow and wrist 40° / 70° / 20° forwards, the head nodded 30° forwards."""
+    ahead = np.array([0.0, 1.0, 0.0])
+    chains = _longest_chains(skeleton)
+    tips = {top: np.asarray(skeleton.limbs[c[-1]].spine(skeleton.limbs[c[-1]].spine.length))
+            for top, c in chains.items()}
+    leg = chains[next(t for t, p in tips.items() if p[2] < 0.3 and p[0] > 0)]
+    arm = chains[next(t for t, p in tips.items() if p[0] > 0.5)]
+    head = chains[max(tips, key=lambda t: tips[t][2])]
+    poses = {k: fj.LimbPose(a, towards=sign * ahead)
+             for k, a, sign in zip(leg, (40.0, 70.0, 20.0), (1, -1, 1))}
+    poses |= {k: fj.LimbPose(a, towards=ahead) for k, a in zip(arm, (40.0, 70.0, 20.0))}
+    poses[head[0]] = fj.LimbPose(30.0, towards=ahead)
+    return lambda registration: poses
+
+
+def human_mesh(bpy: str):
+    """The human of `skin_characters.py`, modelled by Blender in a subprocess (`bpy`)."""
+    import trimesh
+
+    with tempfile.TemporaryDirectory() as folder:
+        data = Path(folder) / "characters.npz"
+        subprocess.run([bpy, str(Path(__file__).with_name("skin_characters.py")),
+                        "--blender-side", str(data)], check=True, capture_output=True)
+        arrays = np.load(data)
+        return trimesh.Trimesh(arrays["human_vertices"], arrays["human_faces"], process=False)
+
+
+def ours(out: Path, character: str, bpy: str):
     import equinox as eqx
     import jax
 
@@ -75,6 +112,10 @@ def ours(out: Path, character: str):
         mesh = fj.data.spot()
         skeleton = fj.skeleton(mesh)
         poses_of = spot_poses(fj, skeleton)
+    elif character == "human":
+        mesh = human_mesh(bpy)
+        skeleton = fj.skeleton(mesh)
+        poses_of = human_poses(fj, skeleton)
     else:
         mesh = biped()
         skeleton = fj.skeleton(mesh)
@@ -188,14 +229,14 @@ def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--bpy", required=True, help="a Python with `bpy` installed")
     parser.add_argument("--figure", type=Path, default=None)
-    parser.add_argument("--character", choices=("biped", "spot"), default="biped")
+    parser.add_argument("--character", choices=("biped", "spot", "human"), default="biped")
     parser.add_argument("--blender-side", nargs=2, help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.blender_side:
         return blender(*map(Path, args.blender_side))
     with tempfile.TemporaryDirectory() as folder:
         mine, theirs = Path(folder) / "ours.npz", Path(folder) / "blender.npz"
-        ours(mine, args.character)
+        ours(mine, args.character, args.bpy)
         subprocess.run([args.bpy, __file__, "--bpy", args.bpy, "--blender-side", str(mine),
                         str(theirs)], check=True, capture_output=True)  # fmt: skip
         o, b = dict(np.load(mine)), dict(np.load(theirs))
@@ -213,10 +254,12 @@ def main():
         print(f"| {name} | {flagged} | {100 * change:+.3f} | {worst:.2f} | {torn} | "
               f"{100 * drift:.3f} | {ms:.2f} |")
     if args.figure is not None:
-        # Drawn z up: spot's y up becomes the picture's vertical.
-        axes = [0, 2, 1] if args.character == "spot" else [0, 1, 2]
-        _figure(args.figure, rest[:, axes], faces,
-                [p[:, axes] for p in (o["posed"], b["lbs"], b["dqs"])])
+        # Drawn z up (spot's y up becomes the picture's vertical), ahead as the biped's +x
+        # (the human's +y, turned about up).
+        view = {"spot": lambda p: p[:, [0, 2, 1]],
+                "human": lambda p: np.c_[p[:, 1], -p[:, 0], p[:, 2]]}.get(
+            args.character, lambda p: p)
+        _figure(args.figure, view(rest), faces, [view(p) for p in (o["posed"], b["lbs"], b["dqs"])])
 
 
 def _figure(path, rest, faces, posed):
