@@ -338,6 +338,29 @@ def test_closest_points_on_triangles_match_trimesh():
                                    atol=1e-12)
 
 
+def test_closest_among_candidates_is_the_first_least():
+    """A pole's closest face among its candidates (`triangles.closest_among`): that of
+    `closest_on_faces` over its candidates, repeats and -1 padding skipped, the first of
+    equal distances (a face repeated, and two rows with one face only: all ties)."""
+    from fleshing_jax._medial_axis.triangles import closest_among, closest_on_faces
+
+    rng = np.random.default_rng(5)
+    corners = rng.normal(size=(30, 3, 3))
+    a, b, c = (np.ascontiguousarray(corners[:, k]) for k in range(3))
+    points = 2 * rng.normal(size=(200, 3))
+    candidates = rng.integers(-1, 30, (200, 8))
+    candidates[:, 0] = rng.integers(0, 30, 200)  # every row has one
+    candidates[:2] = candidates[:2, :1]  # one face, repeated
+    distance, closest, face, feature = closest_among(points, candidates, a, b, c)
+    row, col = np.nonzero(candidates >= 0)
+    d, q, f = closest_on_faces(points[row], candidates[row, col], a, b, c)
+    for r in range(len(points)):
+        mine = np.flatnonzero(row == r)
+        best = mine[np.argmin(d[mine])]
+        assert (distance[r], face[r], feature[r]) == (d[best], candidates[r, col[best]], f[best])
+        np.testing.assert_array_equal(closest[r], q[best])
+
+
 def test_candidate_search_and_pruning_keep_every_closest_pair(monkeypatch):
     """The fit's candidates (`candidates`): `ball_pairs` in blocks finds exactly the pairs
     of a k-d tree's ball queries, primitives ascending; after the spheres move, the pairs

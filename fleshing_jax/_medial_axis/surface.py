@@ -251,32 +251,6 @@ def _crossings(points, a, b, c, axis: int) -> np.ndarray:
     return count
 
 
-def _first_occurrences(candidates):
-    """`candidates (N, K)` with each face's repeats within a row replaced by -1: the faces
-    around a pole's four samples are two-fifths repeats (spot), and each costs a closest
-    point. The first occurrence stays where it was, so ties between faces break as before."""
-    order = np.argsort(candidates, axis=1, kind="stable")
-    ordered = np.take_along_axis(candidates, order, axis=1)
-    repeat = np.zeros(ordered.shape, dtype=bool)
-    repeat[:, 1:] = ordered[:, 1:] == ordered[:, :-1]
-    out = np.empty_like(candidates)
-    np.put_along_axis(out, order, np.where(repeat, -1, ordered), axis=1)
-    return out
-
-
-def _first_least(value, row, rows: int):
-    """The position `(rows,)` of each row's least `value (M,)`, the first of equals, for
-    `row (M,)` ascending (every row present): a reduction by row, the same choice as a
-    lexsort of all the pairs by (row, value) at a fifth of its time."""
-    start = np.searchsorted(row, np.arange(rows))
-    hit = np.flatnonzero(value == np.fmin.reduceat(value, start)[row])
-    first = hit[np.r_[True, row[hit[1:]] != row[hit[:-1]]]]
-    if len(first) != rows:  # a row of NaNs only: ordered as the lexsort does
-        order = np.lexsort((value, row))
-        first = order[np.searchsorted(row[order], np.arange(rows))]
-    return first
-
-
 class SurfaceQuery:
     """Exact closest points and inside/outside signs for one closed triangle mesh.
 
@@ -328,31 +302,24 @@ class SurfaceQuery:
         return np.concatenate([face_ids, self._across[face_ids].reshape(len(face_ids),
                                                                                 -1)], axis=1)
 
-    def query_candidates(self, points, candidates, *, chunk: int = 4096):
+    def query_candidates(self, points, candidates):
         """Closest points of `points (N, 3)` among the faces `candidates (N, K)` (-1 padded).
 
         Exact when the closest face is a candidate; used for medial poles, whose closest
         faces lie around their contact samples, because a k-d tree search from the centre of
-        a curved region visits nearly every node (the nearest neighbours form a ring).
-        `chunk` points at a time: their arrays stay in the cache (spot's poles 0.43 s in
-        chunks of 20,000, 0.36 s in 4096; the same values).
+        a curved region visits nearly every node (the nearest neighbours form a ring). A
+        face repeated in a row is measured once (the faces around a pole's four samples are
+        two-fifths repeats on spot); ties go to the first (`triangles.closest_among`).
 
         **Returns:** `(distance (N,), closest (N, 3), inside (N,) bool)`.
         """
-        points = np.asarray(points, dtype=np.float64)
-        n = len(points)
-        distance, closest = np.empty(n), np.empty((n, 3))
-        inside = np.empty(n, dtype=bool)
-        for start in range(0, n, chunk):
-            sl = slice(start, start + chunk)
-            cand = _first_occurrences(candidates[sl])
-            row, col = np.nonzero(cand >= 0)
-            face = cand[row, col]
-            d, q, f = self._exact(np.take(points[sl], row, axis=0), face)
-            first = _first_least(d, row, len(cand))
-            distance[sl], closest[sl] = d[first], q[first]
-            inside[sl] = self._inside(points[sl], q[first], face[first], f[first])
-        return distance, closest, inside
+        # (Imported here: numba's import, 0.2 s, only where closest points are needed.)
+        from .triangles import closest_among
+
+        points = np.ascontiguousarray(points, np.float64)
+        distance, closest, face, feature = closest_among(
+            points, np.ascontiguousarray(candidates, np.int64), *self.corners)
+        return distance, closest, self._inside(points, closest, face, feature)
 
     def _exact(self, points, candidates):
         """Distances, closest points and features of `points` (M, 3) to faces (M,)
