@@ -1,7 +1,7 @@
 """The rig `fj.skeleton` finds on characters modelled in Blender, not by us (issue 45).
 
     python benchmarks/skin_characters.py --bpy /path/to/venv-with-bpy/bin/python \
-        [--seeds 4] [--spheres 200] [--figures DIR]
+        [--seeds 4] [--spheres 200] [--figures DIR] [--joints]
 
 Our procedural characters share one way of building a surface (`_medial_axis.characters`).
 Here a human and a horned cow are modelled as an artist blocks a character out in Blender:
@@ -10,7 +10,9 @@ twice (`pip install bpy` in another environment: `--bpy` names its Python; the m
 made there). Each gets `fj.skeleton` at medial seeds 0 … n−1 (holes from the skin's branch
 points capped by `fj.cap_holes`). Prints a Markdown table: limbs, chains from the body and
 their lengths, and which of the tips an animator would pose (head, hands, feet; muzzle,
-horns, tail, hooves) lie in a limb of their own, outside the body.
+horns, tail, hooves) lie in a limb of their own, outside the body. `--joints`: issue 46's
+joint targets on the human instead (its exact range per joint and direction, then each
+pose's flagged vertices, volume change and worst edge stretch, float64).
 """
 
 from __future__ import annotations
@@ -135,6 +137,57 @@ def rig_table(data: Path, seeds: int, spheres: int, figures: Path | None):
                     figures / f"skin-{name}-{seed}.png", dpi=80)
 
 
+def human_joints(data: Path):
+    """Issue 46's targets on the human: each joint's exact range (`fj.joint_range`) in the
+    directions an animator bends it, then a knee and an elbow at 120°, the arm raised 90°
+    at the shoulder, the leg lifted 90° (hip + knee), the head turned and nodded 45°."""
+    import trimesh
+    from blender_armature import _longest_chains, measures
+
+    import fleshing_jax as fj
+
+    arrays = np.load(data)
+    mesh = trimesh.Trimesh(arrays["human_vertices"], arrays["human_faces"], process=False)
+    skeleton = fj.skeleton(mesh)
+    registration = fj.register_skeleton(mesh, skeleton)
+    chains = _longest_chains(skeleton)
+    tips = {top: np.asarray(skeleton.limbs[c[-1]].spine(skeleton.limbs[c[-1]].spine.length))
+            for top, c in chains.items()}
+    leg = chains[next(t for t, p in tips.items() if p[2] < 0.3 and p[0] > 0)]
+    arm = chains[next(t for t, p in tips.items() if p[0] > 0.5)]
+    head = chains[max(tips, key=lambda t: tips[t][2])]
+    ahead, up, side = np.eye(3)[[1, 2, 0]]
+    ranges = [("hip", leg[0], ahead, "forwards"), ("hip", leg[0], -ahead, "backwards"),
+              ("knee", leg[1], -ahead, "backwards"), ("shoulder", arm[0], up, "up"),
+              ("shoulder", arm[0], ahead, "forwards"), ("elbow", arm[1], ahead, "forwards"),
+              ("neck", head[0], ahead, "forwards"), ("neck", head[0], side, "sideways")]
+    print("| joint | exact to (°) |\n|---|---:|")
+    for joint, limb, towards, words in ranges:
+        angle = float(fj.joint_range(registration, int(limb), towards=towards))
+        print(f"| {joint} {words} | {angle:.1f} |")
+    poses = {
+        "knee 120° backwards": {leg[1]: fj.LimbPose(120.0, towards=-ahead)},
+        "elbow 120° forwards": {arm[1]: fj.LimbPose(120.0, towards=ahead)},
+        "arm raised 90° at the shoulder": {arm[0]: fj.LimbPose(90.0, towards=up)},
+        "leg lifted 90°: hip 45° + knee 45°": {leg[0]: fj.LimbPose(45.0, towards=ahead),
+                                                leg[1]: fj.LimbPose(45.0, towards=ahead)},
+        "leg lifted 90°: hip 60° + knee 30°": {leg[0]: fj.LimbPose(60.0, towards=ahead),
+                                                leg[1]: fj.LimbPose(30.0, towards=ahead)},
+        "head turned 45°": {head[0]: fj.turn(registration, skeleton, head[0], 45.0,
+                                             up=tuple(up))},
+        "head nodded 45°": {head[0]: fj.LimbPose(45.0, towards=ahead)},
+    }
+    vertices, faces = np.asarray(mesh.vertices), np.asarray(mesh.faces)
+    print("\n| pose | flagged | dV/V (%) | worst edge stretch | edges > 2.5x |")
+    print("|---|---:|---:|---:|---:|")
+    for name, pose in poses.items():
+        posed = fj.pose_skeleton(registration, skeleton, pose)
+        change, worst, torn, _ = measures(vertices, faces, np.asarray(posed.vertices),
+                                          np.asarray(skeleton.region))
+        print(f"| {name} | {int(np.sum(~np.asarray(posed.valid)))} | {100 * change:+.4f} | "
+              f"{worst:.2f} | {torn} |", flush=True)
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--bpy", help="a Python with `bpy` installed")
@@ -142,6 +195,7 @@ def main():
     parser.add_argument("--seeds", type=int, default=4)
     parser.add_argument("--spheres", type=int, default=200)
     parser.add_argument("--figures", type=Path)
+    parser.add_argument("--joints", action="store_true", help="issue 46's joint targets")
     args = parser.parse_args()
     if args.blender_side is not None:
         return blender_side(args.blender_side)
@@ -150,6 +204,11 @@ def main():
     with tempfile.TemporaryDirectory() as scratch:
         data = Path(scratch) / "characters.npz"
         subprocess.run([args.bpy, __file__, "--blender-side", str(data)], check=True)
+        if args.joints:
+            import jax
+
+            jax.config.update("jax_enable_x64", True)
+            return human_joints(data)
         rig_table(data, args.seeds, args.spheres, args.figures)
 
 
