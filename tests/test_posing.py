@@ -338,6 +338,24 @@ def test_past_its_range_a_limb_stays_whole_and_is_flagged_inexact(tube, skeleton
     np.testing.assert_array_equal(folded[region != k], rest[region != k])
 
 
+def test_a_traced_frame_weighs_the_sections_on_the_limb_s_own_rows(registration):
+    """Traced, a limb's weights towards its sections' motion are computed on its own rows, not
+    on the padding its zone and registration share with the largest limb (`_section_inputs`'
+    `rows`): the same weights, some of them positive (limb 2 folded past its range)."""
+    from fleshing_jax._skeleton.posing import _section_inputs, _section_weights
+
+    k, n = 2, registration.indices[2].shape[0]
+
+    @jax.jit
+    def weights(pose):
+        return [_section_weights(*_section_inputs(registration, k, pose, rows), n)
+                for rows in (None, n)]
+
+    padded, own = map(np.asarray, weights(fj.LimbPose(175.0, 0.0)))
+    assert own.shape == (n,) and padded.shape[0] > n and own.max() > 0
+    np.testing.assert_array_equal(own, padded[:n])
+
+
 def test_a_large_region_s_check_gives_the_sampled_test_s_flags(single, monkeypatch):
     """A region of `CERTIFIED_FROM` rows or more is certified on its valid region's own
     samples; on looked-up frames (float32) its points are bent, the pending ones tested at

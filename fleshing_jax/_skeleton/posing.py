@@ -470,9 +470,11 @@ def _sections_carried(registration, k: int, pose: LimbPose, images, valid):
     n = registration.indices[k].shape[0]
     r = registration.registrations[k]
     s, points = r.arc_length[:n], r.points[:n]
-    weight = _section_weights(*_section_inputs(registration, k, pose), n)[:n]
+    concrete = is_concrete(pose, registration)
+    weight = _section_weights(*_section_inputs(registration, k, pose, None if concrete else n),
+                              n)[:n]
     target = limb_target(registration, k, pose)
-    if is_concrete(pose, registration):
+    if concrete:
         # Eagerly one program for every angle, within the range too (it then changes only the
         # unregistered vertices): a new angle compiles nothing. It runs on the registration's
         # padded rows (their weight 0: left as they are), so that every limb of a bucket
@@ -488,11 +490,19 @@ def _sections_carried(registration, k: int, pose: LimbPose, images, valid):
     return images, valid & ~(weight > 0)  # (a weight is 0 before the joint)
 
 
-def _section_inputs(registration, k: int, pose: LimbPose) -> tuple:
-    """Limb `k`'s arguments of `_section_weights` for `pose` (but the region's size)."""
+def _section_inputs(registration, k: int, pose: LimbPose, rows: int | None = None) -> tuple:
+    """Limb `k`'s arguments of `_section_weights` for `pose` (but the region's size): on its
+    zone's and registration's first `rows` rows if given (a traced frame: its own; the
+    padding bounds nothing, and every limb is padded to the largest's bucket, 24,576 rows on
+    spot's 100k vertices), else on all of them (one program for every limb of a bucket)."""
     rest, joint = registration.rests[k], registration.joints[k]
-    return (registration.zones[k], registration.registrations[k], joint,
-            bend_stop(registration, k, pose), jnp.stack(pose.radians(rest, joint)))
+    zone, reg = registration.zones[k], registration.registrations[k]
+    if rows is not None:
+        zone = eqx.tree_at(lambda z: (z.arc, z.rests, z.moments, z.twisting), zone, unpad_batch(
+            (zone.arc, zone.rests, zone.moments, zone.twisting), rows))
+        reg = unpad_batch(reg, rows)
+    return (zone, reg, joint, bend_stop(registration, k, pose),
+            jnp.stack(pose.radians(rest, joint)))
 
 
 def _section_weights(zone: JointZone, r: Registration, joint, stop, angles, n) -> Array:
