@@ -247,8 +247,9 @@ def persistent(fun=None, *, compiler_options: dict | None = None):
             return None
         if loaded.compiling is None:
             avals = [_abstract(a) for a in leaves]  # (weak types as the call's: its key)
-            compiling = threading.Thread(target=_compile, args=(loaded.jitted, avals),
-                                         daemon=True)
+            # (Not a daemon: a process ending while XLA compiles waits for it, as a daemon
+            # thread stopped inside the compiler aborts the process.)
+            compiling = threading.Thread(target=_compile, args=(loaded.jitted, avals))
             compiling.start()
             _loaded[key] = loaded._replace(compiling=compiling)
         return _filled(loaded.outline, [_abstract(a) for a in loaded.exported.out_avals])

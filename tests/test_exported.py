@@ -171,6 +171,8 @@ def test_prepare_compiles_ahead_from_shapes(folder, monkeypatch):
     assert traces == ["module"] and isinstance(shapes[0], Scale) and shapes[0].power == 3
     assert shapes[0].factor.shape == (5,) and shapes[0].factor.dtype == jnp.float64
     for loaded in _exported._loaded.values():
+        # (Not a daemon: a process ending while it compiles waits, not aborts.)
+        assert not loaded.compiling.daemon
         loaded.compiling.join()
     compiles = []
     monkeypatch.setattr(compiler, "compile_or_get_cached", lambda *a, **k: compiles.append(a))
