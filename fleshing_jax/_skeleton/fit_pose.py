@@ -221,7 +221,16 @@ def dependence(skeleton: Skeleton, limbs: tuple[int, ...], per_limb: int,
     return jnp.asarray(seeds), jnp.asarray(moves)
 
 
-@eqx.filter_jit
+# XLA's options for the solve: XLA CPU's older loop emitters, not its fusion emitters, which
+# compile the solve's program (the posing's forward derivative in a loop: 46k equations for
+# spot's three limbs) more slowly and make it run more slowly. Spot's shape fit, its first
+# stage's solve compiled both ways in one process (load 3.6-5.6): compile 36-40 -> 26-31 s
+# CPU, its 16 steps 633-804 -> 455-607 ms CPU. (JAX applies them to a top-level call: every
+# fit calls the solve from the host.)
+SOLVE_COMPILE = {"xla_cpu_use_fusion_emitters": False}
+
+
+@eqx.filter_jit(compiler_options=SOLVE_COMPILE)
 def _solve(problem: PoseProblem, solver, y0: Array, max_steps: int, throw: bool,
            linearised: bool = False):
     """`optimistix.least_squares` on `problem`: `(y, trust radius, result, stats, linear)`.
