@@ -2,6 +2,7 @@
 hand: each rule on the shape that needs it, in milliseconds."""
 
 import numpy as np
+import pytest
 
 from fleshing_jax._skeleton.limbs import find_limbs
 
@@ -221,6 +222,31 @@ def test_a_limb_whose_vertices_past_its_joint_barely_move_joins_its_parent():
               fj.Limb(fj.Line(1.5, origin=(4.5, 0.0, 0.0)), 1.0, 0)]
     limbs, kept = visible(list(family), region, vertices)
     assert len(limbs) == 2 and np.array_equal(kept, region)
+
+
+def test_a_limb_that_leaves_its_parent_where_its_spine_ends_joins_it():
+    """A crease's bump (a cow modelled in Blender, where a hind leg meets the body): a limb
+    whose region is wider than its spine is long, its border with the body projecting at
+    the spine's end, leaves nothing past its joint to bend; `register_skeleton` refused the
+    skeleton `fj.skeleton` returned. It joins its parent; a limb whose border lies well
+    before its spine's end stays."""
+    import fleshing_jax as fj
+    from fleshing_jax._skeleton.build import _room_to_bend
+    from fleshing_jax._skeleton.regions import mesh_adjacency
+
+    angle = np.linspace(0, 2 * np.pi, 16, endpoint=False)
+    mesh = fj.extrusion(0.05 * np.stack([np.cos(angle), np.sin(angle)], 1), 6.0, 60)
+    vertices, faces = np.asarray(mesh.vertices), np.asarray(mesh.faces)
+    adjacency = mesh_adjacency(vertices, faces)
+    region = np.where(vertices[:, 0] > 4.0 + 1e-9, 0, -1)
+    short = fj.Limb(fj.Line(1.0, origin=(3.0, 0.0, 0.0)), 0.5, -1)  # ends at the border
+    limbs, kept = _room_to_bend([short], region, vertices, adjacency)
+    assert limbs == [] and np.all(kept == -1)
+    with pytest.raises(ValueError, match="no room to bend"):
+        fj.register_skeleton(mesh, fj.Skeleton([short], region, vertices))
+    long = fj.Limb(fj.Line(2.5, origin=(3.5, 0.0, 0.0)), 0.6, -1)
+    limbs, kept = _room_to_bend([long], region, vertices, adjacency)
+    assert limbs == [long] and np.array_equal(kept, region)
 
 
 def test_a_slanted_border_with_a_parent_limb_is_levelled_at_a_chain_s_top_only():

@@ -382,6 +382,11 @@ def _room_to_bend(limbs: list[Limb], region: np.ndarray, vertices, adjacency):
     renumbered."""
     while (conflict := _conflict(limbs, region, vertices, adjacency)) is not None:
         k, child, beyond = conflict
+        if child is None:
+            # It leaves the rest where its spine ends (a crease's bump, its region wider than
+            # its spine is long): nothing past its joint to bend. It joins its parent.
+            limbs, region = merge_limb(limbs, region, k)
+            continue
         if float(limbs[child].spine.length) - float(limbs[child].joint) <= beyond:
             # The child joins its parent, with its descendants (the deepest first).
             gone = [child, *descendants(limbs)[child]]
@@ -395,12 +400,13 @@ def _room_to_bend(limbs: list[Limb], region: np.ndarray, vertices, adjacency):
 def _conflict(limbs, region, vertices, adjacency, only=None):
     """The first `(limb, child, length past the limb's joint)` where the child's region meets
     the limb's at arc lengths (on the limb's spine) within `ROOM` spine samples of where the
-    limb's region meets anything else (`register_skeleton` would find no room to bend the
-    limb), or `None`."""
+    limb's region meets anything else, or `(limb, None, 0)` where that is within them of the
+    spine's end (`register_skeleton` would find no room to bend the limb), or `None`. With
+    `only` (a child), that child's meeting with its parent alone."""
     below = descendants(limbs)
     for k, limb in enumerate(limbs):
         ids = np.flatnonzero(region == k)
-        if not below[k] or not len(ids) or (only is not None and limbs[only].parent != k):
+        if not len(ids) or (only is not None and limbs[only].parent != k):
             continue
         s, points, _ = map(np.asarray, spine_samples(limb.spine))
         arc = s[cKDTree(points).query(vertices[ids])[1]]
@@ -408,6 +414,8 @@ def _conflict(limbs, region, vertices, adjacency, only=None):
         leaves = ids[adjacency[ids] @ others.astype(float) > 0]
         joint = max(float(limb.joint), float(arc[np.isin(ids, leaves)].max(initial=0.0)))
         room = ROOM * float(s[1] - s[0])
+        if only is None and joint + room >= float(s[-1]):
+            return k, None, 0.0
         for child in (c for c, other in enumerate(limbs) if other.parent == k):
             if only is not None and child != only:
                 continue
