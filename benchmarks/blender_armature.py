@@ -69,17 +69,22 @@ def spot_poses(fj, skeleton):
         front: fj.LimbPose(45.0, towards=ahead), hind: fj.LimbPose(60.0, towards=-ahead)}
 
 
-def human_poses(fj, skeleton):
-    """The human modelled in Blender (`skin_characters.py`, z up, +y ahead; its own skeleton):
-    its left leg at hip 40° forwards, knee 70° backwards, ankle 20° forwards, its left arm
-    at shoulder, elbow and wrist 40° / 70° / 20° forwards, the head nodded 30° forwards."""
-    ahead = np.array([0.0, 1.0, 0.0])
+def human_chains(skeleton) -> tuple:
+    """The human's (z up, +x its left) left leg, left arm and head chains, by their tips."""
     chains = _longest_chains(skeleton)
     tips = {top: np.asarray(skeleton.limbs[c[-1]].spine(skeleton.limbs[c[-1]].spine.length))
             for top, c in chains.items()}
     leg = chains[next(t for t, p in tips.items() if p[2] < 0.3 and p[0] > 0)]
     arm = chains[next(t for t, p in tips.items() if p[0] > 0.5)]
-    head = chains[max(tips, key=lambda t: tips[t][2])]
+    return leg, arm, chains[max(tips, key=lambda t: tips[t][2])]
+
+
+def human_poses(fj, skeleton):
+    """The human modelled in Blender (`skin_characters.py`, z up, +y ahead; its own skeleton):
+    its left leg at hip 40° forwards, knee 70° backwards, ankle 20° forwards, its left arm
+    at shoulder, elbow and wrist 40° / 70° / 20° forwards, the head nodded 30° forwards."""
+    ahead = np.array([0.0, 1.0, 0.0])
+    leg, arm, head = human_chains(skeleton)
     poses = {k: fj.LimbPose(a, towards=sign * ahead)
              for k, a, sign in zip(leg, (40.0, 70.0, 20.0), (1, -1, 1))}
     poses |= {k: fj.LimbPose(a, towards=ahead) for k, a in zip(arm, (40.0, 70.0, 20.0))}

@@ -142,7 +142,7 @@ def human_joints(data: Path):
     directions an animator bends it, then a knee and an elbow at 120°, the arm raised 90°
     at the shoulder, the leg lifted 90° (hip + knee), the head turned and nodded 45°."""
     import trimesh
-    from blender_armature import _longest_chains, measures
+    from blender_armature import human_chains, measures
 
     import fleshing_jax as fj
 
@@ -150,12 +150,7 @@ def human_joints(data: Path):
     mesh = trimesh.Trimesh(arrays["human_vertices"], arrays["human_faces"], process=False)
     skeleton = fj.skeleton(mesh)
     registration = fj.register_skeleton(mesh, skeleton)
-    chains = _longest_chains(skeleton)
-    tips = {top: np.asarray(skeleton.limbs[c[-1]].spine(skeleton.limbs[c[-1]].spine.length))
-            for top, c in chains.items()}
-    leg = chains[next(t for t, p in tips.items() if p[2] < 0.3 and p[0] > 0)]
-    arm = chains[next(t for t, p in tips.items() if p[0] > 0.5)]
-    head = chains[max(tips, key=lambda t: tips[t][2])]
+    leg, arm, head = human_chains(skeleton)
     ahead, up, side = np.eye(3)[[1, 2, 0]]
     ranges = [("hip", leg[0], ahead, "forwards"), ("hip", leg[0], -ahead, "backwards"),
               ("knee", leg[1], -ahead, "backwards"), ("shoulder", arm[0], up, "up"),
