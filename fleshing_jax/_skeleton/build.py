@@ -378,7 +378,9 @@ def _room_to_bend(limbs: list[Limb], region: np.ndarray, vertices, adjacency):
     shorter of the two gives way: a child shorter than its parent's length past the
     joint (a horn split into a base and a tip on a small head) joins its parent's region; a
     parent shorter than the child (the bunny's head, 0.035 long, before ears 0.065–0.08
-    long) leaves its region to its own parent and its children to it. The limbs are then
+    long) leaves its region to its own parent and its children to it. A limb whose region
+    leaves the rest where its spine ends (a crease's bump, wider than its spine is long: a
+    cow modelled in Blender) has nothing to bend and joins its parent. The limbs are then
     renumbered."""
     while (conflict := _conflict(limbs, region, vertices, adjacency)) is not None:
         k, child, beyond = conflict

@@ -14,7 +14,8 @@ its child limbs):
    the level's (the hub's; a limb's thickest) and as any sphere further out (the torso; a
    limb's thick part; never past a neck). A sphere whose centre lies inside a core sphere is
    *covered*: it is inside the parent. The tip's path: its spheres from the tip inwards up
-   to the first covered one (excluded). It is a limb when it protrudes: beyond the last
+   to the first covered one (excluded), less its first spheres far thinner than the limb (a
+   crease's, `CREASE`). It is a limb when it protrudes: beyond the last
    covered sphere's surface by
    at least `ELONGATION` times its thickest radius (and, a child limb, when it is at most
    `THINNER` times as thick as its parent). A path half inside a limb's path spheres (or
