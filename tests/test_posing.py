@@ -12,6 +12,7 @@ import pytest
 from jax.test_util import check_grads
 
 import fleshing_jax as fj
+from fleshing_jax._fleshing.maps import WHOLE_FROM
 from fleshing_jax._fleshing.reach import REACH_SAMPLES
 from fleshing_jax._skeleton.posing import (
     CERTIFICATE_SAMPLES,
@@ -21,6 +22,7 @@ from fleshing_jax._skeleton.posing import (
     limb_poser,
     limb_target,
 )
+from fleshing_jax._spines.bent import ramp
 
 
 def _pose(registration, skeleton, poses):
@@ -361,7 +363,8 @@ def test_a_large_region_s_check_gives_the_sampled_test_s_flags(single, monkeypat
     samples; on looked-up frames (float32) its points are bent, the pending ones tested at
     images placed from there, and all placed (`Poser.pose`, `PLACED_APART_FROM` points on):
     the flags are those of the sampled test run on every point, folded (some fail it) and
-    bent less (none do)."""
+    bent less (none do); the images are those placed point by point in the frames looked up
+    (`Poser.place` places them a coordinate at a time)."""
     from fleshing_jax._fleshing import pipeline
 
     monkeypatch.setattr(pipeline, "PLACED_APART_FROM", 0)  # (read when tracing)
@@ -377,12 +380,18 @@ def test_a_large_region_s_check_gives_the_sampled_test_s_flags(single, monkeypat
         bent = poser.bend(reg)
         clear = jax.vmap(poser.region.clear)(images, bent.arc_length)  # every point's
         sampled = (bent.certified | bent.pending) & clear
-        return valid, poser.rigid(reg, images, sampled)[1], bent.certified, bent.pending
+        placed = jax.vmap(poser._placed)((bent.arc_length, bent.x, bent.y))[0]
+        kept = poser._kept(valid, reg)[:, None]
+        one_by_one = poser.rigid(reg, jnp.where(kept, placed, reg.points), valid)[0]
+        return (valid, poser.rigid(reg, images, sampled)[1], bent.certified, bent.pending,
+                images, one_by_one)
 
     for angle, rejected in ((175.0, True), (60.0, False)):
-        valid, expected, certified, pending = map(np.asarray, flags(
+        valid, expected, certified, pending, images, one_by_one = map(np.asarray, flags(
             limb_target(single, k, fj.LimbPose(angle, 0))))
         np.testing.assert_array_equal(valid, expected)
+        np.testing.assert_allclose(images, one_by_one, rtol=0, atol=1e-6)
+        assert np.abs(images - reg.points).max() > 0.1
         assert (pending & ~valid).any() == rejected
         # (Both ways of passing are taken: at 60°, 79 points certified, 113 tested.)
         assert pending.any() and certified.any() != rejected
@@ -434,6 +443,23 @@ def test_an_exact_pose_in_a_thin_direction_is_the_map_s_own(flat):
         theta, phi, 0.0, joint, stop))))(jnp.radians(jnp.linspace(0, 360, 3601))))
     assert excess.min() < -0.3 and excess.max() > 0.3
     assert np.max(np.abs(np.diff(excess))) < 0.01
+    # Each vertex's margin, with a twist too, is the formula's (`JointZone.margins`), here
+    # in NumPy, vertex by vertex.
+    phi, psi = 1.1, 0.4
+    margins = np.asarray(zone.margins(theta, phi, psi, joint, stop))
+    width = float(stop - joint)
+    r, slope = map(np.asarray, ramp(jnp.clip((zone.arc - joint) / width, 0, 1)))
+    t, first, second = np.asarray(zone.axes)
+    axis = np.cross(t, np.cos(phi) * first + np.sin(phi) * second)
+    rests, moments = np.asarray(zone.rests), np.asarray(zone.moments)
+    angle = -psi * r[:, None]  # (Rodrigues: `axis` turned about `t`)
+    turned = (np.cos(angle) * axis + np.sin(angle) * np.cross(t, axis)
+              + (1 - np.cos(angle)) * (t @ axis) * t)
+    rate = np.einsum("nc,nc->n", moments, turned)
+    bent = slope / width * (float(theta) * rate + psi * np.asarray(zone.twisting))
+    room = np.maximum(WHOLE_FROM - rests, WHOLE_FROM / 2)
+    np.testing.assert_allclose(margins, (rests + bent - WHOLE_FROM) / room, rtol=1e-9, atol=1e-12)
+    assert margins.max() > 0 and (rate != 0).sum() > 10
 
 
 def test_pose_stretch_is_the_posed_map_s_and_one_elsewhere(skeleton, registration):

@@ -91,3 +91,9 @@ class TargetFrames(eqx.Module):
             return target_frame(self.spine, self.twist, s)
         v = self.table.fields(s)
         return jnp.stack(v[0:3]), jnp.stack(v[3:6]), jnp.stack(v[6:9]), jnp.stack(v[9:11])
+
+    def coordinates(self, s: Array) -> tuple[list[Array], list[Array], list[Array]]:
+        """`(C₁, I₁, J₁)` at arc lengths `s` (n,), each as its three coordinates (each (n,)):
+        looked up in the table, one value at a time (tabulated frames only)."""
+        v = jax.vmap(self.table.fields)(s)
+        return v[0:3], v[3:6], v[6:9]

@@ -32,7 +32,7 @@ import numpy as np
 from jaxtyping import Array
 
 from .._fleshing.maps import WHOLE_FROM
-from .._numerics import on_device
+from .._numerics import dot, on_device
 from .._spines.bent import ramp, rotate
 
 # κ·ρ kept in a zone: below the radial map's limit 1/√3 ≈ 0.577, where its concave side would
@@ -114,8 +114,9 @@ class JointZone(eqx.Module):
         t, first, second = self.axes
         axis = jnp.cross(t, jnp.cos(direction) * first + jnp.sin(direction) * second)
         turned = jax.vmap(rotate, in_axes=(None, 0, None))(t, -twist * r, axis)
-        bent = (slope / width) * (bend * jnp.sum(turned * self.moments, axis=-1)
-                                  + twist * self.twisting)
+        # (An explicit dot, `_numerics.dot`: a sum over the short axis ran as a reduction, a
+        # frame of spot's head at 104,644 vertices CPU 3.4 → 3.0 ms.)
+        bent = (slope / width) * (bend * dot(turned, self.moments) + twist * self.twisting)
         room = jnp.maximum(WHOLE_FROM - self.rests, WHOLE_FROM / 2)
         return (self.rests + bent - WHOLE_FROM) / room
 
