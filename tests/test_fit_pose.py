@@ -408,10 +408,17 @@ def test_the_distance_to_a_surface_is_to_its_closest_triangle_point():
         dense = np.concatenate([tri, tri[0] + u @ (tri[1:] - tri[0])])  # corners too
         best = np.sqrt(np.min(np.sum((dense - y) ** 2, axis=1)))
         assert best - 0.05 <= np.linalg.norm(y - w @ tri) <= best + 1e-12
+    # Beside the sphere, a long triangle with a folded neighbour whose far corner is the
+    # nearest vertex of a point on the long one (the last of `y`): its own triangle must be
+    # among the candidates still (the rings of its nearest vertices, not of the nearest alone).
+    fan = np.array([[0, 0, 0], [4, 0, 0], [2, 1, 0], [2, -0.2, -0.5]]) + [10, 0, 0]
     ball = trimesh.creation.icosphere(2)
+    pair = len(ball.vertices) + np.array([[0, 1, 2], [1, 0, 3]])
+    ball = trimesh.Trimesh(np.concatenate([ball.vertices, fan]),
+                           np.concatenate([ball.faces, pair]), process=False)
     faces = jnp.asarray(ball.faces)
     ring = jnp.asarray(rings(ball.faces, len(ball.vertices)))
-    y = rng.normal(size=(40, 3))
+    y = np.concatenate([rng.normal(size=(40, 3)), [[12, 0.05, 0]]])
 
     def squared(v):  # (the distances and their gradient as one program: eagerly, op by op)
         d = to_surface(jnp.asarray(y), v, faces, ring)

@@ -5,7 +5,7 @@ The limbs' angles that bring the posed surface onto a target point cloud (a scan
 pose's vertices, samples of a mesh), from the rest pose:
 
 - **Objective.** A robust distance from each target point `yⱼ` (K) to the posed surface: to the
-  closest point of the posed triangles around its nearest posed vertex (`_fit.surface`; to the
+  closest point of the posed triangles around its nearest posed vertices (`_fit.surface`; to the
   vertices alone, a short leg's bend hid under the vertices' spacing), each difference `d` taken
   along that triangle's normal (point to plane: the surface sliding along itself moves no
   distance; the whole vector's derivative counted that sliding, spot's clean fit took 110 steps
