@@ -371,7 +371,11 @@ class Rigid(NamedTuple):
     translation: Array
 
     def __call__(self, x: Array) -> Array:
-        return x @ self.rotation.T + self.translation
+        # (Multiply-adds on the coordinates, not `x @ R.T`: a product of an (n, 3) array ran as
+        # a matrix kernel of its own, 0.1-0.2 ms for a carried child's 4-6k vertices.)
+        r = self.rotation
+        return (x[..., 0:1] * r[:, 0] + x[..., 1:2] * r[:, 1] + x[..., 2:3] * r[:, 2]
+                + self.translation)
 
     def then(self, outer: Rigid | None) -> Rigid:
         """`outer ∘ self` (`self` if `outer` is None)."""
