@@ -4,15 +4,16 @@
         [--seeds 4] [--spheres 200] [--figures DIR] [--joints]
 
 Our procedural characters share one way of building a surface (`_medial_axis.characters`).
-Here a human and a horned cow are modelled as an artist blocks a character out in Blender:
-a stick figure of joints with a radius each, its skin modifier's quad surface, subdivided
-twice (`pip install bpy` in another environment: `--bpy` names its Python; the meshes are
-made there). Each gets `fj.skeleton` at medial seeds 0 … n−1 (holes from the skin's branch
-points capped by `fj.cap_holes`). Prints a Markdown table: limbs, chains from the body and
-their lengths, and which of the tips an animator would pose (head, hands, feet; muzzle,
-horns, tail, hooves) lie in a limb of their own, outside the body. `--joints`: issue 46's
-joint targets on the human instead (its exact range per joint and direction, then each
-pose's flagged vertices, volume change and worst edge stretch, float64).
+Here a human, a horned cow and an insect (its legs bent at rest) are modelled as an artist
+blocks a character out in Blender: a stick figure of joints with a radius each, its skin
+modifier's quad surface, subdivided twice (`pip install bpy` in another environment: `--bpy`
+names its Python; the meshes are made there). Each gets `fj.skeleton` at medial seeds
+0 … n−1 (holes from the skin's branch points capped by `fj.cap_holes`). Prints a Markdown
+table: limbs, chains from the body and their lengths, and which of the tips an animator
+would pose (head, hands, feet; muzzle, horns, tail, hooves; head, antennae, feet) lie in a
+limb of their own, outside the body. `--joints`: issue 46's joint targets on the human
+instead (its exact range per joint and direction, then each pose's flagged vertices, volume
+change and worst edge stretch, float64).
 """
 
 from __future__ import annotations
@@ -70,7 +71,37 @@ COW = {
     + [(f"{leg}hoof", f"{leg}hoof", (0, 0, 0)) for leg in (
         "front left ", "front right ", "hind left ", "hind right ")],
 }
-CHARACTERS = {"human": HUMAN, "cow": COW}
+
+def _insect() -> dict:
+    """Six legs from the thorax, each rising to its knee and down (bent at rest), a waist to
+    the abdomen, a neck to the head, two antennae."""
+    joints = {"thorax": ((0, 0, 0.5), 0.11), "waist": ((-0.16, 0, 0.5), 0.06),
+              "abdomen": ((-0.35, 0, 0.52), 0.14), "abdomen end": ((-0.6, 0, 0.5), 0.1),
+              "abdomen tip": ((-0.75, 0, 0.48), 0.04), "neck": ((0.14, 0, 0.52), 0.05),
+              "head": ((0.24, 0, 0.55), 0.08)}
+    bones = [("thorax", "waist"), ("waist", "abdomen"), ("abdomen", "abdomen end"),
+             ("abdomen end", "abdomen tip"), ("thorax", "neck"), ("neck", "head")]
+    tips = [("head", "head", (0.08, 0, 0))]
+    for s, sign in (("l", 1), ("r", -1)):
+        chain = [("head", None), (f"{s}antenna base", ((0.3, sign * 0.04, 0.6), 0.02)),
+                 (f"{s}antenna mid", ((0.42, sign * 0.12, 0.78), 0.012)),
+                 (f"{s}antenna tip", ((0.55, sign * 0.2, 0.85), 0.008))]
+        tips.append((f"{s} antenna", f"{s}antenna tip", (0, 0, 0)))
+        for leg, x, dx in (("front", 0.07, 0.12), ("middle", 0.0, 0.0), ("hind", -0.07, -0.12)):
+            name = f"{s}{leg} "
+            chain += [("thorax", None), (name + "hip", ((x, sign * 0.09, 0.47), 0.035)),
+                      (name + "knee", ((x + dx, sign * 0.3, 0.62), 0.03)),
+                      (name + "ankle", ((x + 1.6 * dx, sign * 0.45, 0.08), 0.022)),
+                      (name + "foot", ((x + 1.9 * dx, sign * 0.5, 0.02), 0.016))]
+            tips.append((f"{s} {leg} foot", name + "foot", (0, 0, 0)))
+        for (a, _), (b, joint) in zip(chain, chain[1:]):
+            if joint is not None:  # (a None joint starts a new chain from an existing one)
+                joints[b] = joint
+                bones.append((a, b))
+    return {"joints": joints, "bones": bones, "tips": tips}
+
+
+CHARACTERS = {"human": HUMAN, "cow": COW, "insect": _insect()}
 
 
 def blender_side(out: Path):

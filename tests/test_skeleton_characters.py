@@ -114,15 +114,18 @@ def test_jointed_quadruped_has_jointed_legs_a_head_and_a_tail():
 
 
 def test_insect_has_six_legs_on_its_thorax():
-    """Each of the six feet in a chain of its own from the thorax (the root). A leg bent at
-    rest (its knee the highest point) whose straighter refit left it no region stayed in the
-    body (the hind left leg here, the front left one at 200 spheres): it keeps its own
-    spine (every leg's top bent 30° at once: nothing flagged, measured in the commit)."""
+    """Each of the six feet in a chain of its own from the thorax (the root), its thigh the
+    chain's top: the legs are bent at rest (the knee the highest point), which one spine
+    cannot follow within reach, and the thigh stayed in the body, the chain starting past
+    the knee, before legs bent at rest were split at their bend (`_skeleton.rest_bend`)."""
     mesh = insect()
     skeleton, _ = _rig(mesh, 120)
-    feet = [foot for leg in INSECT_LEGS for foot in _mirrored(insect_leg(*leg)[-1])]
-    chains = _check_tips(skeleton, feet, jointed=())
+    legs = [insect_leg(*leg) for leg in INSECT_LEGS]
+    feet = [foot for leg in legs for foot in _mirrored(leg[-1])]
+    chains = _check_tips(skeleton, feet, jointed=range(6))
     assert all(skeleton.limbs[c[0]].parent == -1 for c in chains)
+    thighs = [thigh for leg in legs for thigh in _mirrored(leg[1])]
+    assert [skeleton.limb_at(thigh) for thigh in thighs] == [c[0] for c in chains]
     assert skeleton.limb_at([0.6, 0.0, 0.3]) == -1  # the thorax is the root
 
 

@@ -310,3 +310,21 @@ def test_within_reach_reads_only_the_samples_that_could_fail_and_agrees_with_in_
                     within_reach(points, samples, curvature, margin, chunk=128), expected)
                 verdicts.append(expected.mean())
     assert min(verdicts) < 0.9 and max(verdicts) == 1.0  # cases with points beyond the reach
+
+
+def test_a_limb_bent_at_rest_is_found_at_its_bend_and_a_straight_one_nowhere():
+    """`rest_bend` names the sphere where a path turns by `BENT` degrees or more (an insect's
+    knee, the leg rising to it then down), away from the path's ends, and none on a path
+    that turns less (a limb one spine follows)."""
+    from fleshing_jax._skeleton.rest_bend import BENT, rest_bend
+
+    up = np.stack([np.linspace(0, 0.3, 7), np.zeros(7), np.linspace(0, 0.15, 7)], axis=1)
+    down = np.stack([np.full(7, 0.3), np.zeros(7), np.linspace(0.15, -0.45, 7)], axis=1)[1:]
+    centers = np.concatenate([up, down])
+    radii = np.full(len(centers), 0.02)
+    path = np.arange(len(centers))
+    assert rest_bend(path, centers, radii) == 6  # the knee: the path turns by 117°
+    straight = centers.copy()
+    straight[7:, 0] += np.linspace(0.3, 1.8, 6)  # down and on: turns by 45°
+    assert rest_bend(path, straight, radii) is None
+    assert rest_bend(path, straight, radii, least=BENT / 2) == 6

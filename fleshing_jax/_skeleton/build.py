@@ -20,6 +20,7 @@ from .given import given_limbs
 from .limb_fit import fit_limb
 from .limbs import ROUTES, find_limbs
 from .regions import levelled, mesh_adjacency, spine_samples, vertex_normals
+from .rest_bend import fit_bent
 from .skeleton import Limb, Skeleton, descendants, merge_limb
 from .visible import FEWEST, box_diagonal, moves_visibly, visible
 
@@ -59,9 +60,11 @@ def skeleton(mesh, *, medial: MedialMesh | None = None, spheres: int = 200,
 
     A long limb is then split at its joints into a chain of limbs, each the parent of the
     next (`_skeleton.chains`: where the medial radius narrows, else where the axis turns,
-    else in the middle of a limb 6 radii long), and a limb a 30° bend would not visibly
-    move joins its parent (`_skeleton.visible`: fewer than `FEWEST` of its vertices past
-    its joint, or none of those and its descendants' `VISIBLE` of the diagonal from it).
+    else in the middle of a limb 6 radii long; a limb bent at rest past what one spine
+    follows, an insect's leg rising to its knee, at its bend first: `_skeleton.rest_bend`),
+    and a limb a 30° bend would not visibly move joins its parent (`_skeleton.visible`:
+    fewer than `FEWEST` of its vertices past its joint, or none of those and its
+    descendants' `VISIBLE` of the diagonal from it).
 
     A shape with no thicker part for a branch to leave (a tube, a capsule) is a body and one
     limb: the body the end sphere of the medial axis's longest path (a cap one radius deep),
@@ -362,6 +365,11 @@ def _fit_from(found_limbs, start, first, fitted, centers, radii, vertices, adjac
         if choice is None:
             continue
         route, spine, part, early = choice
+        others = np.concatenate([f.path for f in found_limbs if f is not found])
+        bent = fit_bent(route, part, centers, radii, vertices, adjacency, region == parent,
+                        margin, nearest, others)
+        if bent is not None:
+            route, spine, part = bent
         if early:
             fitted.early.add(number)
         index[number] = len(limbs)

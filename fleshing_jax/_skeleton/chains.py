@@ -13,7 +13,9 @@ of its path, at least `SEGMENT` of that sphere's radii from either end of the pi
 3. else, a piece at least `LONG` radii long: in its middle (a knee on a leg of even
    thickness, where an animator would put it: the medial axis gives no better cue).
 
-Both pieces are examined again, up to `PIECES` pieces per limb. The piece past a split is a
+A limb bent at rest (`rest_bend`: its top fitted on its path up to the bend) is split
+at its bend first, then its piece past the bend as any limb is. Both pieces are examined
+again, up to `PIECES` pieces per limb. The piece past a split is a
 child limb: its spine fitted on the path from about a radius before the split sphere to the
 tip (`fit_limb`), its region cut out of the piece before it at the split sphere's centre.
 A child of the whole limb (an ear on a head split into neck and head) goes to the piece its
@@ -52,7 +54,7 @@ def chain_splits(found: LimbPath, spine, joint: float, centers, radii) -> list[i
     # below 0.8 / r), which turned the biped's ankle by 17° where its foot turns by 90°.
     line = centers[path]
     arc = np.r_[0.0, np.cumsum(np.linalg.norm(np.diff(line, axis=0), axis=1))]
-    turn = _turning(arc, line, arc, WINDOW * r)
+    turn = turning(arc, line, arc, WINDOW * r)
     splits, pieces = [], [(float(joint), float(s[-1]))]
     while pieces and len(splits) < PIECES - 1:
         low, high = pieces.pop(0)
@@ -92,7 +94,7 @@ def _split(at, r, turn, low, high) -> int | None:
     return None
 
 
-def _turning(s, points, at, half) -> np.ndarray:
+def turning(s, points, at, half) -> np.ndarray:
     """Degrees the spine (sampled: `points` at arc lengths `s`) turns between the chords from
     `at − half` to `at` and from `at` to `at + half`."""
 
@@ -122,17 +124,36 @@ def split_chains(limbs, founds, region, centers, radii, vertices, adjacency, mar
         out.append(Limb(limb.spine, limb.joint, parent))
         label[own] = first
         chain = [first]
-        for m in chain_splits(found, limb.spine, float(limb.joint), centers, radii):
-            piece = _piece(found, m, radii, centers)
-            spine, part = fit_limb(piece, centers, radii, vertices, adjacency,
-                                   label == chain[-1], margin, cut_at=centers[found.path[m]])
-            if part is None:
-                break  # no room past this joint: the rest stays in the piece before it
-            label[part.vertices] = len(out)
-            out.append(Limb(spine, part.joint, chain[-1]))
-            chain.append(len(out) - 1)
+        fit = (centers, radii, vertices, adjacency, margin)
+        if found.bend is None:
+            for m in chain_splits(found, limb.spine, float(limb.joint), centers, radii):
+                if _cut_piece(found, m, out, label, chain, *fit) is None:
+                    break  # no room past this joint: the rest stays in the piece before it
+        elif (shin := _cut_piece(found, found.bend, out, label, chain, *fit)) is not None:
+            # Bent at rest (`rest_bend`): its top is the path up to the bend; the rest, from
+            # the bend on, is split as any limb is.
+            below = out[chain[-1]]
+            for m in chain_splits(shin, below.spine, float(below.joint), centers,
+                                  radii)[: PIECES - 2]:
+                if _cut_piece(shin, m, out, label, chain, *fit) is None:
+                    break
         pieces.append(chain)
     return out, label, [chain[0] for chain in pieces]
+
+
+def _cut_piece(found, m, out, label, chain, centers, radii, vertices, adjacency, margin):
+    """The piece of `found` past its path's sphere `m`, fitted and cut out of the region of
+    the chain's last limb `chain[-1]` as its child (appended to `out`, `label` and `chain`
+    in place): its `LimbPath`, or `None` where it gets no region."""
+    piece = _piece(found, m, radii, centers)
+    spine, part = fit_limb(piece, centers, radii, vertices, adjacency, label == chain[-1],
+                           margin, cut_at=centers[found.path[m]])
+    if part is None:
+        return None
+    label[part.vertices] = len(out)
+    out.append(Limb(spine, part.joint, chain[-1]))
+    chain.append(len(out) - 1)
+    return piece
 
 
 def _piece(found: LimbPath, m: int, radii, centers) -> LimbPath:

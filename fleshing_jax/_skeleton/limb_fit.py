@@ -5,6 +5,8 @@ spine's reach. Shared by `skeleton` (a limb found on the medial graph) and its j
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 
 from .fit import extend_beyond, fit_bspline
@@ -33,6 +35,10 @@ TOP_STRAIGHT = 4.0
 # Times `regions.REACH`: how far a limb's region may reach among its own vertices (those
 # nearest to its medial spheres) when the usual reach leaves it none.
 WIDE = 2
+# A straighter fit keeping less than this share of the region's vertices lost the limb past a
+# bend at rest (the procedural and modelled insects' legs: 35-49 %; no other character's
+# refit loses any).
+BENT_KEEPS = 0.6
 
 
 def fit_limb(found: LimbPath, centers, radii, vertices, adjacency, allowed, margin,
@@ -91,6 +97,7 @@ def _fit(found, centers, radii, vertices, adjacency, allowed, margin, cut_at, wi
         part = limb_region(spine, cut, tip, arc, local, vertices, adjacency, allowed, **how)
         if part is not None:
             break
+    lost = False
     for _ in range(REFITS):
         # The region's far vertices (the back of a head beyond its medial spheres, a haunch
         # beside a leg's start) may lie beyond the spine's reach: a straighter fit there.
@@ -103,16 +110,17 @@ def _fit(found, centers, radii, vertices, adjacency, allowed, margin, cut_at, wi
             refit_part = limb_region(*refit, vertices, adjacency, allowed, **how)
             if refit_part is not None:
                 break
+        # Straightened, a limb bent at rest (an insect's leg rising to its knee, then down)
+        # loses its region, or most of it (the straight spine cuts the knee: the leg kept
+        # only its shin): it is split at its bend (`rest_bend`). Where no straighter fit
+        # has a region, it keeps the fit before (its far vertices flagged by any pose).
+        lost |= refit_part is None or len(refit_part.vertices) < BENT_KEEPS * len(part.vertices)
         if refit_part is None:
-            # Straightened, a limb bent at rest loses its region (an insect's leg, its knee
-            # the highest point: the straight spine misses it, and the leg stayed in the
-            # body); it keeps the fit before, some far vertices nearer a focal point than
-            # the margin: a leg a user can pose, flagging what it cannot move (the insect's
-            # legs bent 30° at their hips: none flagged at 120 spheres; at 200, 39 of the
-            # front left leg's 752 vertices, under its bent knee).
             break
         spine, cut, tip, arc, local = refit
         part = refit_part
+    if part is not None and lost:
+        part = dataclasses.replace(part, bent=True)
     return spine, part, arc, tip
 
 

@@ -77,6 +77,9 @@ class LimbPath:
     # Other routes through the limb, `(path, inside)` in order of preference, for when the
     # spine along `path` leaves the limb no region (`_skeleton.build`).
     alternatives: tuple = ()
+    # A limb bent at rest (`rest_bend`): the index in `path` of its bend, where its chain is
+    # split first (its spine, fitted up to there, is the top piece's).
+    bend: int | None = None
 
 
 def find_limbs(centers: np.ndarray, radii: np.ndarray, edges: np.ndarray) -> list[LimbPath]:

@@ -38,10 +38,13 @@ LEVEL = 1.5
 
 @dataclasses.dataclass(frozen=True)
 class LimbRegion:
-    """A limb's `vertices` (indices) and its `joint` (arc length) on its spine."""
+    """A limb's `vertices` (indices) and its `joint` (arc length) on its spine; `bent`: the
+    limb is bent at rest past what one spine within reach of its region can follow
+    (`limb_fit`), to be split at its bend."""
 
     vertices: np.ndarray
     joint: float
+    bent: bool = False
 
 
 @eqx.filter_jit
