@@ -54,13 +54,16 @@ POSES = {HEAD: (10.0, 90.0), LEG: (30.0, 0.0)}  # bend, direction (degrees): all
 
 
 def _median_ms(fn, arg, frames):
+    """`(wall, CPU)` medians (ms) of `frames` calls `fn(arg)`, after one (the CPU time of all
+    threads: steadier than the wall time on a loaded machine)."""
     fn(arg).block_until_ready()
-    times = []
+    times, cpu = [], []
     for _ in range(frames):
-        start = time.perf_counter()
+        start, used = time.perf_counter(), time.process_time()
         fn(arg).block_until_ready()
         times.append(time.perf_counter() - start)
-    return 1e3 * float(np.median(times))
+        cpu.append(time.process_time() - used)
+    return 1e3 * float(np.median(times)), 1e3 * float(np.median(cpu))
 
 
 def skeleton_time(spot):
@@ -104,7 +107,7 @@ def pose_speed(spot, skeleton, frames=50):
         start = time.perf_counter()
         frame(poses).block_until_ready()
         first = time.perf_counter() - start
-        rows.append((name, first, _median_ms(frame, poses, frames)))
+        rows.append((name, first, *_median_ms(frame, poses, frames)))
     return len(big.vertices), registered, rows
 
 
@@ -358,9 +361,10 @@ def main():
     if not (args.only_volumes or args.spot_frames):
         n, registered, rows = pose_speed(spot, skeleton, args.frames)
         print(f"{n} vertices, float32, registered once in {registered:.1f} s\n")
-        print("| posed | first frame (s) | per frame (ms, median) |\n|---|---:|---:|")
-        for name, first, ms in rows:
-            print(f"| {name} | {first:.1f} | {ms:.2f} |")
+        print("| posed | first frame (s) | per frame (ms, median) | CPU (ms) |\n"
+              "|---|---:|---:|---:|")
+        for name, first, ms, cpu in rows:
+            print(f"| {name} | {first:.1f} | {ms:.2f} | {cpu:.2f} |")
     if args.only_frames or args.spot_frames:
         print(f"\nspot, {len(spot.vertices):,} vertices, jitted frames\n")
         print("| dtype | limbs posed | first call (s) | per frame (ms, median) | CPU (ms) | "
