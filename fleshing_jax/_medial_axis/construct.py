@@ -59,8 +59,9 @@ def medial_mesh(mesh, spheres: int = 200, *, seed: int = 0, samples: int = 20_00
     **Returns:** a `MedialMesh` with NumPy float64 centres and radii.
 
     **Raises:** `ValueError` for fewer than 2 spheres or too few samples, and for meshes that
-    are open (close them with `fj.cap_holes`), non-manifold, inconsistently oriented, flat
-    (no volume) or with non-finite vertices.
+    are open (close them with `fj.cap_holes`), non-manifold, one-sided, flat (no volume) or
+    with non-finite vertices. Faces wound against their neighbours (the fewer of each shell)
+    and shells inside out are flipped, with a warning.
     """
     if int(spheres) != spheres or spheres < 2:
         raise ValueError(f"spheres must be an integer >= 2, got {spheres!r}")

@@ -45,6 +45,49 @@ def _edges(faces):
     return half, inverse, counts
 
 
+def _consistent(faces, edge, forward) -> tuple[np.ndarray, int]:
+    """`faces` (F, 3) of a closed 2-manifold, each shell wound one way: its faces wound
+    against their neighbours (an edge walked the same way by both of its faces) flipped, as
+    few as make it consistent (the minority of its shell; a modelling tool's flipped faces),
+    and their count. `edge` (3F,): each half-edge's undirected edge (`_edges`' `inverse`),
+    `forward` (3F,): whether it runs from its lower vertex. `ValueError` for a surface no
+    flips make consistent (one-sided: a Möbius band closed up)."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import breadth_first_order, connected_components
+
+    count = len(faces)
+    face = np.tile(np.arange(count), 3)
+    order = np.argsort(edge, kind="stable")  # each edge's two half-edges, side by side
+    first, second = face[order[0::2]], face[order[1::2]]
+    # Two faces agree on their shared edge when they walk it in opposite directions.
+    same = forward[order[0::2]] == forward[order[1::2]]
+    graph = coo_matrix((np.ones(len(first)), (first, second)), shape=(count, count)).tocsr()
+    shells, label = connected_components(graph, directed=False)
+    # Whether each pair of neighbours disagrees, looked up by the pair (either order).
+    keys = np.concatenate([first * count + second, second * count + first])
+    sorting = np.argsort(keys)
+    keys, disagree = keys[sorting], np.concatenate([same, same])[sorting]
+    turned = np.zeros(count, bool)  # flipped relative to its shell's first face
+    for shell in range(shells):
+        start = int(np.flatnonzero(label == shell)[0])
+        visited, parent = breadth_first_order(graph, start, directed=False)
+        parent = parent.astype(np.int64)  # (int32: its products with `count` overflowed)
+        below = visited[1:].astype(np.int64)  # (parents come first in the search's order)
+        flips = disagree[np.searchsorted(keys, parent[below] * count + below)]
+        for f, flip in zip(below.tolist(), flips.tolist(), strict=True):
+            turned[f] = turned[parent[f]] ^ flip
+    if np.any(turned[first] ^ turned[second] != same):
+        raise ValueError("mesh faces cannot be oriented consistently: the surface is "
+                         "one-sided (non-orientable)")
+    for shell in range(shells):  # the fewer flips: the shell's majority keeps its winding
+        members = label == shell
+        if 2 * np.count_nonzero(turned[members]) > np.count_nonzero(members):
+            turned[members] = ~turned[members]
+    faces = faces.copy()
+    faces[turned] = faces[turned][:, ::-1]
+    return faces, int(np.count_nonzero(turned))
+
+
 def closed_mesh_arrays(mesh) -> tuple[np.ndarray, np.ndarray]:
     """Checks that `mesh` is a closed triangle mesh bounding a volume; returns its arrays.
 
@@ -53,15 +96,17 @@ def closed_mesh_arrays(mesh) -> tuple[np.ndarray, np.ndarray]:
     - `mesh`: a `trimesh.Trimesh` or a pair `(vertices (V, 3), faces (F, 3) int)`.
 
     **Returns:** `(vertices (V, 3) float64, faces (F, 3) int64)`, faces oriented outwards:
-    vertices in no face dropped (with a warning giving their count), and shells (face-connected
-    components) that face into their volume flipped (with a warning naming them; see
-    `shells.orient_shells`).
+    vertices in no face dropped (with a warning giving their count), faces wound against their
+    neighbours flipped (the fewer of each shell: `_consistent`; a warning gives their count),
+    and shells (face-connected components) that face into their volume flipped (with a
+    warning naming them; see `shells.orient_shells`).
 
     **Raises:** `ValueError` naming the problem: non-finite or badly shaped vertices, face
     indices out of range, degenerate faces (a vertex repeated), boundary edges (open mesh:
     close it with `fj.cap_holes`; an unwelded mesh, closed once its coincident vertices are
-    one, is welded with a warning), non-manifold edges, inconsistent orientation, shells that
-    cross each other (a self-intersecting mesh), no enclosed volume (a flat sheet).
+    one, is welded with a warning), non-manifold edges, a one-sided surface (no winding
+    agrees), shells that cross each other (a self-intersecting mesh), no enclosed volume (a
+    flat sheet).
     """
     if isinstance(mesh, trimesh.Trimesh):
         vertices, faces = mesh.vertices, mesh.faces
@@ -130,8 +175,9 @@ def closed_mesh_arrays(mesh) -> tuple[np.ndarray, np.ndarray]:
                          "than two faces)")
     forward = (half[:, 0] < half[:, 1]).astype(np.int64)
     if (np.bincount(inverse.reshape(-1), weights=forward) != 1).any():
-        raise ValueError("mesh faces are not consistently oriented (fix its winding, e.g. "
-                         "with trimesh.repair.fix_winding)")
+        faces, turned = _consistent(faces, inverse.reshape(-1), forward)
+        warnings.warn(f"mesh had {turned} faces wound against their neighbours: flipped",
+                      stacklevel=3)
     faces, flipped = orient_shells(vertices, faces)
     if flipped:
         warnings.warn(f"mesh shells (face-connected components) {flipped} were inside out "
