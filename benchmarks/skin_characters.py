@@ -4,16 +4,17 @@
         [--seeds 4] [--spheres 200] [--figures DIR] [--joints]
 
 Our procedural characters share one way of building a surface (`_medial_axis.characters`).
-Here a human, a horned cow and an insect (its legs bent at rest) are modelled as an artist
-blocks a character out in Blender: a stick figure of joints with a radius each, its skin
-modifier's quad surface, subdivided twice (`pip install bpy` in another environment: `--bpy`
-names its Python; the meshes are made there). Each gets `fj.skeleton` at medial seeds
-0 … n−1 (holes from the skin's branch points capped by `fj.cap_holes`). Prints a Markdown
-table: limbs, chains from the body and their lengths, and which of the tips an animator
-would pose (head, hands, feet; muzzle, horns, tail, hooves; head, antennae, feet) lie in a
-limb of their own, outside the body. `--joints`: issue 46's joint targets on the human
-instead (its exact range per joint and direction, then each pose's flagged vertices, volume
-change and worst edge stretch, float64).
+Here a human, a horned cow, an insect (its legs bent at rest) and a horse are modelled as
+an artist blocks a character out in Blender: a stick figure of joints with a radius each,
+its skin modifier's quad surface, subdivided twice (`pip install bpy` in another
+environment: `--bpy` names its Python; the meshes are made there). Each gets `fj.skeleton`
+at medial seeds 0 … n−1 (holes from the skin's branch points capped by `fj.cap_holes`, the
+faces the skin winds against their neighbours flipped). Prints a Markdown table: limbs,
+chains from the body and their lengths, and which of the tips an animator would pose (head,
+hands, feet; muzzle, horns, tail, hooves; head, antennae, feet; ears) lie in a limb of their
+own, outside the body. `--joints`: issue 46's joint targets on the human instead (its exact
+range per joint and direction, then each pose's flagged vertices, volume change and worst
+edge stretch, float64).
 """
 
 from __future__ import annotations
@@ -101,7 +102,37 @@ def _insect() -> dict:
     return {"joints": joints, "bones": bones, "tips": tips}
 
 
-CHARACTERS = {"human": HUMAN, "cow": COW, "insect": _insect()}
+
+def _horse() -> dict:
+    """A long neck and head with two ears and a muzzle, four legs of three bones, a tail."""
+    joints = {"rump": ((-0.55, 0, 1.25), 0.25), "belly": ((0, 0, 1.28), 0.28),
+              "chest": ((0.5, 0, 1.3), 0.26), "neck base": ((0.75, 0, 1.55), 0.16),
+              "neck top": ((0.95, 0, 1.95), 0.1), "head": ((1.1, 0, 2.0), 0.1),
+              "muzzle": ((1.45, 0, 1.75), 0.07), "tail": ((-0.85, 0, 1.35), 0.05),
+              "tail tip": ((-1.0, 0, 0.85), 0.035)}
+    bones = [("rump", "belly"), ("belly", "chest"), ("chest", "neck base"),
+             ("neck base", "neck top"), ("neck top", "head"), ("head", "muzzle"),
+             ("rump", "tail"), ("tail", "tail tip")]
+    tips = [("muzzle", "muzzle", (0.05, 0, -0.02)), ("tail", "tail tip", (0, 0, 0))]
+    for s, sign in (("left", 1), ("right", -1)):
+        joints[f"{s} ear"] = ((1.0, sign * 0.07, 2.25), 0.025)
+        bones.append(("head", f"{s} ear"))
+        tips.append((f"{s} ear", f"{s} ear", (0, 0, 0.02)))
+    for leg, x, top in (("front left ", 0.5, "chest"), ("front right ", 0.5, "chest"),
+                        ("hind left ", -0.55, "rump"), ("hind right ", -0.55, "rump")):
+        y = 0.15 if "left" in leg else -0.15
+        for a, (b, point, radius) in zip(
+                [top, leg + "hip", leg + "knee", leg + "fetlock"],
+                [("hip", (x, y, 1.05), 0.11), ("knee", (x + (0.05 if x > 0 else -0.1), y, 0.6),
+                                               0.06),
+                 ("fetlock", (x, y, 0.15), 0.045), ("hoof", (x + 0.05, y, 0.03), 0.055)]):
+            joints[leg + b] = (point, radius)
+            bones.append((a, leg + b))
+        tips.append((leg + "hoof", leg + "hoof", (0, 0, 0)))
+    return {"joints": joints, "bones": bones, "tips": tips}
+
+
+CHARACTERS = {"human": HUMAN, "cow": COW, "insect": _insect(), "horse": _horse()}
 
 
 def blender_side(out: Path):
