@@ -128,8 +128,18 @@ def rigid_beyond(
     c1, t1, i1, j1 = _pick(target.frame(0), target.frame(1), end)
     d = x - c0
     image = c1 + dot(d, t0) * t1 + dot(d, i0) * i1 + dot(d, j0) * j1
-    same = _same((c0,), (c1,), 1 + jnp.max(jnp.abs(c0))) & _same((t0, i0, j0), (t1, i1, j1))
+    # (Whether each end's frames agree, picked by the point's end: batched, the same test on
+    # each point's picked frames ran as reductions over their 3 coordinates, a point at a time.)
+    same = _pick(*(_same_frames(source.frame(e), target.frame(e)) for e in (0, 1)), end)
     return jnp.where(same, x, image), (s <= 0) | (s >= length)
+
+
+def _same_frames(rest: tuple[Array, ...], moved: tuple[Array, ...]) -> Array:
+    """Whether the frames `(C, T, I, J)` `rest` and `moved` agree to round-off (`_same`; the
+    position relative to its size)."""
+    c0, *axes0 = rest
+    c1, *axes1 = moved
+    return _same((c0,), (c1,), 1 + jnp.max(jnp.abs(c0))) & _same(tuple(axes0), tuple(axes1))
 
 
 def end_band(source: EndFrames, target: EndFrames, d: Array, s: Array, length: Array,
