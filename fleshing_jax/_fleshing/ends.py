@@ -166,7 +166,10 @@ def end_band(source: EndFrames, target: EndFrames, d: Array, s: Array, length: A
     depth = safe_divide(jnp.where(end == 1, length - s, s), norm(d))
     fade = jnp.where(depth < 1, (1 - jnp.clip(depth, 0, 1)) ** 2, 0)
     scale = 1 + norm(d)
-    negligible = jnp.max(jnp.abs(departure)) <= 64 * jnp.finfo(d.dtype).eps * scale
+    # (The larger of its two components, not `jnp.max`: batched, a reduction over them ran
+    # as a kernel of its own on the (n, 2) departures.)
+    largest = jnp.maximum(jnp.abs(departure[..., 0]), jnp.abs(departure[..., 1]))
+    negligible = largest <= 64 * jnp.finfo(d.dtype).eps * scale
     return -jnp.where(negligible, 0, fade) * departure
 
 
