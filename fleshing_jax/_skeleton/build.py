@@ -365,7 +365,8 @@ def _fit_from(found_limbs, start, first, fitted, centers, radii, vertices, adjac
         if choice is None:
             continue
         route, spine, part, early = choice
-        others = np.concatenate([f.path for f in found_limbs if f is not found])
+        others = np.concatenate([np.zeros(0, int)]
+                                + [f.path for f in found_limbs if f is not found])
         bent = fit_bent(route, part, centers, radii, vertices, adjacency, region == parent,
                         margin, nearest, others)
         if bent is not None:
