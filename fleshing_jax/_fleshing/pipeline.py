@@ -305,17 +305,18 @@ class Poser(eqx.Module):
         by a product with the identity: placed as (n, 3) points, XLA's CPU backend fused the
         three coordinates into one kernel that ran a point's coordinates one by one, not
         vectorised (spot's head at 104,644 vertices: CPU 3.8 → 3.3 ms a frame). Its rows are
-        the coordinates' values exactly (a non-finite coordinate makes its point's row
-        non-finite, as the callers treat such a point anyway)."""
+        the coordinates' values exactly; the product sees only placed points (finite: a
+        point left as it is, a non-finite coordinate among finite ones, keeps them all)."""
         if self.frames.table is None:
             def image(s1, x, y, kept, point):
                 return jnp.where(kept, self._placed((s1, x, y))[0], point)
 
             return jax.vmap(image)(bent.arc_length, bent.x, bent.y, bent.kept, points)
         c, i, j = self.frames.coordinates(bent.arc_length)
-        rows = jnp.stack([jnp.where(bent.kept, c[a] + bent.x * i[a] + bent.y * j[a], points[:, a])
+        rows = jnp.stack([jnp.where(bent.kept, c[a] + bent.x * i[a] + bent.y * j[a], 0)
                           for a in range(3)])
-        return jnp.einsum("an,ab->nb", rows, jnp.eye(3, dtype=rows.dtype))
+        placed = jnp.einsum("an,ab->nb", rows, jnp.eye(3, dtype=rows.dtype))
+        return jnp.where(bent.kept[:, None], placed, points)
 
     def projects(self, registration: Registration, images: Array) -> Array:
         """The region's sampled check (n,) of registered points' `images` (n, 3), as this
