@@ -1,12 +1,14 @@
 """Our jointed pose against Blender's armature on the same joint rotations (issues 45/46).
 
     python benchmarks/blender_armature.py --bpy /path/to/venv-with-bpy/bin/python \
-        [--character biped|spot|human] [--figure benchmarks/figures/skeleton-biped-vs-blender.png]
+        [--character biped|spot|human|insect] \
+        [--figure benchmarks/figures/skeleton-biped-vs-blender.png]
 
 The procedural biped's skeleton (`fj.skeleton`, 200 spheres): one leg posed at its hip 40°,
 knee 70°, ankle 20°, one arm at its shoulder, elbow and wrist alike, the head 30° (float64);
 or spot's (`fj.skeleton`): its head turned 45°, a front leg lifted 45°, a hind leg 60°; or
-the human modelled in Blender (`skin_characters.py`): a leg, an arm and the head forwards.
+the human modelled in Blender (`skin_characters.py`): a leg, an arm and the head forwards;
+or its insect: a front leg raised at hip and knee, a hind leg swung back.
 Blender (`pip install bpy` in another environment: `--bpy` names its Python) gets one bone
 per limb (head at the limb's bend start, tail where its bend is complete), a still body
 bone, automatic heat weights, and as each bone's rotation the rotation our pose gives that
@@ -92,8 +94,26 @@ def human_poses(fj, skeleton):
     return lambda registration: poses
 
 
-def human_mesh(bpy: str):
-    """The human of `skin_characters.py`, modelled by Blender in a subprocess (`bpy`)."""
+def insect_poses(fj, skeleton):
+    """The insect modelled in Blender (`skin_characters.py`, z up, +x ahead; its own
+    skeleton): its left front leg raised 30° at the hip and 30° more at the knee, its left
+    hind leg swung 30° backwards at the hip (each leg a chain from the hip: thigh, shin,
+    foot)."""
+    up, back = np.array([0.0, 0.0, 1.0]), np.array([-1.0, 0.0, 0.0])
+    chains = _longest_chains(skeleton)
+    tips = {top: np.asarray(skeleton.limbs[c[-1]].spine(skeleton.limbs[c[-1]].spine.length))
+            for top, c in chains.items()}
+    feet = [t for t, p in tips.items() if p[2] < 0.2 and p[1] > 0.3]
+    front = chains[max(feet, key=lambda t: tips[t][0])]
+    hind = chains[min(feet, key=lambda t: tips[t][0])]
+    poses = {front[0]: fj.LimbPose(30.0, towards=up), front[1]: fj.LimbPose(30.0, towards=up),
+             hind[0]: fj.LimbPose(30.0, towards=back)}
+    return lambda registration: poses
+
+
+def skin_mesh(bpy: str, name: str):
+    """The character `name` of `skin_characters.py`, modelled by Blender in a subprocess
+    (`bpy`)."""
     import trimesh
 
     with tempfile.TemporaryDirectory() as folder:
@@ -101,7 +121,8 @@ def human_mesh(bpy: str):
         subprocess.run([bpy, str(Path(__file__).with_name("skin_characters.py")),
                         "--blender-side", str(data)], check=True, capture_output=True)
         arrays = np.load(data)
-        return trimesh.Trimesh(arrays["human_vertices"], arrays["human_faces"], process=False)
+        return trimesh.Trimesh(arrays[f"{name}_vertices"], arrays[f"{name}_faces"],
+                               process=False)
 
 
 def ours(out: Path, character: str, bpy: str):
@@ -117,10 +138,10 @@ def ours(out: Path, character: str, bpy: str):
         mesh = fj.data.spot()
         skeleton = fj.skeleton(mesh)
         poses_of = spot_poses(fj, skeleton)
-    elif character == "human":
-        mesh = human_mesh(bpy)
+    elif character in ("human", "insect"):
+        mesh = skin_mesh(bpy, character)
         skeleton = fj.skeleton(mesh)
-        poses_of = human_poses(fj, skeleton)
+        poses_of = (human_poses if character == "human" else insect_poses)(fj, skeleton)
     else:
         mesh = biped()
         skeleton = fj.skeleton(mesh)
@@ -234,7 +255,8 @@ def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--bpy", required=True, help="a Python with `bpy` installed")
     parser.add_argument("--figure", type=Path, default=None)
-    parser.add_argument("--character", choices=("biped", "spot", "human"), default="biped")
+    parser.add_argument("--character", choices=("biped", "spot", "human", "insect"),
+                        default="biped")
     parser.add_argument("--blender-side", nargs=2, help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.blender_side:

@@ -13,11 +13,11 @@ of its path, at least `SEGMENT` of that sphere's radii from either end of the pi
 3. else, a piece at least `LONG` radii long: in its middle (a knee on a leg of even
    thickness, where an animator would put it: the medial axis gives no better cue).
 
-A limb bent at rest (`rest_bend`: its top fitted on its path up to the bend) is split
-at its bend first, then its piece past the bend as any limb is. Both pieces are examined
-again, up to `PIECES` pieces per limb. The piece past a split is a
-child limb: its spine fitted on the path from about a radius before the split sphere to the
-tip (`fit_limb`), its region cut out of the piece before it at the split sphere's centre.
+A limb bent at rest (`rest_bend`: its top fitted on its path up to the bend) is split at
+its bend first, then its piece past the bend as any limb is. Both pieces are examined again,
+up to `PIECES` pieces per limb. The piece past a split is a child limb: its spine fitted on
+the path from about a radius before the split sphere to the tip (`fit_limb`), its region
+cut out of the piece before it at the split sphere's centre.
 A child of the whole limb (an ear on a head split into neck and head) goes to the piece its
 region borders most.
 """

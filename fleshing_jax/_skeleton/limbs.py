@@ -15,11 +15,10 @@ its child limbs):
    limb's thick part; never past a neck). A sphere whose centre lies inside a core sphere is
    *covered*: it is inside the parent. The tip's path: its spheres from the tip inwards up
    to the first covered one (excluded), less its first spheres far thinner than the limb (a
-   crease's, `CREASE`). It is a limb when it protrudes: beyond the last
-   covered sphere's surface by
-   at least `ELONGATION` times its thickest radius (and, a child limb, when it is at most
-   `THINNER` times as thick as its parent). A path half inside a limb's path spheres (or
-   whose tip is) is another route to that limb (the same head reached through two strips
+   crease's, `CREASE`). It is a limb when it protrudes: beyond the last covered sphere's
+   surface by at least `ELONGATION` times its thickest radius (and, a child limb, when it is
+   at most `THINNER` times as thick as its parent). A path half inside a limb's path spheres
+   (or whose tip is) is another route to that limb (the same head reached through two strips
    of the neck, a strip's second tip), as is one joined to it by a sheet's edges, even
    through paths found after it (a flat ear's rim); one hanging below a limb in the tree is
    a child left to that limb's level, unless it is as thick as that limb (two legs side by

@@ -7,14 +7,13 @@ insects' legs: the thigh left in the body, "raise the leg" bent the shin). Strai
 spine for its far vertices (`limb_fit`) lost the thigh the same way.
 
 Where a limb's path turns by at least `BENT` degrees at a sphere (`rest_bend`) and its
-region lost the part before that turn (it holds under half the vertices nearest to the
+region lost the part before that turn (it holds under `LOST` of the vertices nearest to the
 path's spheres before it), or by `chains.TURN` where a straighter fit lost most of the
-region (`LimbRegion.bent`),
-the limb is fitted as two pieces: its top on the path up to the bend (a straight thigh),
-its region grown among the vertices nearest to its spheres (the whole leg, whatever
-their distance from that spine), then its chain split at the bend first
-(`chains.split_chains`): the shin's spine fitted from the knee on, its region cut out of
-the top's there.
+region (`LimbRegion.bent`), the limb is fitted as two pieces: its top on the path up to the
+bend (a straight thigh), its region grown among the vertices nearest to its spheres (the
+whole leg, whatever their distance from that spine), then its chain split at the bend first
+(`chains.split_chains`): the shin's spine fitted from the knee on, its region cut out of the
+top's there.
 """
 
 from __future__ import annotations
