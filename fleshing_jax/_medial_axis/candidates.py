@@ -30,7 +30,15 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
-from .pairs import attaining, in_band, lowered_band, near_tiles, pruned, tile_pairs
+from .pairs import (
+    attaining,
+    in_band_count,
+    in_band_into,
+    lowered_band,
+    near_tiles,
+    pruned,
+    tile_pairs,
+)
 from .primitives import UnionPrimitives
 from .rows import norm
 
@@ -166,15 +174,31 @@ def search(points, union: UnionPrimitives, params, margin: float,
             near = value <= best[pts] + 2 * margin
             found_pts, found_prim, found_val = [pts[near]], [prim[near]], [value[near]]
             held = near.sum()
-    pts, prim, value = (np.concatenate(x) for x in (found_pts, found_prim, found_val))
-    kept = in_band(best, pts, prim, value, 2 * margin)
+    kept = _in_band(best, list(zip(found_pts, found_prim, found_val)), 2 * margin)
     if len(kept[0]) > PAIRS:
+        pts, prim, value = (np.concatenate(x) for x in (found_pts, found_prim, found_val))
         gap = value - best[pts]
         keep = np.flatnonzero(gap <= 2 * margin)
         margin = _narrowed(gap[keep], margin, floor)
         keep = keep[gap[keep] <= 2 * margin]
         kept = pts.take(keep), prim.take(keep), value.take(keep)
     return Candidates(*kept, params, margin)
+
+
+def _in_band(best, blocks, band: float):
+    """The pairs `(pts, prim, value)` of `blocks` (a list of such triples) with `value −
+    best[pts] <= band`, in their order, concatenated.
+
+    Counted, then written into arrays that NumPy allocates: spot's searches keep 1.1–1.9M
+    pairs, and the filter of their concatenation (an array of positions, then three arrays
+    taken at them, allocated by numba) took three times as long, most of it the first
+    writes to fresh memory (NumPy asks the kernel for huge pages where it can)."""
+    counts = [in_band_count(best, pts, value, band) for pts, _, value in blocks]
+    out = (np.empty(sum(counts), np.int64), np.empty(sum(counts), np.int64),
+           np.empty(sum(counts)))
+    for (pts, prim, value), start in zip(blocks, np.cumsum([0, *counts[:-1]])):
+        in_band_into(best, pts, prim, value, band, *out, int(start))
+    return out
 
 
 def upper_bound(points, union: UnionPrimitives, neighbours: int = 8):

@@ -122,16 +122,25 @@ def lowered_band(best, pts, prim, value, band: float):
 
 
 @numba.njit(cache=True, error_model="numpy")
-def in_band(best, pts, prim, value, band: float):
-    """The pairs `(pts, prim, value)` with `value − best[pts] <= band`, in their order
-    (`candidates.search`'s last filter)."""
-    keep = np.empty(len(pts), np.int64)
+def in_band_count(best, pts, value, band: float) -> int:
+    """How many pairs `(pts, value)` have `value − best[pts] <= band` (`candidates.search`'s
+    last filter, `in_band_into`)."""
     count = 0
     for k in range(len(pts)):
+        count += value[k] - best[pts[k]] <= band
+    return count
+
+
+@numba.njit(cache=True, error_model="numpy")
+def in_band_into(best, pts, prim, value, band: float, out_pts, out_prim, out_value,
+                 start: int) -> None:
+    """The pairs `(pts, prim, value)` with `value − best[pts] <= band`, in their order,
+    written to the outputs from position `start` (`candidates.search`'s last filter)."""
+    count = start
+    for k in range(len(pts)):
         if value[k] - best[pts[k]] <= band:
-            keep[count] = k
+            out_pts[count], out_prim[count], out_value[count] = pts[k], prim[k], value[k]
             count += 1
-    return _kept(pts, prim, value, keep, count)
 
 
 @numba.njit(cache=True, error_model="numpy")
