@@ -64,11 +64,16 @@ def test_quadric_loops_are_numpy_s_bit_for_bit():
     n, e = 50, 400
     spheres, b = rng.normal(size=(n, 4)), rng.normal(size=(n, 4))
     A, c = rng.normal(size=(n, 4, 4)) * 10.0 ** rng.integers(-6, 6, (n, 1, 1)), rng.normal(size=n)
+    A[:, 0, 1] = -0.0  # (zeros' signs: the regularised matrix's `+ 0` makes them +0)
     i, j = rng.integers(0, n, (e, 2)).T  # (columns of the edges, as `simplify` passes)
-    Ae, be, ce, si, sj = edge_quadrics(spheres, A, b, c, i, j)
+    Ae, be, ce, si, sj, mid, reg, rhs, length, dr = edge_quadrics(spheres, A, b, c, i, j)
+    eps = 1e-6 * np.trace(Ae, axis1=1, axis2=2) / 4 + 1e-300
     for x, y in ((Ae, A[i] + A[j]), (be, b[i] + b[j]), (ce, c[i] + c[j]), (si, spheres[i]),
-                 (sj, spheres[j])):
-        np.testing.assert_array_equal(x, y)
+                 (sj, spheres[j]), (mid, (si + sj) / 2),
+                 (reg, Ae + eps[:, None, None] * np.eye(4)), (rhs, eps[:, None] * mid - be),
+                 (length, np.linalg.norm(si[:, :3] - sj[:, :3], axis=1)),
+                 (dr, np.abs(si[:, 3] - sj[:, 3]))):
+        np.testing.assert_array_equal(x.view(np.int64), y.view(np.int64))  # bit for bit
     options = [rng.normal(size=(e, 4)) for _ in range(4)]
     options[2][:20] = options[1][:20]  # ties
     options[3][20:30, 0] = np.nan  # a NaN error

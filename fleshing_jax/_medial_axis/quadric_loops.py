@@ -81,10 +81,16 @@ def contact_quadrics(normals, points, weights, contacts, slide: float):
 @numba.njit(cache=True, error_model="numpy")
 def edge_quadrics(spheres, A, b, c, i, j):
     """For edges `(i, j)` (each `(e,)`): `A[i] + A[j]` `(e, 4, 4)`, `b[i] + b[j]` `(e, 4)`,
-    `c[i] + c[j]` `(e,)`, and the end spheres `spheres[i]`, `spheres[j]` `(e, 4)` each."""
+    `c[i] + c[j]` `(e,)`, the end spheres `spheres[i]`, `spheres[j]` and their midpoint
+    `(e, 4)` each; the regularised system of `simplify._edge_costs`, its matrix
+    `A + eps I` `(e, 4, 4)` and right-hand side `eps mid − b` `(e, 4)` (`eps = 1e-6 ×
+    trace / 4 + 1e-300`, the trace summed first to last); the centres' distance and the
+    radii's difference `|r_i − r_j|` `(e,)` each."""
     e = len(i)
     Ae, be, ce = np.empty((e, 4, 4)), np.empty((e, 4)), np.empty(e)
-    si, sj = np.empty((e, 4)), np.empty((e, 4))
+    si, sj, mid = np.empty((e, 4)), np.empty((e, 4)), np.empty((e, 4))
+    reg, rhs = np.empty((e, 4, 4)), np.empty((e, 4))
+    length, dr = np.empty(e), np.empty(e)
     for r in range(e):
         p, q = i[r], j[r]
         for u in range(4):
@@ -92,8 +98,17 @@ def edge_quadrics(spheres, A, b, c, i, j):
                 Ae[r, u, v] = A[p, u, v] + A[q, u, v]
             be[r, u] = b[p, u] + b[q, u]
             si[r, u], sj[r, u] = spheres[p, u], spheres[q, u]
+            mid[r, u] = (si[r, u] + sj[r, u]) / 2
         ce[r] = c[p] + c[q]
-    return Ae, be, ce, si, sj
+        eps = 1e-6 * (((Ae[r, 0, 0] + Ae[r, 1, 1]) + Ae[r, 2, 2]) + Ae[r, 3, 3]) / 4 + 1e-300
+        for u in range(4):
+            for v in range(4):
+                reg[r, u, v] = Ae[r, u, v] + eps * (1.0 if u == v else 0.0)
+            rhs[r, u] = eps * mid[r, u] - be[r, u]
+        x, y, z = si[r, 0] - sj[r, 0], si[r, 1] - sj[r, 1], si[r, 2] - sj[r, 2]
+        length[r] = np.sqrt((x * x + y * y) + z * z)
+        dr[r] = np.abs(si[r, 3] - sj[r, 3])
+    return Ae, be, ce, si, sj, mid, reg, rhs, length, dr
 
 
 @numba.njit(cache=True, error_model="numpy")
