@@ -247,8 +247,10 @@ def prune(candidates: Candidates, union: UnionPrimitives, params, n_points: int,
     # The spheres and cones: the pairs before the first slab's (the primitives ascend, kinds
     # in order). One compiled loop (`pairs.pruned`).
     solid = int(np.searchsorted(prim, np.searchsorted(union.kind, 2)))
-    keep = pruned(pts, prim, value, change, solid, upper, tolerance)
-    return pts.take(keep), prim.take(keep)
+    # (Written into arrays NumPy allocates, as `_in_band`'s; spot keeps 0.35–0.55M of 1.1M.)
+    out = np.empty(len(pts), np.int64), np.empty(len(pts), np.int64)
+    count = pruned(pts, prim, value, change, solid, upper, tolerance, *out)
+    return out[0][:count], out[1][:count]
 
 
 def closest(points, pts, prim, union: UnionPrimitives):

@@ -144,19 +144,20 @@ def in_band_into(best, pts, prim, value, band: float, out_pts, out_prim, out_val
 
 
 @numba.njit(cache=True, error_model="numpy")
-def pruned(pts, prim, value, change, solid: int, upper, tolerance: float):
+def pruned(pts, prim, value, change, solid: int, upper, tolerance: float, out_pts,
+           out_prim) -> int:
     """`candidates.prune`'s selection: `upper[pts] = min(upper[pts], value + change[prim])`
-    over the first `solid` pairs (spheres and cones) in order, then the positions `(K,)` of
-    the pairs with `value − change[prim] <= upper[pts] + tolerance`, ascending."""
+    over the first `solid` pairs (spheres and cones) in order, then the pairs `(pts, prim)`
+    with `value − change[prim] <= upper[pts] + tolerance`, in their order, written to the
+    outputs (as long as the pairs); returns how many."""
     for k in range(solid):
         upper[pts[k]] = _least(upper[pts[k]], value[k] + change[prim[k]])
-    keep = np.empty(len(pts), np.int64)
     count = 0
     for k in range(len(pts)):
         if value[k] - change[prim[k]] <= upper[pts[k]] + tolerance:
-            keep[count] = k
+            out_pts[count], out_prim[count] = pts[k], prim[k]
             count += 1
-    return keep[:count]
+    return count
 
 
 @numba.njit(cache=True, error_model="numpy")
