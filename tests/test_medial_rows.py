@@ -107,3 +107,35 @@ def test_contact_quadrics_are_the_einsums_bit_for_bit():
     c = np.einsum("ij,ij->i", w, delta**2) + slide * np.einsum("ij,ija,ija->i", w, p, p)
     for x, y in zip(contact_quadrics(axis, slide), (A, b, c)):
         np.testing.assert_array_equal(x, y)
+
+
+def test_jacobian_rows_are_scipy_s_bit_for_bit():
+    # The fit's Jacobian (`pairs.jacobian_rows`) against the CSR matrix SciPy makes of its
+    # twelve entries a row, its repeated spheres summed (`sum_duplicates`): lone spheres
+    # (one sphere thrice, weights 1, 0, 0), cones (the second sphere twice, weight 0 last),
+    # slabs (three spheres in any order); a zero coordinate of `u` (zeros' signs).
+    import scipy.sparse as sparse
+
+    from fleshing_jax._medial_axis.pairs import jacobian_rows
+
+    rng = np.random.default_rng(5)
+    n, m = 40, 300
+    spheres = rng.integers(0, n, (m, 3))
+    weights = rng.dirichlet(np.ones(3), m)
+    spheres[:100, 1:] = spheres[:100, :1]  # lone spheres
+    weights[:100] = [1.0, 0.0, 0.0]
+    spheres[100:200, 2] = spheres[100:200, 1]  # cones
+    weights[100:200, 2] = 0.0
+    weights[100:200, :2] = rng.dirichlet(np.ones(2), 100)
+    u = rng.normal(size=(m, 3))
+    u[::7, 1] = 0.0
+    data, indices, indptr = jacobian_rows(spheres, weights, u)
+    du = np.concatenate([u, np.ones((m, 1))], axis=1)
+    expected = sparse.csr_matrix((-(weights[:, :, None] * du[:, None, :]).reshape(-1),
+                                  (4 * spheres[:, :, None] + np.arange(4)).reshape(-1),
+                                  np.arange(0, 12 * m + 1, 12)), shape=(m, 4 * n))
+    expected.sum_duplicates()
+    for got, want in ((data, expected.data), (indices, expected.indices),
+                      (indptr, expected.indptr)):
+        assert got.dtype == want.dtype
+        np.testing.assert_array_equal(got.view(np.uint8), want.view(np.uint8))

@@ -280,3 +280,42 @@ def slab_boxes(test, i, low, high):
             inside = inside and largest >= bound - allowance
         keep[k] = inside
     return keep
+
+
+@numba.njit(cache=True, error_model="numpy")
+def jacobian_rows(spheres, weights, u):
+    """`refine._jacobian`'s CSR arrays `(data, indices (int32), indptr (int32))` for samples
+    whose closest primitive interpolates `spheres (N, 3)` with `weights (N, 3)`, `u (N, 3)`
+    the unit vectors to them: in row `i`, `−w_k (u_i, 1)` in the four columns of each sphere
+    `k`, the columns ascending and a repeated sphere's entries summed, as SciPy's
+    `sum_duplicates` leaves them (its sums of two terms, or of a term and zeros of one
+    sign, do not depend on their order)."""
+    n = len(spheres)
+    data, indices = np.empty(12 * n), np.empty(12 * n, np.int32)
+    indptr = np.empty(n + 1, np.int32)
+    order = np.empty(3, np.int64)
+    count = 0
+    for i in range(n):
+        indptr[i] = count
+        for k in range(3):  # the row's three spheres by index (an insertion sort)
+            order[k] = k
+            m = k
+            while m > 0 and spheres[i, order[m - 1]] > spheres[i, order[m]]:
+                order[m - 1], order[m] = order[m], order[m - 1]
+                m -= 1
+        k = 0
+        while k < 3:
+            sphere = spheres[i, order[k]]
+            last = k
+            while last + 1 < 3 and spheres[i, order[last + 1]] == sphere:
+                last += 1
+            for c in range(4):
+                du = u[i, c] if c < 3 else 1.0
+                value = -(weights[i, order[k]] * du)
+                for m in range(k + 1, last + 1):
+                    value += -(weights[i, order[m]] * du)
+                data[count], indices[count] = value, 4 * sphere + c
+                count += 1
+            k = last + 1
+    indptr[n] = count
+    return data[:count], indices[:count], indptr

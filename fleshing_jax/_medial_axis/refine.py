@@ -69,6 +69,7 @@ import scipy.sparse as sparse
 import scipy.sparse.linalg as sparse_linalg
 
 from .candidates import closest as _closest, prune, search as _search
+from .pairs import jacobian_rows
 from .primitives import UnionPrimitives
 from .rows import norm
 from .surface import SurfaceQuery, ray_inside
@@ -88,15 +89,12 @@ def _jacobian(points, spheres, weights, params):
     foot = np.einsum("ij,ijk->ik", weights, np.take(params[:, :3], spheres, axis=0))
     u = points - foot
     u /= np.maximum(norm(u), 1e-300)[:, None]
-    cols = (4 * spheres[:, :, None] + np.arange(4)).reshape(-1)
-    du = np.concatenate([u, np.ones((len(u), 1))], axis=1)
-    values = -(weights[:, :, None] * du[:, None, :]).reshape(-1)
-    # Built as CSR directly (12 entries a row, in order), its repeated spheres summed as
-    # converting from coordinates does: the same matrix, without the conversion's passes.
-    jacobian = sparse.csr_matrix((values, cols, np.arange(0, 12 * len(points) + 1, 12)),
-                                 shape=(len(points), 4 * n))
-    jacobian.sum_duplicates()
-    return jacobian
+    # Its CSR arrays in one loop (`pairs.jacobian_rows`): the matrix of twelve entries a row
+    # with its repeated spheres summed (`sum_duplicates`), the same arrays, without NumPy's
+    # passes over (N, 3, 4) products and SciPy's sort of every row.
+    return sparse.csr_matrix(jacobian_rows(np.ascontiguousarray(spheres, np.int64),
+                                           np.ascontiguousarray(weights, np.float64), u),
+                             shape=(len(points), 4 * n))
 
 
 def _interpolated(points, spheres, weights, params):
