@@ -388,9 +388,12 @@ def test_candidate_search_and_pruning_keep_every_closest_pair(monkeypatch):
     assert (got[distance - reach <= -1e-12]).all()
     assert not got[distance - reach > 1e-4].any()
     slabs = union.kind == 2
+
+    def no_slabs(near, low, high, origin):
+        near[slabs] = False
+
     odd = np.concatenate(list(candidates.ball_blocks(
-        points, union.centre, union.radius, extra, lambda prim, low, high: ~slabs[prim])),
-        axis=1)
+        points, union.centre, union.radius, extra, no_slabs)), axis=1)
     assert (odd[1] == np.sort(odd[1])).all()
     assert set(zip(*odd.tolist())) == {(i, k) for i, k in zip(pts.tolist(), prim.tolist())
                                        if not slabs[k]}

@@ -13,7 +13,7 @@ and keeps 1.2M, for 25,000 samples), so each does less than all of them:
   against the samples of the tiles they reach (`ball_blocks`), instead of a k-d tree's
   ball queries, whose Python lists of millions of integers were most of its time; a slab
   skips the tiles where no sample's foot falls in its triangle (its distance `inf`, never
-  in the band: `UnionPrimitives.in_boxes`), two thirds of its pairs on spot;
+  in the band: `UnionPrimitives.in_tiles`), two thirds of its pairs on spot;
 - an evaluation at spheres moved by `Δ_k` from the anchor (`prune`) skips the pairs that
   cannot attain a sample's best: a pair's distance is now at least its distance at the
   anchor minus the largest `Δ_k` of its spheres, and a cone's (or lone sphere's) at most
@@ -69,7 +69,9 @@ def ball_blocks(points, centre, radius, extra=None, boxes=None):
     and each primitive tests only the samples of the tiles that its bounding sphere
     reaches: on spot at 200 spheres 5.5M of the 24M (sample, primitive) pairs. The test in
     float32 (half the bytes of each pass), its round-off (about 1e-7 of the extent, in
-    the coordinates relative to their mean) well within `SLACK`."""
+    the coordinates relative to their mean) well within `SLACK`. `boxes(near, low, high,
+    origin)` (e.g. `UnionPrimitives.in_tiles`) may clear more of the primitives' tiles
+    `near (P, tiles)`, given the tiles' boxes `low + origin` to `high + origin`."""
     n, tiles = len(points), -(-len(points) // TILE)
     extra = np.zeros(n) if extra is None else extra
     rows = max(1, BUDGET // max(n, 1))
@@ -90,9 +92,7 @@ def ball_blocks(points, centre, radius, extra=None, boxes=None):
     largest = np.fmax.reduce(padded[3], axis=1)
     near = near_tiles(c, low, high, (radius, largest + 2 * slack))  # (P, tiles), compiled
     if boxes is not None:
-        prim, tile = np.nonzero(near)
-        near[prim, tile] = boxes(prim, low[:, tile] + origin[:, None],
-                                 high[:, tile] + origin[:, None])
+        boxes(near, low, high, origin)
     lanes = tuple(np.ascontiguousarray(x) for x in padded.astype(np.float32))
     c, radius = c.astype(np.float32), (radius + slack).astype(np.float32)
     for start in range(0, len(centre), rows):  # (a compiled loop: primitives ascending)
@@ -159,7 +159,7 @@ def search(points, union: UnionPrimitives, params, margin: float,
     # (Without the tiles where no sample has a slab's foot in its triangle: that slab's
     # distance is `inf` there, never in the band.)
     blocks = ball_blocks(points, union.centre, union.radius, upper + 2 * margin,
-                         union.in_boxes)
+                         union.in_tiles)
     for pts, prim in blocks:
         # Only the pairs within the band of the best so far (a superset of the final band):
         # on a sphere, all pairs at once took 1.5 GB. (One compiled loop: `best` lowered by

@@ -249,37 +249,58 @@ def _span(v, d, half, size):
 
 
 @numba.njit(cache=True, error_model="numpy")
+def _slab_box(test, s, low, high):
+    """`_Slabs.in_boxes` for slab `s` and the box `low` to `high` (3-tuples)."""
+    middle = ((low[0] + high[0]) / 2, (low[1] + high[1]) / 2, (low[2] + high[2]) / 2)
+    half = ((high[0] - low[0]) / 2, (high[1] - low[1]) / 2, (high[2] - low[2]) / 2)
+    d = (middle[0] - test[0, s], middle[1] - test[1, s], middle[2] - test[2, s])
+    size = ((abs(middle[0]) + abs(test[0, s])) + half[0],
+            (abs(middle[1]) + abs(test[1, s])) + half[1],
+            (abs(middle[2]) + abs(test[2, s])) + half[2])
+    centre, width, magnitude = _span((test[3, s], test[4, s], test[5, s]), d, half, size)
+    lift_low = _largest(abs(centre) - width, 0.0)
+    lift_high = abs(centre) + width
+    p1 = (test[6, s], test[7, s], test[8, s])
+    p2 = (test[9, s], test[10, s], test[11, s])
+    k1, k2 = test[12, s], test[13, s]
+    inside = test[14, s] > 0
+    for v, slope, bound in ((p1, k1, -FOOT), (p2, k2, -FOOT),
+                            ((-(p1[0] + p2[0]), -(p1[1] + p2[1]), -(p1[2] + p2[2])),
+                             -(k1 + k2), -1 - FOOT)):
+        centre, width, size_v = _span(v, d, half, size)
+        lift = slope * lift_low if slope >= 0 else slope * lift_high
+        largest = centre + width - lift
+        allowance = 1e-8 * (size_v + abs(slope) * (lift_high + magnitude))
+        inside = inside and largest >= bound - allowance
+    return inside
+
+
+@numba.njit(cache=True, error_model="numpy")
 def slab_boxes(test, i, low, high):
     """`_Slabs.in_boxes` `(M,)` for slabs `i (M,)` (`test`: `_Slabs.test`) and boxes `low
     (3, M)` to `high (3, M)`: the same bounds, operation for operation."""
     keep = np.empty(len(i), np.bool_)
     for k in range(len(i)):
-        s = i[k]
-        middle = ((low[0, k] + high[0, k]) / 2, (low[1, k] + high[1, k]) / 2,
-                  (low[2, k] + high[2, k]) / 2)
-        half = ((high[0, k] - low[0, k]) / 2, (high[1, k] - low[1, k]) / 2,
-                (high[2, k] - low[2, k]) / 2)
-        d = (middle[0] - test[0, s], middle[1] - test[1, s], middle[2] - test[2, s])
-        size = ((abs(middle[0]) + abs(test[0, s])) + half[0],
-                (abs(middle[1]) + abs(test[1, s])) + half[1],
-                (abs(middle[2]) + abs(test[2, s])) + half[2])
-        centre, width, magnitude = _span((test[3, s], test[4, s], test[5, s]), d, half, size)
-        lift_low = _largest(abs(centre) - width, 0.0)
-        lift_high = abs(centre) + width
-        p1 = (test[6, s], test[7, s], test[8, s])
-        p2 = (test[9, s], test[10, s], test[11, s])
-        k1, k2 = test[12, s], test[13, s]
-        inside = test[14, s] > 0
-        for v, slope, bound in ((p1, k1, -FOOT), (p2, k2, -FOOT),
-                                ((-(p1[0] + p2[0]), -(p1[1] + p2[1]), -(p1[2] + p2[2])),
-                                 -(k1 + k2), -1 - FOOT)):
-            centre, width, size_v = _span(v, d, half, size)
-            lift = slope * lift_low if slope >= 0 else slope * lift_high
-            largest = centre + width - lift
-            allowance = 1e-8 * (size_v + abs(slope) * (lift_high + magnitude))
-            inside = inside and largest >= bound - allowance
-        keep[k] = inside
+        keep[k] = _slab_box(test, i[k], (low[0, k], low[1, k], low[2, k]),
+                            (high[0, k], high[1, k], high[2, k]))
     return keep
+
+
+@numba.njit(cache=True, error_model="numpy")
+def slab_tiles(near, kind, index, test, low, high, origin):
+    """`candidates.ball_blocks`'s slab test, in place: `near[p, t]` (primitives by tiles)
+    cleared where primitive `p` is a slab (`kind` 2, number `index[p]`) that no point of
+    tile `t`'s box, `low[:, t] + origin` to `high[:, t] + origin`, has a finite distance to
+    (`_Slabs.in_boxes`)."""
+    for p in range(near.shape[0]):
+        if kind[p] != 2:
+            continue
+        for t in range(near.shape[1]):
+            if near[p, t]:
+                near[p, t] = _slab_box(
+                    test, index[p],
+                    (low[0, t] + origin[0], low[1, t] + origin[1], low[2, t] + origin[2]),
+                    (high[0, t] + origin[0], high[1, t] + origin[1], high[2, t] + origin[2]))
 
 
 @numba.njit(cache=True, error_model="numpy")

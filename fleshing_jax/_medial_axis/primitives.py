@@ -267,14 +267,16 @@ class UnionPrimitives:
         self.slabs = _Slabs(*(x for k in range(3) for x in (centers[faces[:, k]],
                                                              radii[faces[:, k]])))
 
-    def in_boxes(self, prim, low, high):
-        """`(M,)`: whether some point of the box `low (3, M)` to `high (3, M)` may have a
-        finite distance to primitive `prim (M,)` (spheres and cones: always; slabs:
-        `_Slabs.in_boxes`)."""
-        keep = np.ones(len(prim), bool)
-        slab = np.flatnonzero(self.kind[prim] == 2)
-        keep[slab] = self.slabs.in_boxes(self.index[prim[slab]], low[:, slab], high[:, slab])
-        return keep
+    def in_tiles(self, near, low, high, origin):
+        """Clears `near[p, t]` (`(P, tiles)` bool, in place) where no point of the box
+        `low[:, t] + origin` to `high[:, t] + origin` (`(3, tiles)`, `(3,)`) may have a
+        finite distance to primitive `p` (spheres and cones: never; slabs:
+        `_Slabs.in_boxes`), in one compiled loop (`pairs.slab_tiles`)."""
+        from .pairs import slab_tiles  # (imported here as in `distance`)
+
+        slab_tiles(near, self.kind, np.ascontiguousarray(self.index, np.int64), self.slabs.test,
+                   np.ascontiguousarray(low, np.float64), np.ascontiguousarray(high, np.float64),
+                   np.ascontiguousarray(origin, np.float64))
 
     def closest(self, points, pts, prim):
         """Signed distances `(M,)` of the pairs (point `points[pts]`, primitive `prim`) for
