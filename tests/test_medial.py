@@ -289,6 +289,13 @@ def test_pairs_evaluated_in_blocks_match_one_pass(monkeypatch):
     best, spheres, weights = _closest(points, pts, prim, union)
     value = whole[0].reshape(-1, len(points))
     np.testing.assert_array_equal(best, value.min(axis=0))
+    # (Its compiled loop: `closest`'s spheres and weights at the attaining pairs, bit for bit.)
+    from fleshing_jax._medial_axis.pairs import attaining
+
+    pick = attaining(pts, whole[0], len(points))[1]
+    assert set(union.kind[prim[pick]].tolist()) == {1.0, 2.0}  # cones and the slab attain
+    np.testing.assert_array_equal(spheres, whole[1][pick])
+    np.testing.assert_array_equal(weights.view(np.int64), whole[2][pick].view(np.int64))
     # The interpolated sphere of each sample's spheres and weights attains its distance.
     foot = np.einsum("ij,ijk->ik", weights, centres[spheres])
     np.testing.assert_allclose(weights.sum(axis=1), 1.0)

@@ -32,6 +32,7 @@ from scipy.spatial import cKDTree
 
 from .pairs import (
     attaining,
+    attaining_spheres,
     in_band_count,
     in_band_into,
     lowered_band,
@@ -262,9 +263,11 @@ def closest(points, pts, prim, union: UnionPrimitives):
     # duplicates), whatever the order of the samples within a primitive.
     best, pick = attaining(pts, value, len(points))
     # Spheres and weights of the attaining pairs only (evaluated again: cheaper than filling
-    # them for every pair). `pick` follows the pairs' order, so its primitives ascend.
-    pick.sort()
-    _, spheres, weights = union.closest(points, pts[pick], prim[pick])
-    order = np.empty(len(points), dtype=np.int64)
-    order[pts[pick]] = np.arange(len(points))
-    return best, spheres[order], weights[order]
+    # them for every pair), each sample's in one compiled loop: `UnionPrimitives.closest`'s
+    # arithmetic, without its NumPy passes over the kinds' slices and the reordering.
+    spheres, weights = attaining_spheres(
+        np.ascontiguousarray(points, np.float64), pts, prim, pick, union.kind,
+        np.ascontiguousarray(union.index, np.int64), union.cones.columns, union.slabs.table,
+        *(np.ascontiguousarray(x, np.int64).reshape(-1, k)
+          for x, k in ((union.edges, 2), (union.faces, 3))))
+    return best, spheres, weights

@@ -34,8 +34,9 @@ def _least(a, b):
 
 
 @numba.njit(cache=True, error_model="numpy")
-def _cone(px, py, pz, cone, i):
-    """`_Cones.distance` of one point to cone `i` (`cone`: `_Cones.columns`)."""
+def _cone_parts(px, py, pz, cone, i):
+    """`_Cones._parts` of one point and cone `i` (`cone`: `_Cones.columns`): the distances
+    to the end spheres and to the lateral surface, and the minimiser's position `t`."""
     d0x, d0y, d0z = px - cone[0, i], py - cone[1, i], pz - cone[2, i]
     dd = (d0x * d0x + d0z * d0z) + d0y * d0y
     end0 = np.sqrt(dd) - cone[9, i]
@@ -51,19 +52,20 @@ def _cone(px, py, pz, cone, i):
     lateral = np.inf
     if cone[14, i] > 0 and t >= 0 and t <= cone[13, i]:
         lateral = x * s + y * co - cone[9, i]
+    return end0, end1, lateral, t
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _cone(px, py, pz, cone, i):
+    """`_Cones.distance` of one point to cone `i` (`cone`: `_Cones.columns`)."""
+    end0, end1, lateral, _ = _cone_parts(px, py, pz, cone, i)
     return _least(_least(end0, end1), lateral)
 
 
 @numba.njit(cache=True, error_model="numpy")
-def _slab(px, py, pz, test, table, i):
-    """`_Slabs.distance` of one point to slab `i` (`test`, `table`: `_Slabs.test`, `.table`):
-    `inf` where the foot's coordinates put it off the triangle."""
-    dx, dy, dz = px - test[0, i], py - test[1, i], pz - test[2, i]
-    lift = np.abs((dx * test[3, i] + dz * test[5, i]) + dy * test[4, i])
-    b1 = ((dx * test[6, i] + dz * test[8, i]) + dy * test[7, i]) - lift * test[12, i]
-    b2 = ((dx * test[9, i] + dz * test[11, i]) + dy * test[10, i]) - lift * test[13, i]
-    if not (test[14, i] > 0 and b1 >= -FOOT and b2 >= -FOOT and b1 + b2 <= 1 + FOOT):
-        return np.inf
+def _slab_parts(px, py, pz, table, i):
+    """`_Slabs._parts` of one point and slab `i` (`table`: `_Slabs.table`): the distance
+    (`inf` where the foot is off the triangle) and the foot's coordinates `b1`, `b2`."""
     row = table[i]
     dx, dy, dz = px - row[0], py - row[1], pz - row[2]
     height = (dx * row[3] + dz * row[5]) + dy * row[4]
@@ -76,8 +78,21 @@ def _slab(px, py, pz, test, table, i):
     b1 = row[15] * w1 + row[16] * w2
     b2 = row[16] * w1 + row[17] * w2
     if row[20] > 0 and b1 >= 0 and b2 >= 0 and b1 + b2 <= 1:
-        return ((nx * dx + nz * dz) + ny * dy) - row[18]
-    return np.inf
+        return ((nx * dx + nz * dz) + ny * dy) - row[18], b1, b2
+    return np.inf, b1, b2
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _slab(px, py, pz, test, table, i):
+    """`_Slabs.distance` of one point to slab `i` (`test`, `table`: `_Slabs.test`, `.table`):
+    `inf` where the foot's coordinates put it off the triangle."""
+    dx, dy, dz = px - test[0, i], py - test[1, i], pz - test[2, i]
+    lift = np.abs((dx * test[3, i] + dz * test[5, i]) + dy * test[4, i])
+    b1 = ((dx * test[6, i] + dz * test[8, i]) + dy * test[7, i]) - lift * test[12, i]
+    b2 = ((dx * test[9, i] + dz * test[11, i]) + dy * test[10, i]) - lift * test[13, i]
+    if not (test[14, i] > 0 and b1 >= -FOOT and b2 >= -FOOT and b1 + b2 <= 1 + FOOT):
+        return np.inf
+    return _slab_parts(px, py, pz, table, i)[0]
 
 
 @numba.njit(cache=True, error_model="numpy")
@@ -173,6 +188,41 @@ def attaining(pts, value, points: int):
         if value[k] == best[pts[k]]:
             pick[pts[k]] = k
     return best, pick
+
+
+@numba.njit(cache=True, error_model="numpy")
+def attaining_spheres(points, pts, prim, pick, kind, index, cone, table, edges, faces):
+    """`candidates.closest`'s spheres and weights `(N, 3)` each: for every sample `s`, those
+    of `UnionPrimitives.closest` at its attaining pair `pick[s]` (a lone sphere `j`: `(j, j,
+    j)`, weights `(1, 0, 0)`; a cone: its spheres `(i, j, j)`, `(1 − f, f, 0)` with `f` the
+    fraction of `_Cones.closest`; a slab: its spheres, `(1 − b1 − b2, b1, b2)`)."""
+    n = len(pick)
+    spheres, weights = np.empty((n, 3), np.int64), np.zeros((n, 3))
+    for s in range(n):
+        k = pick[s]
+        q = prim[k]
+        i = index[q]
+        px, py, pz = points[pts[k], 0], points[pts[k], 1], points[pts[k], 2]
+        if kind[q] == 0:
+            spheres[s, 0] = spheres[s, 1] = spheres[s, 2] = i
+            weights[s, 0] = 1.0
+        elif kind[q] == 1:
+            end0, end1, lateral, t = _cone_parts(px, py, pz, cone, i)
+            ends = _least(end0, end1)
+            if lateral < ends:  # np.clip(t / length, 0, 1)
+                fraction = t / cone[13, i]
+                if fraction == fraction:
+                    fraction = fraction if fraction > 0 else 0.0
+                    fraction = fraction if fraction < 1 else 1.0
+            else:
+                fraction = 0.0 if end0 <= end1 else 1.0
+            spheres[s, 0], spheres[s, 1], spheres[s, 2] = edges[i, 0], edges[i, 1], edges[i, 1]
+            weights[s, 0], weights[s, 1] = 1 - fraction, fraction
+        else:
+            _, b1, b2 = _slab_parts(px, py, pz, table, i)
+            spheres[s, 0], spheres[s, 1], spheres[s, 2] = faces[i, 0], faces[i, 1], faces[i, 2]
+            weights[s, 0], weights[s, 1], weights[s, 2] = 1 - b1 - b2, b1, b2
+    return spheres, weights
 
 
 @numba.njit(cache=True, error_model="numpy")
