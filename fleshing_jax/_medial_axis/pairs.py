@@ -33,7 +33,7 @@ def _least(a, b):
     return a if (a <= b or a != a) else b
 
 
-@numba.njit(cache=True, error_model="numpy")
+@numba.njit(cache=True, error_model="numpy", inline="always")
 def _cone_parts(px, py, pz, cone, i):
     """`_Cones._parts` of one point and cone `i` (`cone`: `_Cones.columns`): the distances
     to the end spheres and to the lateral surface, and the minimiser's position `t`."""
@@ -62,7 +62,7 @@ def _cone(px, py, pz, cone, i):
     return _least(_least(end0, end1), lateral)
 
 
-@numba.njit(cache=True, error_model="numpy")
+@numba.njit(cache=True, error_model="numpy", inline="always")
 def _slab_parts(px, py, pz, table, i):
     """`_Slabs._parts` of one point and slab `i` (`table`: `_Slabs.table`): the distance
     (`inf` where the foot is off the triangle) and the foot's coordinates `b1`, `b2`."""
