@@ -8,8 +8,10 @@ compile the suite's programs 1.7× faster than the MLIR fusion emitters (measure
 program: 3.3 s → 1.9 s), and each program's machine code generated in one piece rather than
 split for parallel threads (the two test workers keep both cores busy already; 10–15 % less
 compile time per program, measured on the second-order program of `test_higher_order`).
-Compiled programs are shared between the pytest-xdist workers through JAX's persistent
-compilation cache. The notebooks' kernels inherit these flags.
+Compiled programs are shared between the pytest-xdist workers (and between a worker's tests
+that trace the same program anew) through JAX's persistent compilation cache: every program,
+however quickly it compiled: the small ones are most of the programs and the ones that repeat
+(eager operations on the tests' common shapes). The notebooks' kernels inherit these flags.
 
 Python's cyclic garbage collector runs rarely (and never over the modules loaded before the
 tests): tracing allocates millions of short-lived objects and a worker's heap of cached programs
@@ -40,7 +42,7 @@ _CACHE = Path(
 )
 jax.config.update("jax_compilation_cache_dir", str(_CACHE))
 os.environ["FLESHING_JAX_CACHE"] = str(_CACHE)  # the command line in tests: the same cache
-jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.2)
+jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
 
 from _posing_shapes import tube_mesh, tube_registration, tube_skeleton  # noqa: E402
 
