@@ -15,7 +15,7 @@ multiply-add into a fused one without `fastmath`), which the fit's ties need (se
 out (`_least`, and the cone's `max(·, 0)`), and division as NumPy's (`error_model="numpy"`:
 infinities and NaN, never an exception).
 
-Compiled on first use (about 3 s with `triangles`) and cached beside this file
+Compiled on first use (about 5 s of CPU with `triangles`) and cached beside this file
 (`cache=True`): a later process loads them in 0.1–0.3 s, plus numba's import (0.2 s).
 """
 
