@@ -113,13 +113,16 @@ def test_jointed_quadruped_has_jointed_legs_a_head_and_a_tail():
     assert all(np.sum(region == k) >= 12 for k in range(len(skeleton.limbs)))
 
 
-def test_insect_has_six_legs_on_its_thorax():
+def test_insect_has_six_legs_on_its_thorax_and_a_head_with_two_antennae():
     """Each of the six feet in a chain of its own from the thorax (the root), its thigh the
     chain's top: the legs are bent at rest (the knee the highest point), which one spine
     cannot follow within reach, and the thigh stayed in the body, the chain starting past
-    the knee, before legs bent at rest were split at their bend (`_skeleton.rest_bend`)."""
+    the knee, before legs bent at rest were split at their bend (`_skeleton.rest_bend`).
+    The head is a limb of the body with both antennae chains below it: at 160 and 200
+    spheres its medial axis is two strands side by side, one into each antenna, and one
+    antenna was left in the head's region, not a limb (`limbs._forks`)."""
     mesh = insect()
-    skeleton, _ = _rig(mesh, 120)
+    skeleton, _ = _rig(mesh, 200)
     legs = [insect_leg(*leg) for leg in INSECT_LEGS]
     feet = [foot for leg in legs for foot in _mirrored(leg[-1])]
     chains = _check_tips(skeleton, feet, jointed=range(6))
@@ -127,6 +130,11 @@ def test_insect_has_six_legs_on_its_thorax():
     thighs = [thigh for leg in legs for thigh in _mirrored(leg[1])]
     assert [skeleton.limb_at(thigh) for thigh in thighs] == [c[0] for c in chains]
     assert skeleton.limb_at([0.6, 0.0, 0.3]) == -1  # the thorax is the root
+    head = skeleton.limb_at([0.8, 0.0, 0.34])
+    assert head >= 0 and skeleton.limbs[head].parent == -1
+    below = [skeleton.chain(skeleton.limb_at(tip)) for tip in _mirrored(INSECT_ANTENNA[-1])]
+    assert all(len(c) >= 2 and c[0] == head for c in below)
+    assert below[0][1] != below[1][1]
 
 
 def test_insect_with_a_head_thicker_than_its_thorax_is_rooted_at_the_thorax():

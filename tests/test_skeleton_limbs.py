@@ -328,3 +328,36 @@ def test_a_limb_bent_at_rest_is_found_at_its_bend_and_a_straight_one_nowhere():
     straight[7:, 0] += np.linspace(0.3, 1.8, 6)  # down and on: turns by 45°
     assert rest_bend(path, straight, radii) is None
     assert rest_bend(path, straight, radii, least=BENT / 2) == 6
+
+
+def test_a_head_of_two_strands_is_one_limb_with_its_antennae_as_children():
+    """A head whose medial axis is two strands side by side from the neck on, one into each
+    antenna (an insect's, modelled in Blender): each strand was a limb of the body, the head
+    split lengthwise, each half with one antenna. The two are one limb (`limbs._forks`),
+    its antennae its children however thick (one two thirds of the head's spheres, as on
+    that insect); legs side by side touching at the top stay two limbs."""
+    g = _Graph()
+    torso = g.add(*_chain([0, 0, 0], [0, 0.3, 0], 7, 0.055, 0.055))
+    for side in (-1, 1):
+        g.add(*_chain([side * 0.02, -0.06, 0], [side * 0.12, -0.25, 0], 7, 0.025, 0.025),
+              link_to=torso[0])
+    strands = []
+    for side, thickness in ((-1, 0.02), (1, 0.014)):
+        strand = g.add(*_chain([side * 0.02, 0.36, 0], [side * 0.02, 0.46, 0], 4, 0.03, 0.03),
+                       link_to=torso[-1])
+        g.add(*_chain([side * 0.04, 0.49, 0], [side * 0.16, 0.7, 0], 8, thickness, 0.01),
+              link_to=strand[-1])
+        strands.append(strand)
+    g.edges += [(int(a), int(b)) for a, b in zip(*strands)]
+    centers, radii, edges = g.arrays()
+    found = find_limbs(centers, radii, edges)
+    tips = np.array([centers[f.path[-1]] for f in found])
+    parents = np.array([f.parent for f in found])
+    legs = np.flatnonzero(tips[:, 1] < -0.2)
+    antennae = np.flatnonzero(tips[:, 1] > 0.65)
+    heads = [k for k, f in enumerate(found) if f.parent == -1 and k not in legs]
+    assert len(legs) == 2 and np.all(parents[legs] == -1), (tips, parents)
+    assert len(heads) == 1 and found[heads[0]].fork, (tips, parents)
+    assert len(antennae) == 2 and np.all(parents[antennae] == heads[0]), (tips, parents)
+    assert sorted(np.sign(tips[antennae, 0])) == [-1, 1]
+    assert len(found) == 5

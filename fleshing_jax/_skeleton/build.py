@@ -49,10 +49,12 @@ def skeleton(mesh, *, medial: MedialMesh | None = None, spheres: int = 200,
     Each elongated branch of the medial mesh (a chain of cones, or a strip of slabs) that
     leaves a thicker part becomes a limb (`skeleton.limbs`, see `_skeleton.limbs`): the thick
     rest is the body (region −1), and a branch leaving a limb's thick part (a horn on a head)
-    is that limb's child. A limb's rest spine is an `fj.BSpline` (float64 under
-    `jax_enable_x64`), exactly arc-length, its curvature below `0.8 / r` (`r` the local
-    medial radius: see `fit.fit_bspline`), from a little inside its parent (`s = 0`, at most
-    one radius in) to where it meets the surface beyond its tip. Its region (see
+    is that limb's child; two strands side by side that fork (an insect's head, one strand
+    per antenna) are one limb, the forks its children. A limb's rest spine is an
+    `fj.BSpline` (float64 under `jax_enable_x64`), exactly arc-length, its curvature below
+    `0.8 / r` (`r` the local medial radius: see `fit.fit_bspline`), from a little inside its
+    parent (`s = 0`, at most one radius in) to where it meets the surface beyond its tip.
+    Its region (see
     `_skeleton.regions`) is contiguous on the surface, within the spine's reach (where no
     reach leaves it one: the vertices nearest to its own medial spheres, a flat ear's disc,
     a foot against the body), and its border vertices project on the spine at arc lengths
@@ -338,13 +340,21 @@ def _fit_from(found_limbs, start, first, fitted, centers, radii, vertices, adjac
         routes = [(found.path, found.inside), *found.alternatives]
         routes.insert(0, routes.pop(start.get(number, 0)))  # the route tried first
         owned = np.isin(nearest, found.spheres)
-        for (path, inside), own in itertools.chain(((r, None) for r in routes),
-                                                   ((r, owned) for r in routes)):
+        tries = [((r, None) for r in routes), ((r, owned) for r in routes)]  # reach, own
+        if found.fork:
+            # A forked limb's own vertices first (an insect's head: a strand's reach held
+            # half of it), with those of its path's first spheres (the neck before the head:
+            # without them, the joint lay a third of the way into the head).
+            owned |= np.isin(nearest, found.path)
+            tries.reverse()
+        for (path, inside), own in itertools.chain(*tries):
             if own is not None and choice is not None:
                 break
-            route = dataclasses.replace(found, path=path, inside=inside)
-            spine, part = fit_limb(route, centers, radii, vertices, adjacency,
-                                   region == parent, margin, wide=wide, owned=own)
+            # (A fork's spine along its midline: on its own path alone.)
+            route = dataclasses.replace(found, path=path, inside=inside,
+                                        midline=found.midline if path is found.path else None)
+            spine, part = fit_limb(route, route.fitted_centers(centers), radii, vertices,
+                                   adjacency, region == parent, margin, wide=wide, owned=own)
             if part is None or (own is not None and not moves_visibly(
                     spine, part.joint, vertices[part.vertices], np.empty((0, 3)),
                     box_diagonal(vertices))):
@@ -367,8 +377,8 @@ def _fit_from(found_limbs, start, first, fitted, centers, radii, vertices, adjac
         route, spine, part, early = choice
         others = np.concatenate([np.zeros(0, int)]
                                 + [f.path for f in found_limbs if f is not found])
-        bent = fit_bent(route, part, centers, radii, vertices, adjacency, region == parent,
-                        margin, nearest, others)
+        bent = fit_bent(route, part, route.fitted_centers(centers), radii, vertices, adjacency,
+                        region == parent, margin, nearest, others)
         if bent is not None:
             route, spine, part = bent
         if early:

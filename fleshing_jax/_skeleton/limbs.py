@@ -25,7 +25,9 @@ its child limbs):
    side, one hanging from the other's top in the tree: a limb of its own). The spheres hanging below
    the limbs' first spheres go to the limb whose path is nearest (a strip of slabs hangs
    below its path).
-3. The limb's spine path runs to its own farthest sphere (not into a child, an ear; far
+3. Two limbs side by side that share their first part and fork (an insect's head, a strand
+   per antenna) are one limb, the forks its children (`_forks`).
+4. The limb's spine path runs to its own farthest sphere (not into a child, an ear; far
    counted with twice the radius, which prefers a head's snout to the base of its ears).
 
 A shape without a core to leave (a tube: every sphere as thick as its neighbours) gets its
@@ -57,6 +59,10 @@ MAX_DEPTH = 3  # body, limbs, their children, grandchildren
 # A path is another route to a limb whose spheres share medial edges with this fraction of its
 # own (a flat ear's rim paths: 0.67-1; an insect's antennae from one base: 0.25; legs: < 0.35).
 SHEET = 0.6
+# Two limbs side by side are one forked limb where the part they share protrudes this many
+# times its thickness from their first spheres (`_forks`): insects' heads 2.3-2.5; a leg and
+# the crease beside its top 1.2, legs touching at the thorax 0-0.9.
+FORK = 1.5
 ROUTES = 3  # routes to a limb's own farthest spheres tried for its spine (`LimbPath`)
 
 
@@ -79,6 +85,23 @@ class LimbPath:
     # A limb bent at rest (`rest_bend`): the index in `path` of its bend, where its chain is
     # split first (its spine, fitted up to there, is the top piece's).
     bend: int | None = None
+    # Two strands side by side joined into one limb (`_forks`: an insect's head): the points
+    # midway between them, one per sphere of the shared part of `path` (`(k,)` indices into
+    # it, `(k, 3)` points), along which its spine runs; its region is its own surface first
+    # (`_skeleton.build`), not one strand's reach (half a head).
+    midline: tuple | None = None
+
+    @property
+    def fork(self) -> bool:
+        return self.midline is not None
+
+    def fitted_centers(self, centers: np.ndarray) -> np.ndarray:
+        """`centers` (m, 3) with the path's shared spheres moved to the midline (a fork's)."""
+        if self.midline is None:
+            return centers
+        moved = centers.copy()
+        moved[self.path[self.midline[0]]] = self.midline[1]
+        return moved
 
 
 def find_limbs(centers: np.ndarray, radii: np.ndarray, edges: np.ndarray) -> list[LimbPath]:
@@ -93,12 +116,16 @@ def find_limbs(centers: np.ndarray, radii: np.ndarray, edges: np.ndarray) -> lis
     first: list[LimbPath] = []
     _split(graph, centers, radii, largest, thickest, -1, first, depth=1)
     root = hub(graph, centers, radii, largest, thickest, first)
-    limbs = first
+    limbs, chosen = first, thickest
     for other in [root] * (root != thickest) + _thick_parts(radii, thickest, first, root):
         found: list[LimbPath] = []
         _split(graph, centers, radii, largest, other, -1, found, depth=1)
         if other == root or _count(found) > _count(limbs):  # (the hub's replace the first)
-            limbs = found
+            limbs, chosen = found, other
+    # Forks are joined from the chosen root only: from another one (an abdomen), a path
+    # runs through the thorax into a leg, and legs sharing the thorax would look like one.
+    limbs = []
+    _split(graph, centers, radii, largest, chosen, -1, limbs, depth=1, forks=True)
     if not limbs:
         limbs = tube(graph, centers, radii, largest)
     return limbs
@@ -157,7 +184,8 @@ def hub(graph, centers, radii, nodes, thickest: int, limbs: list[LimbPath]) -> i
     return thickest if np.all(radii[between] >= CORE * radii[thickest]) else root
 
 
-def _split(graph, centers, radii, nodes, root, parent, limbs, depth):
+def _split(graph, centers, radii, nodes, root, parent, limbs, depth, forks=False,
+           branches=()):
     """Appends to `limbs` the limbs among `nodes` (the level's spheres) that leave the level's
     core around `root`, then recursively their children. The level's thickness: the root's
     radius for the body (its hub, `hub`), a limb's thickest sphere for its children."""
@@ -202,7 +230,8 @@ def _split(graph, centers, radii, nodes, root, parent, limbs, depth):
         # How far the limb reaches beyond the last sphere inside the parent.
         length = distance[tip] - distance[last_inside] + radii[tip] - radii[last_inside]
         thickest = radii[path].max()
-        if length < ELONGATION * thickest or (depth > 1 and thickest > THINNER * level):
+        if length < ELONGATION * thickest or (
+                depth > 1 and thickest > THINNER * level and tip not in branches):
             continue
         groups.append(([path], last_inside, core))
         waists.append(_waist(centers, radii, chain, core, cut[0]) if depth == 1 else None)
@@ -215,20 +244,26 @@ def _split(graph, centers, radii, nodes, root, parent, limbs, depth):
             groups, _assign(centers, radii, [g[0] for g in groups], predecessors, distance, nodes)
         )
     ]
+    stems = [None] * len(found)  # (a fork's: `_forks`)
     if depth == 1:
         found, groups, waists = _from_thicker_limbs(centers, radii, found, groups, waists)
+        stems = [None] * len(found)
+        if forks:
+            found, groups, waists, stems = _forks(centers, radii, distance, found, groups,
+                                                  waists)  # fmt: skip
         # A waist leads into one limb alone: spheres before its path on another limb's way
         # from the root are the body's (the front of a body, tapering towards two horns).
         ways = [set(_ancestors(int(f[0][-1]), predecessors).tolist()) for f in found]
         waists = [w if w is None or not any(set(w[0].tolist()) & way for j, way in
                                             enumerate(ways) if j != k) else None
                   for k, w in enumerate(waists)]  # fmt: skip
-    for (path, last_inside, core, spheres), (routes, _, _), waist in zip(found, groups, waists,
-                                                                        strict=True):
+    for (path, last_inside, core, spheres), (routes, _, _), waist, stem in zip(
+            found, groups, waists, stems, strict=True):
         index = len(limbs)
         limbs.append(LimbPath(path, last_inside, core, spheres, parent))
         if depth < MAX_DEPTH and len(spheres) > 2:
-            _split(graph, centers, radii, spheres, int(path[0]), index, limbs, depth + 1)
+            _split(graph, centers, radii, spheres, int(path[0]), index, limbs, depth + 1,
+                   branches=() if stem is None else stem[1])
         # The spine runs to the limb's own farthest sphere, not into a child (an ear): none
         # of the children's, none inside them, and far counted with twice the radius, so
         # that a head's runs to its snout, not to the base of an ear.
@@ -245,7 +280,10 @@ def _split(graph, centers, radii, nodes, root, parent, limbs, depth):
         # snout, whose border with the body then runs its whole length: spot at seed 2),
         # the next routes: to the next farthest own spheres off the routes before, then
         # the routes the limb was found by (into a child: a spine through the head's top).
-        paths = []
+        # A fork's spine runs along the part its strands share (a head), not up one of them
+        # into a branch's base (an antenna's: the spine rose with it, the head's border with
+        # the body slanted along it, the joint a third of the way into the head).
+        paths = [] if stem is None else [stem[0]]
         for tip in own[np.argsort(-(distance[own] + 2 * radii[own]), kind="stable")]:
             if len(paths) == ROUTES or any(tip in p for p in paths):
                 continue
@@ -261,7 +299,12 @@ def _split(graph, centers, radii, nodes, root, parent, limbs, depth):
             first = np.r_[before, first]
             alternatives = tuple((np.r_[before, p], last_inside) if p[0] == path[0] else (p, i)
                                  for p, i in alternatives)  # fmt: skip
-        limbs[index] = LimbPath(first, last_inside, core, spheres, parent, alternatives)
+        midline = None
+        if stem is not None:
+            shift = len(first) - len(stem[0])  # (its waist's spheres before it)
+            midline = (np.arange(len(stem[0])) + shift, stem[2])
+        limbs[index] = LimbPath(first, last_inside, core, spheres, parent, alternatives,
+                                midline=midline)
 
 
 def _from_thicker_limbs(centers, radii, found, groups, waists):
@@ -283,6 +326,69 @@ def _from_thicker_limbs(centers, radii, found, groups, waists):
     found = [(*f[:3], spheres[k]) for k, f in enumerate(found)]
     return ([f for f, k in zip(found, keep) if k], [g for g, k in zip(groups, keep) if k],
             [w for w, k in zip(waists, keep) if k])  # fmt: skip
+
+
+def _forks(centers, radii, distance, found, groups, waists):
+    """`(found, groups, waists, stems)` with the two limbs of each fork joined into one.
+    A head whose medial axis is two strands side by side from the neck on, one into each
+    antenna (an insect modelled in Blender, the procedural insect), was two limbs of the
+    body: the head split lengthwise, each half carrying one antenna. Two limbs are one where
+    one's first sphere meets the other's path, the spheres where they meet protrude `FORK`
+    times their thickness from the paths' first spheres, are alike on both (at least
+    `THINNER` as thick), and at most one path runs on past them at least `WAIST` times as
+    thick (a head's snout; legs side by side both do). The joined limb's path is that of the
+    one leaving the body first (a neck), its spheres both. `stems`: per limb, `None` or, for
+    a joined one, `(shared, tips, middle)`: the longer of the two paths' parts up to their
+    last sphere meeting the other (its spine's route, after the joined limb's waist), the
+    two paths' tips, which its level takes as its children
+    however thick (an antenna, 0.6-0.7 times as thick as the head's spheres), and `(k, 3)`
+    the points midway between the shared spheres and the other's nearest, along which its
+    spine is fitted (`LimbPath.midline`)."""
+    stems = [None] * len(found)
+    merged = True
+    while merged:
+        merged = False
+        for a, b in ((a, b) for a in range(len(found)) for b in range(len(found)) if a < b):
+            pa, pb = found[a][0], found[b][0]
+            if min(len(pa), len(pb)) < 2 or stems[a] is not None or stems[b] is not None:
+                continue  # (two strands at most: a head's)
+            meet = np.linalg.norm(centers[pa][:, None] - centers[pb][None], axis=-1) < (
+                radii[pa][:, None] + radii[pb][None])
+            if not (meet[0].any() or meet[:, 0].any()):
+                continue
+            last = [np.flatnonzero(meet.any(1))[-1], np.flatnonzero(meet.any(0))[-1]]
+            thickness = [radii[pa[meet.any(1)]].max(), radii[pb[meet.any(0)]].max()]
+            # Side by side out of the parent (a neck and head), not merely touching where
+            # they leave it (legs, or a leg and an antenna, on a thorax), both alike there
+            # (not a leg's top and a crease's bump beside it).
+            out = max(distance[p[k]] - distance[p[0]] for p, k in zip((pa, pb), last))
+            if out < FORK * max(thickness) or min(thickness) < THINNER * max(thickness):
+                continue
+            if all(radii[p[k + 1 :]].max(initial=0) > WAIST * max(thickness)
+                   for p, k in zip((pa, pb), last)):
+                continue
+            # (The one leaving the body first: at its waist, a neck.)
+            start = [distance[w[0][0] if w is not None and len(w[0]) else f[0][0]]
+                     for f, w in ((found[a], waists[a]), (found[b], waists[b]))]
+            main, other = (a, b) if start[0] <= start[1] else (b, a)
+            # Its spine's route: the longer of the two paths' parts up to where they last
+            # meet (an insect's head: one strand meets the other's first sphere only), each
+            # sphere moved midway to the nearest of the other's it meets.
+            mine, theirs, meets = (pa, pb, meet) if last[0] >= last[1] else (pb, pa, meet.T)
+            shared = mine[: max(last) + 1]
+            gap = np.linalg.norm(centers[shared][:, None] - centers[theirs][None], axis=-1)
+            gap[~meets[: len(shared)]] = np.inf
+            nearest = theirs[np.argmin(gap, axis=1)]
+            held = np.isfinite(gap.min(axis=1))[:, None]
+            middle = np.where(held, (centers[shared] + centers[nearest]) / 2, centers[shared])
+            path, inside, core, spheres = found[main]
+            found[main] = (path, inside, core, np.union1d(spheres, found[other][3]))
+            groups[main][0].extend(groups[other][0])
+            stems[main] = (shared, np.array([pa[-1], pb[-1]]), middle)
+            del found[other], groups[other], waists[other], stems[other]
+            merged = True
+            break
+    return found, groups, waists, stems
 
 
 def _joined_routes(centers, radii, groups, graph, waists):
