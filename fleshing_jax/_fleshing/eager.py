@@ -36,19 +36,12 @@ WHOLE_BATCH = 1024
 def pending_index(pending: Array) -> np.ndarray:
     """Indices of the pending points, padded with copies of the last one (recomputed
     identically, so that writing them back twice is harmless) to the batch's size for a
-    batch of at most `WHOLE_BATCH` points (`whole_pending`), else to a power of two ≥
-    `MINIMUM_BATCH`."""
+    batch of at most `WHOLE_BATCH` points, else to a power of two ≥ `MINIMUM_BATCH`."""
     index = np.flatnonzero(np.asarray(pending)).astype(np.int32)
-    size = whole_pending(pending.shape[0])
-    if size is None:
-        size = max(MINIMUM_BATCH, 1 << max(len(index) - 1, 0).bit_length())
+    size = max(MINIMUM_BATCH, 1 << max(len(index) - 1, 0).bit_length())
+    if pending.shape[0] <= WHOLE_BATCH:
+        size = pending.shape[0]
     return np.pad(index, (0, size - len(index)), mode="edge")
-
-
-def whole_pending(batch: int) -> int | None:
-    """The length of `pending_index` for a batch of `batch` points where it does not depend
-    on how many are pending (the batch's own size, up to `WHOLE_BATCH`), else `None`."""
-    return batch if batch <= WHOLE_BATCH else None
 
 
 def register_eagerly(registrar: Registrar, points: Array) -> tuple:
@@ -141,22 +134,9 @@ def _shared_and_pending(registrar, registration, pending, unclear):
     return registrar.shared(registration), pending, unclear, any_pending
 
 
-def _cleared(registrar, registration, index):
+@Program
+def _register_clear(registrar, registration, index):
     return registrar.clear_pending(registration, index)
-
-
-_register_clear = Program(_cleared, kept=True)
-
-
-def prepare_clear(registrar, registration, batch: int, quick: bool) -> None:
-    """Starts compiling the sampled test that `registered_pending` runs where points are
-    unclear, for a batch of `batch` points whose `registrar` and `registration` are given as
-    `jax.ShapeDtypeStruct`s (a kept program's `prepare`), in a thread; nothing where the
-    pending index's length depends on the count (`whole_pending`)."""
-    size = whole_pending(batch)
-    if size is not None:
-        _register_clear.prepare(registrar, registration,
-                                jax.ShapeDtypeStruct((size,), np.int32), quick=quick)
 
 
 @Program
