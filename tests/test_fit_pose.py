@@ -491,6 +491,25 @@ def test_a_partial_scan_explains_the_limbs_it_shows_one_side_of(skeleton, regist
     assert message.startswith("limb 2 is posed where the target has no surface"), message
 
 
+def test_a_vertex_behind_its_own_limbs_surface_is_not_away():
+    # `_ahead`: a posed vertex whose nearest target point lies outside it along its normal is
+    # away by that distance, unless that point lies on the vertex's own limb's posed surface
+    # (`own`: a one-sided scan's rim points are nearest to the far side's vertices too).
+    import trimesh
+
+    from fleshing_jax._skeleton.fit_shape import _ahead
+
+    ball = trimesh.creation.icosphere(1)
+    cloud = 1.5 * ball.vertices[:1]  # outside vertex 0, along its normal
+    near = np.zeros(len(ball.vertices), int)
+    ahead = _ahead(ball.vertices, ball.faces, cloud, near, cloud / 1.5)
+    assert ahead[0] == pytest.approx(0.5)
+    own = np.zeros(len(ball.vertices), bool)
+    own[0] = True
+    excused = _ahead(ball.vertices, ball.faces, cloud, near, cloud / 1.5, own)
+    assert excused[0] == 0.0 and np.array_equal(excused[1:], ahead[1:])
+
+
 def test_the_solve_reads_every_point_of_a_small_limbs_part():
     # Only a limb's own points depend on its angles: the solve's points are shared out by part
     # (`_shares`), a small limb's all of its points, not a uniform sample's fraction (spot's

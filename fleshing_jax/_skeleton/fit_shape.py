@@ -381,7 +381,9 @@ def fit_to_shape(registration: SkeletonRegistration, skeleton: Skeleton, target,
     # No trust-region stall test (`fit_pose`'s): a solve that stopped short of a minimum is
     # told by its Gauss–Newton step (`unsettled`), tested on every successful solve.
     owner = region[nearest]  # the limb (or body, -1) of each target point's nearest vertex
-    ahead = _ahead(vertices, triangles, cloud, nearest_to, normals)
+    # (A vertex whose nearest target point lies on its own limb's posed surface: `_ahead`.)
+    own = (owner[nearest_to] == region) & (off[nearest_to] <= _reach(noise, rest)[0])
+    ahead = _ahead(vertices, triangles, cloud, nearest_to, normals, own)
     spread = _spreads(linear, limbs, y.shape[-1])
     step, decrease = limb_steps(linear, limbs, y.shape[-1])
     stats = {**stats, "angle_spread": spread, "gauss_newton_step": step,
@@ -499,8 +501,7 @@ def _unexplained(distances: np.ndarray, noise: float, rest: np.ndarray, owner: n
     `AWAY` more of it than of the body's, which no pose moves: a limb fitted where the target
     has nothing leaves its own; a scan of one side leaves the far sides inside the target's
     reach of nothing outside them (not counted)."""
-    spacing = float(np.median(cKDTree(rest).query(rest, 2)[0][:, 1]))
-    reach = 3 * noise + spacing / 4
+    reach, spacing = _reach(noise, rest)
     stated = (f"{reach:.3g} (3 × the target's noise {noise:.2g} + a quarter of the vertex "
               f"spacing {spacing:.2g})")
     parts = [("the target", np.ones(len(distances), bool))]
@@ -533,6 +534,13 @@ def _unexplained(distances: np.ndarray, noise: float, rest: np.ndarray, owner: n
     return ""
 
 
+def _reach(noise: float, rest: np.ndarray) -> tuple[float, float]:
+    """`(3 σ̂ + h/4, h)`: how far from the fit a point of a target of noise `σ̂` may lie and
+    still be explained, `h` the median vertex spacing of `rest` (V, 3)."""
+    spacing = float(np.median(cKDTree(rest).query(rest, 2)[0][:, 1]))
+    return 3 * noise + spacing / 4, spacing
+
+
 def _unseen(owner: np.ndarray, fitted) -> str:
     """"" when every fitted limb (`fitted`) owns target points (`owner` (K,): the limb of each
     point's nearest posed vertex), else which does not. A limb the target does not show, left
@@ -547,17 +555,25 @@ def _unseen(owner: np.ndarray, fitted) -> str:
 
 
 def _ahead(vertices: np.ndarray, triangles: np.ndarray, cloud: np.ndarray,
-           nearest: np.ndarray, normals: np.ndarray) -> np.ndarray:
+           nearest: np.ndarray, normals: np.ndarray, own: np.ndarray | None = None) -> np.ndarray:
     """Each posed vertex's (V, 3) distance (V,) along its nearest target point's normal
     (`nearest` (V,) into `cloud` (K, 3), `normals` (K, 3)), counted only where that point
     lies outside the posed surface (`triangles` (T, 3), outward): a partial scan's points lie
     inside the limbs and body whose far side it did not see (spot's leg, 51 % of its vertices
     away against the body's 38 %, its visible part exact), whereas a limb posed where the
-    target has nothing has the target outside it, on the side it faces."""
+    target has nothing has the target outside it, on the side it faces. `own` (V,) bool: the
+    vertices whose nearest target point lies on their own part of the posed surface (within
+    the target's reach of it, and nearest to a vertex of their own limb), counted 0: a scan's
+    points around a limb's rim are nearest to the rim's far-side vertices too, outside them
+    along their normals, and lie on the limb's surface (spot's leg 8 seen from one side, at
+    its true pose: 16.9 % of its vertices away, against 3.3 % of the body's; 0 % with them
+    counted 0), whereas a limb posed where the target has nothing finds its nearest target
+    points on other parts, or off the posed surface."""
     outward = trimesh.Trimesh(vertices, triangles, process=False).vertex_normals
     gap = cloud[nearest] - vertices
     along = np.abs(np.sum(gap * normals[nearest], axis=-1))
-    return np.where(np.sum(gap * outward, axis=-1) > 0, along, 0.0)
+    outside = np.sum(gap * outward, axis=-1) > 0
+    return np.where(outside if own is None else outside & ~own, along, 0.0)
 
 
 def _spreads(linear, limbs: tuple[int, ...], per_limb: int) -> dict:
