@@ -54,11 +54,10 @@ def skeleton(mesh, *, medial: MedialMesh | None = None, spheres: int = 200,
     `fj.BSpline` (float64 under `jax_enable_x64`), exactly arc-length, its curvature below
     `0.8 / r` (`r` the local medial radius: see `fit.fit_bspline`), from a little inside its
     parent (`s = 0`, at most one radius in) to where it meets the surface beyond its tip.
-    Its region (see
-    `_skeleton.regions`) is contiguous on the surface, within the spine's reach (where no
-    reach leaves it one: the vertices nearest to its own medial spheres, a flat ear's disc,
-    a foot against the body), and its border vertices project on the spine at arc lengths
-    ≤ `joint`.
+    Its region (see `_skeleton.regions`) is contiguous on the surface, within the spine's
+    reach (where no reach leaves it one: the vertices nearest to its own medial spheres, a
+    flat ear's disc, a foot against the body), and its border vertices project on the spine
+    at arc lengths ≤ `joint`.
 
     A long limb is then split at its joints into a chain of limbs, each the parent of the
     next (`_skeleton.chains`: where the medial radius narrows, else where the axis turns,

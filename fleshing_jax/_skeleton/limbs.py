@@ -93,6 +93,7 @@ class LimbPath:
 
     @property
     def fork(self) -> bool:
+        """Whether two strands were joined into this limb (`_forks`)."""
         return self.midline is not None
 
     def fitted_centers(self, centers: np.ndarray) -> np.ndarray:
@@ -188,7 +189,9 @@ def _split(graph, centers, radii, nodes, root, parent, limbs, depth, forks=False
            branches=()):
     """Appends to `limbs` the limbs among `nodes` (the level's spheres) that leave the level's
     core around `root`, then recursively their children. The level's thickness: the root's
-    radius for the body (its hub, `hub`), a limb's thickest sphere for its children."""
+    radius for the body (its hub, `hub`), a limb's thickest sphere for its children. With
+    `forks`, the body's limbs side by side that fork are joined (`_forks`); `branches`: the
+    tips a joined limb's level takes as its children however thick."""
     inside = np.zeros(len(centers), bool)
     inside[nodes] = True
     sub = graph.multiply(inside[:, None]).multiply(inside[None, :]).tocsr()
