@@ -8,7 +8,7 @@ The procedural biped's skeleton (`fj.skeleton`, 200 spheres): one leg posed at i
 knee 70°, ankle 20°, one arm at its shoulder, elbow and wrist alike, the head 30° (float64);
 or spot's (`fj.skeleton`): its head turned 45°, a front leg lifted 45°, a hind leg 60°; or
 the human modelled in Blender (`skin_characters.py`): a leg, an arm and the head forwards;
-or its insect: a front leg raised at hip and knee, a hind leg swung back.
+or its insect: a front leg raised at hip and knee, a hind leg swung back, the head turned.
 Blender (`pip install bpy` in another environment: `--bpy` names its Python) gets one bone
 per limb (head at the limb's bend start, tail where its bend is complete), a still body
 bone, automatic heat weights, and as each bone's rotation the rotation our pose gives that
@@ -98,7 +98,7 @@ def insect_poses(fj, skeleton):
     """The insect modelled in Blender (`skin_characters.py`, z up, +x ahead; its own
     skeleton): its left front leg raised 30° at the hip and 30° more at the knee, its left
     hind leg swung 30° backwards at the hip (each leg a chain from the hip: thigh, shin,
-    foot)."""
+    foot), its head (with both antennae) turned 20° about up."""
     up, back = np.array([0.0, 0.0, 1.0]), np.array([-1.0, 0.0, 0.0])
     chains = _longest_chains(skeleton)
     tips = {top: np.asarray(skeleton.limbs[c[-1]].spine(skeleton.limbs[c[-1]].spine.length))
@@ -108,7 +108,9 @@ def insect_poses(fj, skeleton):
     hind = chains[min(feet, key=lambda t: tips[t][0])]
     poses = {front[0]: fj.LimbPose(30.0, towards=up), front[1]: fj.LimbPose(30.0, towards=up),
              hind[0]: fj.LimbPose(30.0, towards=back)}
-    return lambda registration: poses
+    head = max(tips, key=lambda t: tips[t][2])  # (its chain ends at an antenna's tip)
+    return lambda registration: poses | {head: fj.turn(registration, skeleton, head, 20.0,
+                                                       up=up)}
 
 
 def skin_mesh(bpy: str, name: str):
