@@ -75,6 +75,54 @@ def test_a_flat_ear_is_one_limb_not_one_per_tip_of_its_rim():
     assert np.sum(tips[:, 1] < -0.1) == 2 and np.sum(np.abs(tips[:, 1] - 0.22) < 1e-9) == 2
 
 
+def test_two_feet_touching_along_a_crease_are_two_limbs():
+    """Two feet side by side whose medial axes are joined by a crease's edges along most of
+    their length, their toes free (cheburashka's at 150 and 300 spheres): the second foot
+    found was taken as a sheet of the first (`SHEET` of its spheres joined), the two one limb
+    whose region held one foot, the other left in the body. A sheet joins the path's tip too
+    (a flat ear's rim, above)."""
+    g = _Graph()
+    torso = g.add(*_chain([0, 0, 0], [0, 0.3, 0], 7, 0.055, 0.055))
+    for side in (-1, 1):  # (arms)
+        g.add(*_chain([side * 0.07, 0.22, 0], [side * 0.25, 0.22, 0], 8, 0.015, 0.012),
+              link_to=torso[5])
+    feet = [g.add(*_chain([side * 0.03, -0.06, 0], [side * 0.03, -0.2, 0.05], 6, 0.025, 0.025),
+                  link_to=torso[0]) for side in (-1, 1)]
+    g.edges += [(int(a), int(b)) for a, b in zip(feet[0][:4], feet[1][:4])]  # the crease
+    centers, radii, edges = g.arrays()
+    tips = [int(f.path[-1]) for f in find_limbs(centers, radii, edges)]
+    assert len(tips) == 4 and int(feet[0][-1]) in tips and int(feet[1][-1]) in tips, tips
+
+
+def test_a_head_reached_past_a_thin_neck_by_a_second_strand_is_one_limb():
+    """A head of two strands from a thin neck (cheburashka's at 300 spheres, seed 3): the
+    strand found first runs to the snout, the second through the head's other thick sphere
+    into an ear. The second's own spheres barely narrow before its thickest (0.86 of it),
+    and the neck, the last sphere inside the torso, was not counted as its neck: the head
+    split lengthwise into two limbs of the body, the ear under one."""
+    g = _Graph()
+    torso = g.add(*_chain([0, 0, 0], [0, 0.3, 0], 7, 0.08, 0.08))
+    for side in (-1, 1):
+        g.add(*_chain([side * 0.04, -0.09, 0], [side * 0.04, -0.25, 0], 6, 0.025, 0.025),
+              link_to=torso[0])
+        g.add(*_chain([side * 0.09, 0.22, 0], [side * 0.27, 0.22, 0], 8, 0.015, 0.012),
+              link_to=torso[5])
+    neck = g.add(np.array([[0, 0.345, 0]]), np.array([0.02]), link_to=torso[-1])
+    snout = g.add(np.array([[0.02, 0.4, 0], [0.03, 0.43, 0], [0.06, 0.47, 0], [0.1, 0.51, 0],
+                            [0.15, 0.55, 0], [0.2, 0.58, 0]]),
+                  np.array([0.062, 0.068, 0.055, 0.05, 0.045, 0.04]), link_to=neck[0])
+    other = g.add(np.array([[-0.02, 0.4, 0], [-0.025, 0.42, 0], [-0.06, 0.44, 0]]),
+                  np.array([0.0588, 0.0681, 0.045]), link_to=neck[0])
+    ear = g.add(*_chain([-0.09, 0.46, 0], [-0.16, 0.5, 0], 5, 0.013, 0.011), link_to=other[-1])
+    g.edges += [(int(a), int(b)) for a, b in zip(snout[:2], other[:2])]
+    centers, radii, edges = g.arrays()
+    found = find_limbs(centers, radii, edges)
+    heads = [k for k, f in enumerate(found) if radii[f.path].max() > 0.06]
+    assert len(heads) == 1 and found[heads[0]].parent == -1, [f.path for f in found]
+    assert [f.parent for f in found if f.path[-1] == ear[-1]] == [heads[0]]
+    assert len(found) == 6  # the head, its ear, two legs, two arms
+
+
 def test_a_limb_reached_through_a_thicker_limb_is_its_child():
     """A head thicker than the torso, on a thin neck on one side and a thick cheek on the
     other (cheburashka's: no waist on that side): the tree reaches the right ear through the

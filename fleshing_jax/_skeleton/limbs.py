@@ -215,7 +215,7 @@ def _split(graph, centers, radii, nodes, root, parent, limbs, depth, forks=False
         # starts at its first sphere at least `CREASE` times as thick as its thickest.
         path = path[int(np.argmax(radii[path] >= CREASE * radii[path].max())):]
         group_spheres = [np.concatenate(g[0]) for g in groups]
-        same = _same_limb(centers, radii, path, group_spheres, graph)
+        same = _same_limb(centers, radii, path, last_inside, group_spheres, graph)
         if same is not None:
             groups[same][0].append(path)
             continue
@@ -407,7 +407,7 @@ def _joined_routes(centers, radii, groups, graph, waists):
         merged = False
         for j in range(1, len(groups)):
             spheres = [np.concatenate(g[0]) for g in groups[:j]]
-            same = _same_limb(centers, radii, groups[j][0][0], spheres, graph)
+            same = _same_limb(centers, radii, groups[j][0][0], groups[j][1], spheres, graph)
             if same is not None:
                 groups[same][0].extend(groups[j][0])
                 groups = groups[:j] + groups[j + 1 :]
@@ -417,32 +417,39 @@ def _joined_routes(centers, radii, groups, graph, waists):
     return groups, waists
 
 
-def _same_limb(centers, radii, path, limbs, graph) -> int | None:
+def _same_limb(centers, radii, path, inside: int, limbs, graph) -> int | None:
     """The index of the limb in `limbs` (each the spheres of its paths) that `path` is
     another route to (a head reached through two strips of the neck, a strip's second tip):
     the first one whose spheres hold half of the path's centres, or its tip; or, a sheet (a
     flat ear: its rim's tips each a path, side by side), whose spheres are joined by the
-    medial mesh's edges to most of the path's own spheres (`SHEET`), at least two of them.
+    medial mesh's edges to most of the path's own spheres (`SHEET`), at least two of them,
+    its tip among them: two feet side by side (cheburashka's), touching along a crease, are
+    joined by the crease's medial edges but their toes are free; taken as one sheet, the
+    first foot found took the crease's paths, then the other foot's spheres they hold, then
+    the other foot (`_joined_routes`): one limb of two feet, or a foot left in the body. A
+    limb that holds the path claims it before one joined to it.
     Legs side by side, touching at the top, are two limbs; so are an insect's antennae from
     a shared base (a quarter of their own spheres joined). A path that widens past a neck
-    (a sphere before its thickest less than `WAIST` times as thick) into a limb at most twice
-    as thick, its thickest sphere inside that limb, runs through the limb's thick part: a
-    head reached by a second strip of the neck and its other near-equal sphere, running on
-    into an ear (cheburashka's, from its torso), is the head's route, and the head's level
-    finds the ear. (Horns side by side are thickest at their bases: no neck before.)"""
+    (a sphere before its thickest less than `WAIST` times as thick, the last one `inside` the
+    parent too: the neck itself may be the core's) into a limb at most twice as thick, its
+    thickest sphere inside that limb, runs through the limb's thick part: a head reached by
+    a second strip of the neck and its other near-equal sphere, running on into an ear
+    (cheburashka's, from its torso), is the head's route, and the head's level finds the
+    ear. (Horns side by side are thickest at their bases: no neck before.)"""
     widest = int(np.argmax(radii[path]))
-    necked = np.any(radii[path[:widest]] < WAIST * radii[path[widest]])
+    necked = np.any(radii[np.r_[inside, path[:widest]]] < WAIST * radii[path[widest]])
     for k, spheres in enumerate(limbs):
         held = sphere_gaps(centers[path], centers[spheres], radii[spheres]) < 0
         if held.mean() >= 0.5 or held[-1]:
             return k
         if necked and held[widest] and radii[spheres].max() <= 2 * radii[path[widest]]:
             return k
-        own = np.setdiff1d(path, spheres)
+    for k, spheres in enumerate(limbs):  # (a limb that holds it first)
+        own = path[~np.isin(path, spheres)]  # (in order: the path's tip last, if own)
         if len(own) >= 2:
             joined = (graph[own][:, spheres].getnnz(axis=1) > 0) | (
                 graph[spheres][:, own].getnnz(axis=0) > 0)
-            if joined.mean() >= SHEET:
+            if joined.mean() >= SHEET and (joined[-1] or own[-1] != path[-1]):
                 return k
     return None
 
