@@ -322,7 +322,9 @@ def test_past_its_range_a_limb_stays_whole_and_is_flagged_inexact(tube, skeleton
     """Past a joint's exact range the limb's sections are carried whole, blended in from the
     range to twice it: no torn edge (folded 175°, the formulas continued left edges 13×
     longer), every vertex past the joint flagged inexact, none before it; within the range,
-    the exact pose."""
+    the exact pose. The volume the sections' motion loses is given back along the blended
+    vertices' normals (`_skeleton.restore`) in proportion to the blend (0.994 at 175°): the
+    mesh then keeps its volume to 1e-5 (−0.17 % before), inexact all the same."""
     k = 2
     exact = float(fj.joint_range(registration, k))
     region = np.asarray(skeleton.region)
@@ -338,6 +340,7 @@ def test_past_its_range_a_limb_stays_whole_and_is_flagged_inexact(tube, skeleton
     assert _stretch(tube, rest, folded).max() < 5
     np.testing.assert_array_equal(valid, ~past)
     np.testing.assert_array_equal(folded[region != k], rest[region != k])
+    assert abs(float(fj.volume_change(rest, folded, tube.faces))) < 2e-5
 
 
 def test_a_traced_frame_weighs_the_sections_on_the_limb_s_own_rows(registration):

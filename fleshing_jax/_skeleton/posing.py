@@ -51,6 +51,7 @@ from .._spines.spine import AbstractSpine
 from .._spines.table import tabulable, tabulates
 from .joint_zone import JointZone, joint_zone
 from .limb_pose import LimbPose, sane_angles
+from .restore import restored_volume
 from .skeleton import Skeleton, descendants
 from .spill import spilled
 
@@ -423,6 +424,7 @@ def posed(registration: SkeletonRegistration, skeleton: Skeleton, poses: dict,
     sections = _stacked_sections(reg, poses, moved) if stacked else {}
     carried: dict[int, Rigid | None] = {}  # what moves each touched limb's children
     trusted: dict[int, Array] = {}  # whether the angles of the limb and its ancestors are sane
+    blend = jnp.zeros(vertices.shape[0], vertices.dtype)  # towards the sections (`restore`)
     for k, limb in enumerate(skeleton.limbs):
         carry = carried.get(limb.parent)
         pose = poses.get(k)
@@ -437,8 +439,9 @@ def posed(registration: SkeletonRegistration, skeleton: Skeleton, poses: dict,
             images, ok = images[:n], ok[:n]
             if isinstance(pose, LimbPose):
                 trust = trust & sane_angles(pose)
-                images, ok = sections[k] if k in sections else _sections_carried(
+                images, ok, towards = sections[k] if k in sections else _sections_carried(
                     reg, k, pose, images, ok)
+                blend = blend.at[ids].set(towards)
         if carry is not None:
             images = carry(images)
         carried[k], trusted[k] = (carry if motion is None else motion.then(carry)), trust
@@ -447,6 +450,13 @@ def posed(registration: SkeletonRegistration, skeleton: Skeleton, poses: dict,
         finite = jnp.all(jnp.isfinite(images), axis=1)
         vertices = vertices.at[ids].set(jnp.where(finite[:, None], images, reg.vertices[ids]))
         valid = valid.at[ids].set(ok & trust & finite)
+    # The volume the sections' motion lost, given back along the blended vertices' normals.
+    if is_concrete(blend):
+        if np.any(np.asarray(blend) > 0):  # (one program for every angle)
+            vertices = _restored_program(vertices, reg.vertices, reg.triangles, blend)
+    else:
+        vertices = jax.lax.cond(jnp.any(blend > 0), restored_volume, lambda v, *_: v,
+                                vertices, reg.vertices, reg.triangles, blend)
     return PosedSkeleton(vertices, valid)
 
 
@@ -454,7 +464,7 @@ BLEND_WIDTH = 0.3  # the blend's width, in `JointZone.margins`: done by k₁·d*
 
 
 def _sections_carried(registration, k: int, pose: LimbPose, images, valid):
-    """`(images, valid)` of limb `k`'s region with its vertices past the joint moved towards
+    """`(images, valid, blend)` of limb `k`'s region with its vertices past the joint moved towards
     where the bent limb's cross-section at their arc length carries them
     (`PreparedBent.carried`: past the bend, the limb's rigid motion), all flagged:
 
@@ -470,7 +480,8 @@ def _sections_carried(registration, k: int, pose: LimbPose, images, valid):
       bit for bit, wherever the map is exact. Nodded forwards, against the formulas
       continued: cheburashka's head (exact to 3.3°) at 30°, worst edge 16.4× → 2.6×, ΔV/V
       −1.5 % → −0.7 %; spot's at 45°, 6.2× → 2.6×, −1.7 % → −0.2 %; towards its side,
-      −3.9 % → −4.2 %."""
+      −3.9 % → −4.2 %: the volume is then given back (`restore`) in proportion to `blend`
+      (n,), the weight of each validly registered vertex (0 for the others)."""
     n = registration.indices[k].shape[0]
     r = registration.registrations[k]
     s, points = r.arc_length[:n], r.points[:n]
@@ -491,7 +502,8 @@ def _sections_carried(registration, k: int, pose: LimbPose, images, valid):
     else:  # a traced frame skips the sections where nothing is carried
         images = jax.lax.cond(jnp.any(weight > 0), _carried_blend, lambda *a: a[-1],
                               target, points, s, weight, images)
-    return images, valid & ~(weight > 0)  # (a weight is 0 before the joint)
+    # (A weight is 0 before the joint.)
+    return images, valid & ~(weight > 0), jnp.where(r.valid[:n], weight, 0)
 
 
 def _section_inputs(registration, k: int, pose: LimbPose, rows: int | None = None) -> tuple:
@@ -527,9 +539,9 @@ def _section_weights(zone: JointZone, r: Registration, joint, stop, angles, n) -
 def _stacked_sections(registration: SkeletonRegistration, poses: dict, moved: dict) -> dict:
     """`_sections_carried` of the traced limbs posed by a `LimbPose` that share their
     structure and shapes (every limb of a fit: `posed_limbs`'s `stacked`), as one batch by
-    `vmap`: dict limb index → `(images, valid)` of its region. One limb's code in the program,
-    not one per limb (each its bent spine's sections at every row: a third of a gradient's
-    program on the tube, with its free child posed)."""
+    `vmap`: dict limb index → `(images, valid, blend)` of its region. One limb's code in the
+    program, not one per limb (each its bent spine's sections at every row: a third of a
+    gradient's program on the tube, with its free child posed)."""
     if is_concrete(poses):
         return {}
     args = {k: (*_section_inputs(registration, k, pose), limb_target(registration, k, pose),
@@ -544,7 +556,8 @@ def _stacked_sections(registration: SkeletonRegistration, poses: dict, moved: di
                               target, r.points, r.arc_length, weight, images)
         for i, k in enumerate(ks):
             n = registration.indices[k].shape[0]
-            sections[k] = images[i, :n], moved[k][1][:n] & ~(weight[i, :n] > 0)
+            sections[k] = (images[i, :n], moved[k][1][:n] & ~(weight[i, :n] > 0),
+                           jnp.where(r.valid[i, :n], weight[i, :n], 0))
     return sections
 
 
@@ -563,6 +576,7 @@ def _carried_blend(target, points, s, weight, images):
 
 
 _carried_blend_program = persistent(_carried_blend)
+_restored_program = persistent(restored_volume)
 
 
 def posed_limbs(registration: SkeletonRegistration, poses: dict, method: str, check: bool,
