@@ -192,8 +192,12 @@ def restricted(registration: SkeletonRegistration, ids: np.ndarray):
         positions = np.searchsorted(unique, np.asarray(limb_ids)[rows])
         indices.append(jnp.asarray(positions, jnp.int32))
     vertices = jax.device_put(np.asarray(registration.vertices)[unique])
-    small = eqx.tree_at(lambda r: (r.registrations, r.indices, r.vertices), registration,
-                        (tuple(registrations), tuple(indices), vertices))
+    # No surface among chosen vertices: a pose past a range gives no volume back on them
+    # (`restore`), which the whole mesh's pose does.
+    surface = (jnp.zeros((0, 3), jnp.int32), jnp.zeros((len(unique), 0), jnp.int32))
+    small = eqx.tree_at(lambda r: (r.registrations, r.indices, r.vertices, r.triangles,
+                                   r.corners), registration,
+                        (tuple(registrations), tuple(indices), vertices, *surface))
     return small, jnp.asarray(np.searchsorted(unique, ids), jnp.int32)
 
 

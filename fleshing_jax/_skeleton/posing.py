@@ -51,7 +51,7 @@ from .._spines.spine import AbstractSpine
 from .._spines.table import tabulable, tabulates
 from .joint_zone import JointZone, joint_zone
 from .limb_pose import LimbPose, sane_angles
-from .restore import restored_volume
+from .restore import corner_table, restored_volume
 from .skeleton import Skeleton, descendants
 from .spill import spilled
 
@@ -72,7 +72,9 @@ class SkeletonRegistration(eqx.Module):
     must be complete (see the module's docstring); `vertices` (n, 3): the rest vertices;
     `margin`: scalar; `zones`: each limb's `JointZone`, where a bend of a given angle is
     concentrated past the joint (`joint_zone`); `triangles` (T, 3) int32: the mesh's faces
-    fanned into triangles (the surface a shape fit measures distances to); `skeleton_id`: the
+    fanned into triangles (the surface a shape fit measures distances to); `corners` (n, m)
+    int32: each vertex's corners of them (`restore.corner_table`); `volume`: the rest
+    vertices' (about their centre, in float64, then cast); `skeleton_id`: the
     skeleton's `fingerprint` (its limbs and regions, its mesh, its spines and joints), so that
     a pose with another skeleton is refused, saying which part differs.
     """
@@ -87,6 +89,8 @@ class SkeletonRegistration(eqx.Module):
     margin: Array
     zones: tuple[JointZone, ...]
     triangles: Array  # (T, 3) int32: the mesh's faces as triangles (a shape fit's surface)
+    corners: Array  # (n, m) int32: each vertex's corners of `triangles` (`restore`)
+    volume: Array  # scalar: the rest vertices' volume (`restore`)
     skeleton_id: tuple[int, ...] = eqx.field(static=True)  # `fingerprint` of its skeleton
 
 
@@ -210,10 +214,15 @@ def register_skeleton(mesh, skeleton: Skeleton, *, margin: float | None = None,
         # (Rounded to the dtype, the stop may fall an ulp past the rest spine's own length,
         # which a bent spine refuses: its table's length, in float32, rounds its own way.)
         stops.append(on_device(np.minimum(np.asarray(stop, points.dtype), rest.length)))
+    triangles = _triangles(faces)
     return SkeletonRegistration(tuple(registrations), tuple(rests), tuple(checks),
                                 tuple(indices), tuple(joints),
                                 tuple(stops), points, margin, tuple(zones),
-                                on_device(_triangles(faces), np.int32), fingerprint(skeleton))
+                                on_device(triangles, np.int32),
+                                on_device(corner_table(triangles, len(points)), np.int32),
+                                on_device(_volume(np.asarray(points, np.float64), triangles),
+                                          points.dtype),
+                                fingerprint(skeleton))
 
 
 def _compile_ahead(spines: list, batch: jax.ShapeDtypeStruct, margin: Array) -> None:
@@ -232,6 +241,12 @@ def _compile_ahead(spines: list, batch: jax.ShapeDtypeStruct, margin: Array) -> 
         _frames_at.prepare(table if tabled else prepared,
                            jax.ShapeDtypeStruct(batch.shape[:1], batch.dtype),
                            jax.ShapeDtypeStruct((), batch.dtype))
+
+
+def _volume(points: np.ndarray, triangles: np.ndarray) -> float:
+    """The volume of `(points (n, 3), triangles (T, 3))`, about the points' centre."""
+    a, b, c = (points[triangles[:, k]] - points.mean(axis=0) for k in range(3))
+    return float(np.sum(a * np.cross(b, c)) / 6)
 
 
 def _triangles(faces: np.ndarray) -> np.ndarray:
@@ -450,13 +465,18 @@ def posed(registration: SkeletonRegistration, skeleton: Skeleton, poses: dict,
         finite = jnp.all(jnp.isfinite(images), axis=1)
         vertices = vertices.at[ids].set(jnp.where(finite[:, None], images, reg.vertices[ids]))
         valid = valid.at[ids].set(ok & trust & finite)
-    # The volume the sections' motion lost, given back along the blended vertices' normals.
-    if is_concrete(blend):
+    # The volume the sections' motion lost, given back along the blended vertices' normals
+    # (on a registration with a surface: not a marker fit's chosen vertices).
+    if reg.triangles.shape[0] == 0:
+        pass
+    elif is_concrete(blend):
         if np.any(np.asarray(blend) > 0):  # (one program for every angle)
-            vertices = _restored_program(vertices, reg.vertices, reg.triangles, blend)
+            vertices = _restored_program(vertices, reg.vertices, reg.volume, reg.triangles,
+                                         reg.corners, blend)
     else:
         vertices = jax.lax.cond(jnp.any(blend > 0), restored_volume, lambda v, *_: v,
-                                vertices, reg.vertices, reg.triangles, blend)
+                                vertices, reg.vertices, reg.volume, reg.triangles,
+                                reg.corners, blend)
     return PosedSkeleton(vertices, valid)
 
 
@@ -503,7 +523,9 @@ def _sections_carried(registration, k: int, pose: LimbPose, images, valid):
         images = jax.lax.cond(jnp.any(weight > 0), _carried_blend, lambda *a: a[-1],
                               target, points, s, weight, images)
     # (A weight is 0 before the joint.)
-    return images, valid & ~(weight > 0), jnp.where(r.valid[:n], weight, 0)
+    stop = bend_stop(registration, k, pose)
+    return images, valid & ~(weight > 0), _restoring(weight, r.valid[:n], s, registration.joints[k],
+                                                     stop)
 
 
 def _section_inputs(registration, k: int, pose: LimbPose, rows: int | None = None) -> tuple:
@@ -536,6 +558,15 @@ def _section_weights(zone: JointZone, r: Registration, joint, stop, angles, n) -
     return jnp.where(past, jnp.where(r.valid, blend, 1), 0).astype(joint.dtype)
 
 
+def _restoring(weight, valid, s, joint, stop) -> Array:
+    """(n,) the blend by which each vertex gives the volume back (`restore`): its weight
+    towards its section's motion (`weight`, `valid` (n,)), validly registered, rising
+    smoothly from 0 at the joint to the full weight at the bend's `stop` (arc lengths `s`):
+    no step where the limb meets what stays."""
+    u = jnp.clip((jnp.where(valid, s, joint) - joint) / (stop - joint), 0, 1)
+    return jnp.where(valid, weight, 0) * u * u * (3 - 2 * u)
+
+
 def _stacked_sections(registration: SkeletonRegistration, poses: dict, moved: dict) -> dict:
     """`_sections_carried` of the traced limbs posed by a `LimbPose` that share their
     structure and shapes (every limb of a fit: `posed_limbs`'s `stacked`), as one batch by
@@ -557,7 +588,8 @@ def _stacked_sections(registration: SkeletonRegistration, poses: dict, moved: di
         for i, k in enumerate(ks):
             n = registration.indices[k].shape[0]
             sections[k] = (images[i, :n], moved[k][1][:n] & ~(weight[i, :n] > 0),
-                           jnp.where(r.valid[i, :n], weight[i, :n], 0))
+                           _restoring(weight[i, :n], r.valid[i, :n], r.arc_length[i, :n],
+                                      joint[i], stop[i]))
     return sections
 
 
