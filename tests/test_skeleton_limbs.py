@@ -47,6 +47,18 @@ class _Graph:
         self.edges += [(int(link_to), int(g)) for g in grid[0]]
         return grid
 
+    def body(self, radius=0.055, legs=True):
+        """A torso of `radius` up y from 0 to 0.3, two arms from its shoulders and (with
+        `legs`) two legs below it; the torso's sphere indices."""
+        torso = self.add(*_chain([0, 0, 0], [0, 0.3, 0], 7, radius, radius))
+        for side in (-1, 1):
+            if legs:
+                self.add(*_chain([side * 0.03, -0.06, 0], [side * 0.03, -0.2, 0], 6, 0.025,
+                                 0.025), link_to=torso[0])  # fmt: skip
+            self.add(*_chain([side * 0.07, 0.22, 0], [side * 0.25, 0.22, 0], 8, 0.015, 0.012),
+                     link_to=torso[5])
+        return torso
+
     def arrays(self):
         return np.concatenate(self.centers), np.concatenate(self.radii), np.array(self.edges)
 
@@ -57,14 +69,10 @@ def test_a_flat_ear_is_one_limb_not_one_per_tip_of_its_rim():
     had a region of its own). The paths joined by the sheet's edges are routes to one limb;
     legs and arms, side by side but not joined along their length, stay apart."""
     g = _Graph()
-    torso = g.add(*_chain([0, 0, 0], [0, 0.3, 0], 7, 0.055, 0.055))
+    torso = g.body()
     neck = g.add(*_chain([0, 0.345, 0], [0, 0.345, 0], 1, 0.045, 0.045), link_to=torso[-1])
     head = g.add(*_chain([0, 0.40, 0], [0, 0.50, 0], 4, 0.07, 0.075), link_to=neck[-1])
     for side in (-1, 1):
-        g.add(*_chain([side * 0.03, -0.06, 0], [side * 0.03, -0.2, 0], 6, 0.025, 0.025),
-              link_to=torso[0])
-        g.add(*_chain([side * 0.07, 0.22, 0], [side * 0.25, 0.22, 0], 8, 0.015, 0.012),
-              link_to=torso[5])
         g.sheet(side, [0, 0.5, 0], head[-1])
     centers, radii, edges = g.arrays()
     found = find_limbs(centers, radii, edges)
@@ -82,10 +90,7 @@ def test_two_feet_touching_along_a_crease_are_two_limbs():
     whose region held one foot, the other left in the body. A sheet joins the path's tip too
     (a flat ear's rim, above)."""
     g = _Graph()
-    torso = g.add(*_chain([0, 0, 0], [0, 0.3, 0], 7, 0.055, 0.055))
-    for side in (-1, 1):  # (arms)
-        g.add(*_chain([side * 0.07, 0.22, 0], [side * 0.25, 0.22, 0], 8, 0.015, 0.012),
-              link_to=torso[5])
+    torso = g.body(legs=False)
     feet = [g.add(*_chain([side * 0.03, -0.06, 0], [side * 0.03, -0.2, 0.05], 6, 0.025, 0.025),
                   link_to=torso[0]) for side in (-1, 1)]
     g.edges += [(int(a), int(b)) for a, b in zip(feet[0][:4], feet[1][:4])]  # the crease
@@ -101,12 +106,7 @@ def test_a_head_reached_past_a_thin_neck_by_a_second_strand_is_one_limb():
     and the neck, the last sphere inside the torso, was not counted as its neck: the head
     split lengthwise into two limbs of the body, the ear under one."""
     g = _Graph()
-    torso = g.add(*_chain([0, 0, 0], [0, 0.3, 0], 7, 0.08, 0.08))
-    for side in (-1, 1):
-        g.add(*_chain([side * 0.04, -0.09, 0], [side * 0.04, -0.25, 0], 6, 0.025, 0.025),
-              link_to=torso[0])
-        g.add(*_chain([side * 0.09, 0.22, 0], [side * 0.27, 0.22, 0], 8, 0.015, 0.012),
-              link_to=torso[5])
+    torso = g.body(radius=0.08)
     neck = g.add(np.array([[0, 0.345, 0]]), np.array([0.02]), link_to=torso[-1])
     snout = g.add(np.array([[0.02, 0.4, 0], [0.03, 0.43, 0], [0.06, 0.47, 0], [0.1, 0.51, 0],
                             [0.15, 0.55, 0], [0.2, 0.58, 0]]),
@@ -131,12 +131,7 @@ def test_a_limb_reached_through_a_thicker_limb_is_its_child():
     head's spheres, at least twice as thick as it (`_from_thicker_limbs`): the head's child,
     as the left ear reached through the neck is."""
     g = _Graph()
-    torso = g.add(*_chain([0, 0, 0], [0, 0.3, 0], 7, 0.055, 0.055))
-    for side in (-1, 1):
-        g.add(*_chain([side * 0.03, -0.06, 0], [side * 0.03, -0.2, 0], 6, 0.025, 0.025),
-              link_to=torso[0])
-        g.add(*_chain([side * 0.07, 0.22, 0], [side * 0.25, 0.22, 0], 8, 0.015, 0.012),
-              link_to=torso[5])
+    torso = g.body()
     head = g.add(*_chain([-0.05, 0.42, 0], [0.05, 0.42, 0], 6, 0.075, 0.075))
     neck = g.add(*_chain([-0.05, 0.35, 0], [-0.05, 0.35, 0], 1, 0.025, 0.025),
                  link_to=torso[-1])

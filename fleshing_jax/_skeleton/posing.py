@@ -51,7 +51,7 @@ from .._spines.spine import AbstractSpine
 from .._spines.table import tabulable, tabulates
 from .joint_zone import JointZone, joint_zone
 from .limb_pose import LimbPose, sane_angles
-from .restore import corner_table, restored_volume
+from .restore import corner_table, rest_volume, restored_volume
 from .skeleton import Skeleton, descendants
 from .spill import spilled
 
@@ -220,8 +220,7 @@ def register_skeleton(mesh, skeleton: Skeleton, *, margin: float | None = None,
                                 tuple(stops), points, margin, tuple(zones),
                                 on_device(triangles, np.int32),
                                 on_device(corner_table(triangles, len(points)), np.int32),
-                                on_device(_volume(np.asarray(points, np.float64), triangles),
-                                          points.dtype),
+                                on_device(rest_volume(points, triangles), points.dtype),
                                 fingerprint(skeleton))
 
 
@@ -241,12 +240,6 @@ def _compile_ahead(spines: list, batch: jax.ShapeDtypeStruct, margin: Array) -> 
         _frames_at.prepare(table if tabled else prepared,
                            jax.ShapeDtypeStruct(batch.shape[:1], batch.dtype),
                            jax.ShapeDtypeStruct((), batch.dtype))
-
-
-def _volume(points: np.ndarray, triangles: np.ndarray) -> float:
-    """The volume of `(points (n, 3), triangles (T, 3))`, about the points' centre."""
-    a, b, c = (points[triangles[:, k]] - points.mean(axis=0) for k in range(3))
-    return float(np.sum(a * np.cross(b, c)) / 6)
 
 
 def _triangles(faces: np.ndarray) -> np.ndarray:
@@ -465,27 +458,27 @@ def posed(registration: SkeletonRegistration, skeleton: Skeleton, poses: dict,
         finite = jnp.all(jnp.isfinite(images), axis=1)
         vertices = vertices.at[ids].set(jnp.where(finite[:, None], images, reg.vertices[ids]))
         valid = valid.at[ids].set(ok & trust & finite)
-    # The volume the sections' motion lost, given back along the blended vertices' normals
-    # (on a registration with a surface: not a marker fit's chosen vertices).
+    return PosedSkeleton(_given_back(reg, vertices, blend), valid)
+
+
+def _given_back(reg: SkeletonRegistration, vertices: Array, blend: Array) -> Array:
+    """`vertices` (n, 3) with the volume the sections' motion lost given back along the
+    blended vertices' normals (`restore`; `blend` (n,)): where some blend is positive and
+    the registration has a surface (not a marker fit's chosen vertices)."""
     if reg.triangles.shape[0] == 0:
-        pass
-    elif is_concrete(blend):
-        if np.any(np.asarray(blend) > 0):  # (one program for every angle)
-            vertices = _restored_program(vertices, reg.vertices, reg.volume, reg.triangles,
-                                         reg.corners, blend)
-    else:
-        vertices = jax.lax.cond(jnp.any(blend > 0), restored_volume, lambda v, *_: v,
-                                vertices, reg.vertices, reg.volume, reg.triangles,
-                                reg.corners, blend)
-    return PosedSkeleton(vertices, valid)
+        return vertices
+    args = (vertices, reg.vertices, reg.volume, reg.triangles, reg.corners, blend)
+    if is_concrete(blend):  # (eagerly one program for every angle)
+        return _restored_program(*args) if np.any(np.asarray(blend) > 0) else vertices
+    return jax.lax.cond(jnp.any(blend > 0), restored_volume, lambda v, *_: v, *args)
 
 
 BLEND_WIDTH = 0.3  # the blend's width, in `JointZone.margins`: done by k₁·d* ≈ 0.65 at most
 
 
 def _sections_carried(registration, k: int, pose: LimbPose, images, valid):
-    """`(images, valid, blend)` of limb `k`'s region with its vertices past the joint moved towards
-    where the bent limb's cross-section at their arc length carries them
+    """`(images, valid, blend)` of limb `k`'s region with its vertices past the joint moved
+    towards where the bent limb's cross-section at their arc length carries them
     (`PreparedBent.carried`: past the bend, the limb's rigid motion), all flagged:
 
     - wholly, the vertices not validly registered on the rest spine (near a focal point at
@@ -506,8 +499,8 @@ def _sections_carried(registration, k: int, pose: LimbPose, images, valid):
     r = registration.registrations[k]
     s, points = r.arc_length[:n], r.points[:n]
     concrete = is_concrete(pose, registration)
-    weight = _section_weights(*_section_inputs(registration, k, pose, None if concrete else n),
-                              n)[:n]
+    inputs = _section_inputs(registration, k, pose, None if concrete else n)
+    weight = _section_weights(*inputs, n)[:n]
     target = limb_target(registration, k, pose)
     if concrete:
         # Eagerly one program for every angle, within the range too (it then changes only the
@@ -522,10 +515,9 @@ def _sections_carried(registration, k: int, pose: LimbPose, images, valid):
     else:  # a traced frame skips the sections where nothing is carried
         images = jax.lax.cond(jnp.any(weight > 0), _carried_blend, lambda *a: a[-1],
                               target, points, s, weight, images)
+    _, _, joint, stop, _ = inputs
     # (A weight is 0 before the joint.)
-    stop = bend_stop(registration, k, pose)
-    return images, valid & ~(weight > 0), _restoring(weight, r.valid[:n], s, registration.joints[k],
-                                                     stop)
+    return images, valid & ~(weight > 0), _restoring(weight, r.valid[:n], s, joint, stop)
 
 
 def _section_inputs(registration, k: int, pose: LimbPose, rows: int | None = None) -> tuple:

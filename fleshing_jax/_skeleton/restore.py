@@ -46,6 +46,14 @@ def corner_table(triangles: np.ndarray, count: int) -> np.ndarray:
     return table
 
 
+def rest_volume(points, triangles: np.ndarray) -> float:
+    """The volume of `(points (n, 3), triangles (T, 3))` in float64, about the points'
+    centre (what `restored_volume` gives back towards)."""
+    points = np.asarray(points, np.float64)
+    a, b, c = (points[triangles[:, k]] - points.mean(axis=0) for k in range(3))
+    return float(np.sum(a * np.cross(b, c)) / 6)
+
+
 def _corners(vertices: Array, triangles: Array) -> tuple[Array, Array, Array]:
     """The triangles' corners (T, 3) each, in one gather."""
     at = vertices[triangles]
