@@ -404,3 +404,20 @@ def test_a_head_of_two_strands_is_one_limb_with_its_antennae_as_children():
     assert len(antennae) == 2 and np.all(parents[antennae] == heads[0]), (tips, parents)
     assert sorted(np.sign(tips[antennae, 0])) == [-1, 1]
     assert len(found) == 5
+
+
+def test_a_spur_held_by_two_legs_goes_to_the_one_holding_most_of_it():
+    """Two legs from one hip, the second's top just inside the first's top sphere and a spur
+    off it (the bunny's front paws at seed 0): the spur's path, held by both legs, went to
+    the leg found first, which then held half of the second leg's path and took it: one
+    limb of two legs. It goes to the leg that holds all of it."""
+    g = _Graph()
+    torso = g.body(legs=False)
+    first = g.add(*_chain([-0.02, -0.06, 0], [-0.02, -0.25, 0], 8, 0.025, 0.025),
+                  link_to=torso[0])
+    second = g.add(*_chain([0, -0.065, 0], [0.054, -0.104, 0], 4, 0.025, 0.02),
+                   link_to=torso[0])
+    g.add(np.array([[0.012, -0.058, 0]]), np.array([0.012]), link_to=second[0])  # the spur
+    centers, radii, edges = g.arrays()
+    tips = [int(f.path[-1]) for f in find_limbs(centers, radii, edges)]
+    assert len(tips) == 4 and int(first[-1]) in tips and int(second[-1]) in tips, tips

@@ -420,7 +420,10 @@ def _joined_routes(centers, radii, groups, graph, waists):
 def _same_limb(centers, radii, path, inside: int, limbs, graph) -> int | None:
     """The index of the limb in `limbs` (each the spheres of its paths) that `path` is
     another route to (a head reached through two strips of the neck, a strip's second tip):
-    the first one whose spheres hold half of the path's centres, or its tip; or, a sheet (a
+    of those whose spheres hold half of the path's centres, or its tip, the one holding most
+    (a spur off one paw's top, which lies just inside the other paw's first sphere, is held
+    by both: taken by the paw found first, it made that paw hold half of the other's path,
+    and the two paws were one limb: the bunny's at seed 0); or, a sheet (a
     flat ear: its rim's tips each a path, side by side), whose spheres are joined by the
     medial mesh's edges to most of the path's own spheres (`SHEET`), at least two of them,
     its tip among them: two feet side by side (cheburashka's), touching along a crease, are
@@ -438,11 +441,12 @@ def _same_limb(centers, radii, path, inside: int, limbs, graph) -> int | None:
     ear. (Horns side by side are thickest at their bases: no neck before.)"""
     widest = int(np.argmax(radii[path]))
     necked = np.any(radii[np.r_[inside, path[:widest]]] < WAIST * radii[path[widest]])
-    for k, spheres in enumerate(limbs):
-        held = sphere_gaps(centers[path], centers[spheres], radii[spheres]) < 0
-        if held.mean() >= 0.5 or held[-1]:
-            return k
-        if necked and held[widest] and radii[spheres].max() <= 2 * radii[path[widest]]:
+    held = [sphere_gaps(centers[path], centers[s], radii[s]) < 0 for s in limbs]
+    holders = [k for k, h in enumerate(held) if h.mean() >= 0.5 or h[-1]]
+    if holders:  # (the one holding most of it: the first on a tie)
+        return max(holders, key=lambda k: held[k].mean())
+    for k, (h, spheres) in enumerate(zip(held, limbs)):
+        if necked and h[widest] and radii[spheres].max() <= 2 * radii[path[widest]]:
             return k
     for k, spheres in enumerate(limbs):  # (a limb that holds it first)
         own = path[~np.isin(path, spheres)]  # (in order: the path's tip last, if own)
