@@ -421,3 +421,21 @@ def test_a_spur_held_by_two_legs_goes_to_the_one_holding_most_of_it():
     centers, radii, edges = g.arrays()
     tips = [int(f.path[-1]) for f in find_limbs(centers, radii, edges)]
     assert len(tips) == 4 and int(first[-1]) in tips and int(second[-1]) in tips, tips
+
+
+def test_the_hub_climbs_from_the_median_to_its_parts_core():
+    """The body's root is the geodesic median of the limbs' tips, then the thickest sphere
+    holding it. Two antennae pulled the median of the Blender insect at seed 1 out of its
+    thorax into the neck: the head (0.7 as thick as the thorax) was then the body's core,
+    the antennae limbs of the body. From there it climbs to the thorax's thickest sphere."""
+    from fleshing_jax._skeleton.fit import medial_graph
+    from fleshing_jax._skeleton.limbs import LimbPath, hub
+
+    x = np.linspace(0, 1, 21)  # abdomen (thickest) | waist | thorax | neck | head
+    radii = np.interp(x, [0, 0.1, 0.2, 0.4, 0.5, 0.6, 1], [0.06, 0.06, 0.01, 0.035, 0.02,
+                                                            0.025, 0.02])  # fmt: skip
+    centers = np.c_[x, np.zeros((21, 2))]
+    graph = medial_graph(centers, np.c_[np.arange(20), np.arange(1, 21)])
+    tips = [6, 10, 10, 20]  # (the median: sphere 10, in the neck)
+    limbs = [LimbPath(np.array([t]), t, np.array([t]), np.array([t]), -1) for t in tips]
+    assert hub(graph, centers, radii, np.arange(21), 0, limbs) == 8  # the thorax's thickest

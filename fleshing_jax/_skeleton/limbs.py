@@ -163,7 +163,8 @@ def hub(graph, centers, radii, nodes, thickest: int, limbs: list[LimbPath]) -> i
     found from `thickest` (`limbs`) that leave the body, and of the children of any one of
     them that more limbs leave than leave the body (their geodesic median: six legs pull it
     to the thorax; a head's ears and horns, fewer than the body's limbs, do not), then the
-    thickest sphere that holds its centre. `thickest` stays the root where the two belong to
+    thickest sphere that holds its centre, then uphill to its part's core (`_uphill`).
+    `thickest` stays the root where the two belong to
     one thick part (joined by spheres at least `CORE` times as thick as it, as its core is
     defined): on a torso that is thickest itself, nothing changes."""
     top = [k for k, limb in enumerate(limbs) if limb.parent == -1]
@@ -179,10 +180,26 @@ def hub(graph, centers, radii, nodes, thickest: int, limbs: list[LimbPath]) -> i
     median = int(nodes[np.argmin(distance.sum(axis=0))])
     holding = nodes[np.linalg.norm(centers[nodes] - centers[median], axis=1) <= radii[nodes]]
     root = int(holding[np.argmax(radii[holding])])  # (the median holds itself)
+    # Then uphill to that part's core: a median pulled out of the thorax by two antennae
+    # (the Blender insect at seed 1) lay in the neck, whose spheres, 0.7 as thick as the
+    # thorax's, held the head: the head in the body, the antennae limbs of the body.
+    root = _uphill(graph, radii, root)
     _, predecessors = csgraph.dijkstra(graph, directed=False, indices=thickest,
                                        return_predecessors=True)  # fmt: skip
     between = _ancestors(root, predecessors)
     return thickest if np.all(radii[between] >= CORE * radii[thickest]) else root
+
+
+def _uphill(graph, radii, sphere: int) -> int:
+    """The sphere reached from `sphere` by stepping to its thickest neighbour on the medial
+    graph while that one is thicker: the core of the thick part that `sphere` lies in."""
+    graph = (graph + graph.T).tocsr()  # (its edges are stored one way)
+    while True:
+        neighbours = graph[sphere].indices
+        step = int(neighbours[np.argmax(radii[neighbours])]) if len(neighbours) else sphere
+        if radii[step] <= radii[sphere]:
+            return sphere
+        sphere = step
 
 
 def _split(graph, centers, radii, nodes, root, parent, limbs, depth, forks=False,
