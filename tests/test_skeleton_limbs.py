@@ -439,3 +439,25 @@ def test_the_hub_climbs_from_the_median_to_its_parts_core():
     tips = [6, 10, 10, 20]  # (the median: sphere 10, in the neck)
     limbs = [LimbPath(np.array([t]), t, np.array([t]), np.array([t]), -1) for t in tips]
     assert hub(graph, centers, radii, np.arange(21), 0, limbs) == 8  # the thorax's thickest
+
+
+def test_a_neck_beside_a_thinner_limb_is_not_a_route_through_it():
+    """A path past a neck (its `inside` sphere thinner) whose thickest sphere lies inside a
+    limb's is a route through that limb's thick part (a head's second strand, above), when
+    the limb is about as thick. A bird's neck starts beside a wing's root, its thickest
+    sphere inside the wing's first: the neck and head were taken for a route through the
+    wing, and left in the body. A limb thinner than the path is not its route."""
+    from fleshing_jax._skeleton.fit import medial_graph
+    from fleshing_jax._skeleton.limbs import _same_limb
+
+    wing = [[0, 0, 0], [0.02, 0, 0], [0.04, 0, 0]], [0.015, 0.012, 0.01]
+    neck = ([[-0.02, 0, 0], [0.005, 0.005, 0], [0, 0.03, 0], [0, 0.06, 0], [0, 0.09, 0],
+             [0, 0.12, 0]], [0.018, 0.022, 0.019, 0.017, 0.016, 0.01])
+    inside = [[-0.03, -0.02, 0]], [0.014]
+    centers = np.array(wing[0] + neck[0] + inside[0], float)
+    graph = medial_graph(centers, np.array([[0, 1], [1, 2], [9, 3]] + [[k, k + 1] for k in
+                                                                      range(3, 8)]))  # fmt: skip
+    path = np.arange(3, 9)
+    for scale, route in ((1.0, None), (1.5, 0)):  # (as thick as the neck: its route)
+        radii = np.r_[scale * np.array(wing[1]), neck[1], inside[1]]
+        assert _same_limb(centers, radii, path, 9, [np.arange(3)], graph) == route

@@ -451,11 +451,12 @@ def _same_limb(centers, radii, path, inside: int, limbs, graph) -> int | None:
     Legs side by side, touching at the top, are two limbs; so are an insect's antennae from
     a shared base (a quarter of their own spheres joined). A path that widens past a neck
     (a sphere before its thickest less than `WAIST` times as thick, the last one `inside` the
-    parent too: the neck itself may be the core's) into a limb at most twice as thick, its
-    thickest sphere inside that limb, runs through the limb's thick part: a head reached by
-    a second strip of the neck and its other near-equal sphere, running on into an ear
-    (cheburashka's, from its torso), is the head's route, and the head's level finds the
-    ear. (Horns side by side are thickest at their bases: no neck before.)"""
+    parent too: the neck itself may be the core's) into a limb at least `WAIST` and at most
+    twice as thick as its thickest sphere, which lies inside that limb, runs through the
+    limb's thick part: a head reached by a second strip of the neck and its other near-equal
+    sphere, running on into an ear (cheburashka's, from its torso), is the head's route, and
+    the head's level finds the ear; a bird's neck, its base inside a thinner wing's root, is
+    not the wing's. (Horns side by side are thickest at their bases: no neck before.)"""
     widest = int(np.argmax(radii[path]))
     necked = np.any(radii[np.r_[inside, path[:widest]]] < WAIST * radii[path[widest]])
     held = [sphere_gaps(centers[path], centers[s], radii[s]) < 0 for s in limbs]
@@ -463,7 +464,8 @@ def _same_limb(centers, radii, path, inside: int, limbs, graph) -> int | None:
     if holders:  # (the one holding most of it: the first on a tie)
         return max(holders, key=lambda k: held[k].mean())
     for k, (h, spheres) in enumerate(zip(held, limbs)):
-        if necked and h[widest] and radii[spheres].max() <= 2 * radii[path[widest]]:
+        if necked and h[widest] and (WAIST * radii[path[widest]] <= radii[spheres].max()
+                                     <= 2 * radii[path[widest]]):
             return k
     for k, spheres in enumerate(limbs):  # (a limb that holds it first)
         own = path[~np.isin(path, spheres)]  # (in order: the path's tip last, if own)
