@@ -4,17 +4,18 @@
         [--seeds 4] [--spheres 200] [--figures DIR] [--joints]
 
 Our procedural characters share one way of building a surface (`_medial_axis.characters`).
-Here a human, a horned cow, an insect (its legs bent at rest) and a horse are modelled as
-an artist blocks a character out in Blender: a stick figure of joints with a radius each,
-its skin modifier's quad surface, subdivided twice (`pip install bpy` in another
+Here a human, a horned cow, an insect (its legs bent at rest), a horse, a dog, a dinosaur
+(small arms below its neck) and a bird (wings spread) are modelled as an artist blocks a
+character out in Blender: a stick figure of joints with a radius each, its skin
+modifier's quad surface, subdivided twice (`pip install bpy` in another
 environment: `--bpy` names its Python; the meshes are made there). Each gets `fj.skeleton`
 at medial seeds 0 … n−1 (holes from the skin's branch points capped by `fj.cap_holes`, the
 faces the skin winds against their neighbours flipped). Prints a Markdown table: limbs,
 chains from the body and their lengths, and which of the tips an animator would pose (head,
-hands, feet; muzzle, horns, tail, hooves; head, antennae, feet; ears) lie in a limb of their
-own, outside the body. `--joints`: issue 46's joint targets on the human instead (its exact
-range per joint and direction, then each pose's flagged vertices, volume change and worst
-edge stretch, float64).
+hands, feet; muzzle, horns, tail, hooves; head, antennae, feet; ears; snout, ears, paws; jaw,
+hands; beak, wings) lie in a limb of their own, outside the body. `--joints`: issue 46's
+joint targets on the human instead (its exact range per joint and direction, then each
+pose's flagged vertices, volume change and worst edge stretch, float64).
 """
 
 from __future__ import annotations
@@ -132,7 +133,88 @@ def _horse() -> dict:
     return {"joints": joints, "bones": bones, "tips": tips}
 
 
-CHARACTERS = {"human": HUMAN, "cow": COW, "insect": _insect(), "horse": _horse()}
+def _dog() -> dict:
+    """Four legs of three bones, a neck and head with a snout, two ears of two bones, a tail."""
+    joints = {"rump": ((-0.4, 0, 0.6), 0.16), "belly": ((0, 0, 0.62), 0.17),
+              "chest": ((0.35, 0, 0.65), 0.17), "neck": ((0.55, 0, 0.85), 0.09),
+              "head": ((0.65, 0, 0.95), 0.1), "snout": ((0.85, 0, 0.9), 0.05),
+              "tail": ((-0.6, 0, 0.75), 0.03), "tail tip": ((-0.8, 0, 0.95), 0.02)}
+    bones = [("rump", "belly"), ("belly", "chest"), ("chest", "neck"), ("neck", "head"),
+             ("head", "snout"), ("rump", "tail"), ("tail", "tail tip")]
+    tips = [("snout", "snout", (0.04, 0, 0)), ("tail", "tail tip", (0, 0, 0.02))]
+    for s, y in (("left", 0.08), ("right", -0.08)):
+        joints[f"{s} ear"] = ((0.62, 1.2 * y, 1.12), 0.03)
+        joints[f"{s} ear tip"] = ((0.6, 1.6 * y, 1.22), 0.02)
+        bones += [("head", f"{s} ear"), (f"{s} ear", f"{s} ear tip")]
+        tips.append((f"{s} ear", f"{s} ear tip", (0, 0, 0.01)))
+    for leg, x, top in (("front left ", 0.35, "chest"), ("front right ", 0.35, "chest"),
+                        ("hind left ", -0.4, "rump"), ("hind right ", -0.4, "rump")):
+        y = 0.1 if "left" in leg else -0.1
+        for a, (b, point, radius) in zip(
+                [top, leg + "hip", leg + "knee"],
+                [("hip", (x, y, 0.5), 0.07), ("knee", (x + (0.03 if x > 0 else -0.08), y, 0.3),
+                                              0.045), ("paw", (x + 0.04, y, 0.04), 0.04)]):
+            joints[leg + b] = (point, radius)
+            bones.append((a, leg + b))
+        tips.append((leg + "paw", leg + "paw", (0, 0, 0)))
+    return {"joints": joints, "bones": bones, "tips": tips}
+
+
+def _dinosaur() -> dict:
+    """Two legs of four bones under the hips, a tail of three, a neck and head with a jaw, two
+    small arms of three bones below the neck's base."""
+    joints = {"hips": ((0, 0, 1.0), 0.22), "chest": ((0.45, 0, 1.15), 0.2),
+              "neck": ((0.75, 0, 1.35), 0.12), "head": ((0.95, 0, 1.45), 0.13),
+              "jaw": ((1.25, 0, 1.4), 0.08), "tail 1": ((-0.45, 0, 1.0), 0.15),
+              "tail 2": ((-0.9, 0, 0.95), 0.09), "tail 3": ((-1.4, 0, 0.9), 0.04)}
+    bones = [("hips", "chest"), ("chest", "neck"), ("neck", "head"), ("head", "jaw"),
+             ("hips", "tail 1"), ("tail 1", "tail 2"), ("tail 2", "tail 3")]
+    tips = [("jaw", "jaw", (0.06, 0, 0)), ("tail", "tail 3", (-0.03, 0, 0))]
+    for s, sign in (("left", 1), ("right", -1)):
+        arm = [("chest", None), ("shoulder", ((0.55, 0.15 * sign, 1.05), 0.05)),
+               ("elbow", ((0.65, 0.2 * sign, 0.9), 0.035)),
+               ("hand", ((0.78, 0.2 * sign, 0.85), 0.03))]
+        leg = [("hips", None), ("hip", ((0.0, 0.16 * sign, 0.8), 0.12)),
+               ("knee", ((0.12, 0.18 * sign, 0.5), 0.08)),
+               ("ankle", ((-0.05, 0.18 * sign, 0.15), 0.05)),
+               ("toe", ((0.15, 0.18 * sign, 0.04), 0.045))]
+        for chain in (arm, leg):
+            for (a, _), (b, joint) in zip(chain, chain[1:]):
+                joints[f"{s} {b}"] = joint
+                bones.append((a if a in ("chest", "hips") else f"{s} {a}", f"{s} {b}"))
+        tips += [(f"{s} hand", f"{s} hand", (0.02, 0, 0)), (f"{s} foot", f"{s} toe", (0.03, 0, 0))]
+    return {"joints": joints, "bones": bones, "tips": tips}
+
+
+def _bird() -> dict:
+    """A body and breast, a neck and head with a beak, two wings of four bones spread
+    sideways, two legs of three bones, a tail."""
+    joints = {"body": ((0, 0, 0.5), 0.14), "breast": ((0.15, 0, 0.52), 0.13),
+              "neck": ((0.28, 0, 0.65), 0.06), "head": ((0.35, 0, 0.75), 0.07),
+              "beak": ((0.5, 0, 0.73), 0.02), "tail": ((-0.25, 0, 0.52), 0.05),
+              "tail tip": ((-0.45, 0, 0.55), 0.03)}
+    bones = [("body", "breast"), ("breast", "neck"), ("neck", "head"), ("head", "beak"),
+             ("body", "tail"), ("tail", "tail tip")]
+    tips = [("beak", "beak", (0.02, 0, 0)), ("tail", "tail tip", (-0.02, 0, 0))]
+    for s, sign in (("left", 1), ("right", -1)):
+        wing = [("breast", None), ("shoulder", ((0.12, 0.14 * sign, 0.6), 0.04)),
+                ("elbow", ((0.05, 0.4 * sign, 0.62), 0.03)),
+                ("wrist", ((0.1, 0.65 * sign, 0.64), 0.025)),
+                ("wing tip", ((0.0, 0.9 * sign, 0.64), 0.015))]
+        leg = [("body", None), ("hip", ((0.0, 0.07 * sign, 0.38), 0.045)),
+               ("knee", ((0.05, 0.08 * sign, 0.22), 0.025)),
+               ("foot", ((0.1, 0.08 * sign, 0.03), 0.02))]
+        for chain in (wing, leg):
+            for (a, _), (b, joint) in zip(chain, chain[1:]):
+                joints[f"{s} {b}"] = joint
+                bones.append((a if a in ("breast", "body") else f"{s} {a}", f"{s} {b}"))
+        tips += [(f"{s} wing", f"{s} wing tip", (0, 0.015 * sign, 0)),
+                 (f"{s} foot", f"{s} foot", (0.02, 0, 0))]
+    return {"joints": joints, "bones": bones, "tips": tips}
+
+
+CHARACTERS = {"human": HUMAN, "cow": COW, "insect": _insect(), "horse": _horse(), "dog": _dog(),
+              "dinosaur": _dinosaur(), "bird": _bird()}
 
 
 def blender_side(out: Path):
