@@ -461,3 +461,30 @@ def test_a_neck_beside_a_thinner_limb_is_not_a_route_through_it():
     for scale, route in ((1.0, None), (1.5, 0)):  # (as thick as the neck: its route)
         radii = np.r_[scale * np.array(wing[1]), neck[1], inside[1]]
         assert _same_limb(centers, radii, path, 9, [np.arange(3)], graph) == route
+
+
+def test_a_waist_from_which_other_limbs_leave_is_the_body_s():
+    """A limb from the body starts at its waist, where the core tapers to `WAIST` of its
+    thickest (a hip). A dinosaur's torso tapers from its hips to its chest, whose small arms
+    leave it below the neck's base by routes of their own (a second strand of the chest):
+    the neck started at the chest, and the arms were in the neck's limb. Spheres that
+    another limb leaves from are the body's: the neck starts past them."""
+    g = _Graph()
+    x = np.arange(7) * 0.05
+    torso = g.add(np.c_[x, np.zeros((7, 2))],
+                  np.array([0.06, 0.06, 0.058, 0.055, 0.05, 0.046, 0.044]))
+    neck = g.add(*_chain([0.34, 0, 0.03], [0.42, 0, 0.15], 5, 0.03, 0.028), link_to=torso[-1])
+    g.add(*_chain([0.46, 0, 0.17], [0.56, 0, 0.16], 4, 0.035, 0.02), link_to=neck[-1])
+    chest = g.add(*_chain([0.05, 0, -0.02], [0.25, 0, -0.02], 5, 0.045, 0.045),
+                  link_to=torso[0])  # (the arms' own route from the hips)
+    for side in (-1, 1):
+        g.add(*_chain([0.25, side * 0.05, -0.03], [0.32, side * 0.09, -0.12], 5, 0.015, 0.012),
+              link_to=chest[-1])
+        g.add(*_chain([0, side * 0.03, -0.07], [0, side * 0.04, -0.3], 8, 0.03, 0.025),
+              link_to=torso[0])
+    g.add(*_chain([-0.07, 0, 0], [-0.4, 0, 0.02], 8, 0.035, 0.015), link_to=torso[0])
+    centers, radii, edges = g.arrays()
+    found = find_limbs(centers, radii, edges)
+    assert len(found) == 6  # neck and head, two arms, two legs, the tail
+    head = next(f for f in found if f.path[-1] == neck[-1] + 4)
+    assert centers[head.path[0], 0] > 0.3  # past the arms' (was 0.25: the chest's)

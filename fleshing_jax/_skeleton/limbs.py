@@ -272,10 +272,14 @@ def _split(graph, centers, radii, nodes, root, parent, limbs, depth, forks=False
             found, groups, waists, stems = _forks(centers, radii, distance, found, groups,
                                                   waists)  # fmt: skip
         # A waist leads into one limb alone: spheres before its path on another limb's way
-        # from the root are the body's (the front of a body, tapering towards two horns).
+        # from the root are the body's (the front of a body, tapering towards two horns), as
+        # are those another limb leaves from (a dinosaur's chest, tapering towards its neck,
+        # its small arms below: taken as the neck's, they were in the neck's limb).
         ways = [set(_ancestors(int(f[0][-1]), predecessors).tolist()) for f in found]
-        waists = [w if w is None or not any(set(w[0].tolist()) & way for j, way in
-                                            enumerate(ways) if j != k) else None
+        waists = [w if w is None or not any(
+            set(w[0].tolist()) & ways[j] or (len(w[0]) and sphere_gaps(
+                centers[[found[j][1]]], centers[w[0]], radii[w[0]])[0] < 0)
+            for j in range(len(found)) if j != k) else None
                   for k, w in enumerate(waists)]  # fmt: skip
     for (path, last_inside, core, spheres), (routes, _, _), waist, stem in zip(
             found, groups, waists, stems, strict=True):
