@@ -41,6 +41,25 @@ def test_a_zone_is_as_long_as_its_angle_needs_on_a_straight_tube():
     assert float(zone.length(zone.range + 1)) == 2.0
 
 
+def test_a_zone_read_eagerly_is_read_on_the_host_as_traced():
+    # Concrete, `length` and `end` run on the host (numpy: an eager pose reads each limb's zone
+    # up to four times, 4 ms of CPU a call as one-by-one device operations); traced, in the
+    # program. The same formula: equal but for a compiled program's fused multiply-adds, and
+    # in the zone's dtype.
+    s = np.repeat(np.linspace(0, 4, 101), 8)
+    angle = np.tile(np.linspace(0, 2 * np.pi, 8, endpoint=False), 101)
+    offset = RADIUS * np.stack([np.cos(angle), np.sin(angle)], 1)
+    for dtype in (np.float64, np.float32):
+        zone = joint_zone(s, offset, np.zeros_like(offset), np.ones(len(s), bool), 1.0, 3.0,
+                          dtype, **_straight_frames(len(s)))
+        joint, stop = np.asarray(1.0, dtype), np.asarray(3.0, dtype)
+        bends = np.linspace(-7, 7, 57).astype(dtype)
+        eager = np.array([zone.end(b, joint, stop) for b in bends])
+        traced = jax.jit(jax.vmap(lambda b, zone=zone: zone.end(b, joint, stop)))(bends)
+        assert eager.dtype == dtype and traced.dtype == dtype
+        np.testing.assert_allclose(eager, traced, rtol=4 * np.finfo(dtype).eps)
+
+
 def test_a_thick_part_lengthens_the_zone_continuously():
     # The same tube, twice as thick from arc length 1.5: zones reaching it are bounded by it.
     s = np.repeat(np.linspace(0, 4, 401), 8)

@@ -31,6 +31,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array
 
+from .._checks import is_concrete
 from .._fleshing.maps import WHOLE_FROM
 from .._numerics import dot, on_device
 from .._spines.bent import ramp, rotate
@@ -70,23 +71,29 @@ class JointZone(eqx.Module):
 
     def length(self, bend: Array) -> Array:
         """The zone's length for a bend of `bend` radians (scalar, either sign): the shortest
-        that keeps the map's curvature bound, interpolated; the whole room past the range."""
-        x, y, m = self.capacities, self.lengths, self.slopes
-        angle = jnp.clip(jnp.abs(bend), x[0], x[-1])
-        i = jnp.clip(jnp.searchsorted(x, angle, side="right") - 1, 0, x.shape[0] - 2)
+        that keeps the map's curvature bound, interpolated; the whole room past the range.
+        Concrete, computed on the host (`_host`)."""
+        xp = _host(self, bend)
+        x, y, m = (xp.asarray(a) for a in (self.capacities, self.lengths, self.slopes))
+        angle = xp.clip(xp.abs(bend), x[0], x[-1])
+        i = xp.clip(xp.searchsorted(x, angle, side="right") - 1, 0, x.shape[0] - 2)
         width = x[i + 1] - x[i]
-        safe = jnp.where(width > 0, width, 1)
-        t = jnp.where(width > 0, (angle - x[i]) / safe, 0)
-        # Cubic Hermite on [x_i, x_{i+1}].
-        h00, h10 = (1 + 2 * t) * (1 - t) ** 2, t * (1 - t) ** 2
-        h01, h11 = t**2 * (3 - 2 * t), t**2 * (t - 1)
+        safe = xp.where(width > 0, width, 1)
+        t = xp.where(width > 0, (angle - x[i]) / safe, 0)
+        # Cubic Hermite on [x_i, x_{i+1}]. (Squares as products: numpy's scalar power is not
+        # always the product's bits, which XLA's `x**2` is.)
+        u, v = (1 - t) * (1 - t), t * t
+        h00, h10 = (1 + 2 * t) * u, t * u
+        h01, h11 = v * (3 - 2 * t), v * (t - 1)
         return h00 * y[i] + h10 * safe * m[i] + h01 * y[i + 1] + h11 * safe * m[i + 1]
 
     def end(self, bend: Array, joint: Array, stop: Array) -> Array:
         """Where a bend of `bend` radians (scalar) is complete, past `joint`, at most `stop`
-        (scalar arc lengths: the limb's joint and its room's end)."""
+        (scalar arc lengths: the limb's joint and its room's end). Concrete, computed on the
+        host (`_host`), as a 0-d array of the joint's dtype."""
         # (`minimum`: the whole room in single precision is at most the stop, not an ulp past.)
-        return jnp.minimum(joint + self.length(bend), stop)
+        xp = _host(self, bend, joint, stop)
+        return xp.minimum(xp.asarray(joint) + self.length(bend), xp.asarray(stop))
 
     @property
     def range(self) -> Array:
@@ -265,6 +272,15 @@ def joint_range(registration, limb: int, direction=None, *, twist=0.0,
                                 stop)[0]) > 0
         lo, hi = (lo, middle) if inexact else (middle, hi)
     return jnp.rad2deg(jnp.asarray(lo, joint.dtype))
+
+
+def _host(*values):
+    """`numpy` where every one of `values` is concrete, else `jax.numpy`: an eager pose reads
+    each limb's zone four times (`posing.bend_stop`), and its dozen scalar operations, run one
+    by one as device operations, cost 4 ms of CPU a call (a shape fit's warm call made 24).
+    The same IEEE operations on the same dtypes: the same bits (no contraction into fused
+    multiply-adds, which a compiled program of them may make)."""
+    return np if is_concrete(values) else jnp
 
 
 _SCANNED = 721  # bends scanned from 0 to a full turn (every half degree) by `joint_range`

@@ -706,9 +706,13 @@ def limb_check(registration: SkeletonRegistration, k: int, pose) -> AbstractSpin
 def bend_stop(registration: SkeletonRegistration, k: int, pose: LimbPose) -> Array:
     """Where limb `k`'s bend by `pose` is complete (scalar arc length): its joint plus the
     zone the angle needs (`joint_zone`); past it the limb moves rigidly."""
-    joint = registration.joints[k]
-    bend = jnp.deg2rad(pose.bend).astype(joint.dtype)
-    return registration.zones[k].end(bend, joint, registration.stops[k])
+    joint, zone, stop = registration.joints[k], registration.zones[k], registration.stops[k]
+    if is_concrete(pose.bend, joint):  # on the host (`JointZone.end`): the same bits
+        degrees = np.asarray(pose.bend)
+        degrees = degrees.astype(jax.dtypes.canonicalize_dtype(degrees.dtype))
+        bend = degrees * np.asarray(np.pi / 180, degrees.dtype)  # (as `jnp.deg2rad`)
+        return zone.end(bend.astype(np.asarray(joint).dtype), joint, stop)
+    return zone.end(jnp.deg2rad(pose.bend).astype(joint.dtype), joint, stop)
 
 
 def _check_limb_spine(registration: SkeletonRegistration, k: int, spine: AbstractSpine) -> None:
