@@ -162,7 +162,19 @@ def registration(tube, skeleton):
 # multi-device subprocess) start first, so that the two workers do not end the session with
 # one of them alone on a long test.
 _FIRST = ("test_notebooks.py", "test_sharding.py")
+# Then the files that pose the tube (`tube`, `skeleton`, `registration`), one after another:
+# worksteal hands each worker a contiguous half of this order and steals from a queue's tail,
+# so they all run on one worker, which traces and lowers their shared programs (the tube's
+# registration, its eager poses and their checks) once. On two workers each traced them again
+# only to find them in the persistent cache.
+_TUBE = (
+    "test_posing.py",
+    "test_posing_speed.py",
+    "test_fit_pose.py",
+    "test_joint_zone.py",
+    "test_skeleton_bad_input.py",
+)
 
 
 def pytest_collection_modifyitems(items):
-    items.sort(key=lambda item: item.path.name not in _FIRST)
+    items.sort(key=lambda item: (item.path.name not in _FIRST, item.path.name not in _TUBE))
