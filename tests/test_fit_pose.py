@@ -437,7 +437,7 @@ def test_only_a_limb_left_unexplained_is_tried_from_other_starts():
     # four directions when barely bent (`_starts`). Noise everywhere alike tries none.
     from types import SimpleNamespace
 
-    from fleshing_jax._skeleton.fit_shape import RESTART, _starts, _stuck
+    from fleshing_jax._skeleton.fit_shape import RESTART, SETTLED_FLOOR, _starts, _stuck
 
     surface = np.array([[0.0, 0, 0], [1, 0, 0], [2, 0, 0], [3, 0, 0]])
     region = np.array([-1, -1, 4, 7])  # the body, then limbs 4 and 7
@@ -452,6 +452,13 @@ def test_only_a_limb_left_unexplained_is_tried_from_other_starts():
     leg_off = body_level.copy()
     leg_off[3] = [0, 0.3, 0]  # limb 7's part left far from the posed surface
     assert _stuck(problem, linear(leg_off), surface, region) == [1]
+    # After the last stage, a clean target's limb left a little off while every other part
+    # lies on the posed surface (spot's leg seen from one side, 1.5° off): stuck at
+    # `SETTLED_FLOOR` (tried again, `_resettled`), not before it.
+    clean = np.zeros((4, 3))
+    clean[3] = [0, 0.005, 0]
+    assert _stuck(problem, linear(clean), surface, region) == []
+    assert _stuck(problem, linear(clean), surface, region, SETTLED_FLOOR) == [1]
 
     b = np.deg2rad(30.0) * np.array([0.6, 0.8])
     starts = np.array(_starts(b))
