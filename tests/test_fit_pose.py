@@ -13,6 +13,7 @@ time.
 
 import re
 
+import jax
 import numpy as np
 import optimistix as optx
 import pytest
@@ -538,3 +539,19 @@ def test_the_solve_reads_every_point_of_a_small_limbs_part():
     # The rest shared equally between limb 0's part (1,050 points) and the body's (3,500).
     assert np.sum(owner[kept] == 0) == 675 and np.sum(owner[kept] == -1) == 675
     np.testing.assert_array_equal(_shares(owner, 10_000, None), np.arange(len(owner)))
+
+
+def test_a_shape_solve_reads_the_rest_spines_from_their_tables(registration):
+    # In double precision the solve's posing looks each rest spine up in its table (the one
+    # the projection check reads), not the exact spine, whose arc-length inverse made the
+    # solve's program twice as large (`_on_tables`); the result is posed exactly.
+    from fleshing_jax._skeleton.fit_shape import _on_tables
+
+    tabled = _on_tables(registration)
+    tables = [c for c in registration.checks if c is not None]
+    assert len(tables) == 3  # (float64: the tube's rest spines are B-splines)
+    assert all(type(r) is type(c) for r, c in zip(tabled.rests, tables))
+    leaves = jax.tree.leaves(tabled.rests)
+    assert all(a is b for a, b in zip(leaves, jax.tree.leaves(tables), strict=True))
+    assert jax.tree.leaves(tabled.registrations)[0] is jax.tree.leaves(
+        registration.registrations)[0]
