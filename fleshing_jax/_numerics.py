@@ -117,6 +117,23 @@ def _sincos_jvp(primals, tangents):
     return (sin, cos), (cos * dx, -sin * dx)
 
 
+def held_trig(*angles: Array) -> list[tuple[Array, Array]]:
+    """`(cos, sin)` of each of `angles` (arrays), computed once and held in memory, each pair
+    made by a product with the identity: XLA computes a product on its own, and its consumers
+    read it. Batched over a table's nodes, XLA's CPU backend fused the sines and cosines into
+    each kernel that turns a vector with them, and computed them again for every coordinate it
+    made (15 a node for a bent spine's frame and `Q′`, 3 a quadrature point; a limb's twist, a
+    scalar, for each of its frames' 76k values). (An optimisation barrier is dropped by XLA's
+    CPU pipeline; a conditional becomes a select under `vmap`, fused as the rest.) The product
+    gives the values exactly, each one times 1 plus a zero (NaN where the angle is)."""
+    out = []
+    for angle in angles:
+        values = jnp.stack([jnp.cos(angle), jnp.sin(angle)])
+        held = jnp.einsum("wv,v...->w...", jnp.eye(2, dtype=values.dtype), values)
+        out.append((held[0], held[1]))
+    return out
+
+
 def _horner(terms: list[float], y: Array) -> Array:
     """`terms[0] + terms[1] y + terms[2] y² + …`, by Horner's rule."""
     value = jnp.asarray(terms[-1], y.dtype)

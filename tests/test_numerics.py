@@ -5,7 +5,7 @@ import jax.numpy as jnp
 import numpy as np
 from jax.test_util import check_grads
 
-from fleshing_jax._numerics import per_component, sincos
+from fleshing_jax._numerics import held_trig, per_component, sincos
 
 
 def test_sincos_matches_sine_and_cosine_in_single_precision():
@@ -55,3 +55,17 @@ def test_per_component_is_the_vector_operation():
     np.testing.assert_allclose(per_component(lambda a, b: a + 2.0 * b, x[0], y[0]), x[0] + 2 * y[0])
     batched = jax.vmap(lambda x, y, t: per_component(lambda a, b: a * t - b, x, y))(x, y, t)
     np.testing.assert_allclose(np.asarray(batched), x * t[:, None] - y)
+
+
+def test_held_trig_is_the_sine_and_cosine():
+    # Held in memory by a product with the identity (`held_trig`): the same values, batched
+    # too, and a NaN angle's own values NaN, not its neighbours' nor the other angle's.
+    x = jnp.asarray(np.linspace(-7, 7, 303).reshape(3, 101))
+    y = x.at[1, 5].set(jnp.nan)
+    (cos, sin), (cos2, sin2) = jax.jit(held_trig)(x, y)
+    np.testing.assert_array_equal(np.asarray(cos), np.cos(np.asarray(x)))
+    np.testing.assert_array_equal(np.asarray(sin), np.sin(np.asarray(x)))
+    assert np.isnan(np.asarray(cos2)).sum() == np.isnan(np.asarray(sin2)).sum() == 1
+    np.testing.assert_array_equal(np.asarray(sin2), np.sin(np.asarray(y)))
+    batched = jax.jit(jax.vmap(lambda a: held_trig(a)[0]))(x)
+    np.testing.assert_array_equal(np.asarray(batched[0]), np.asarray(cos))

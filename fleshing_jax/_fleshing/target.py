@@ -17,7 +17,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array
 
-from .._numerics import dot
+from .._numerics import dot, held_trig
 from .._spines.frames import twist_normals
 from .._spines.sinusoid import Sinusoid
 from .._spines.spine import AbstractSpine
@@ -32,9 +32,10 @@ def target_frame(spine: AbstractSpine, twist: Array, s: Array) -> tuple[Array, .
 
 
 def frame_of(jet: tuple[Array, Array, Array], normals: tuple[Array, Array],
-             twist: Array) -> tuple[Array, ...]:
-    """`target_frame` from the spine's `jet` `(C, T, k)` and `normals` `(I, J)` (each (3,))."""
-    (c, _, k), (i, j) = jet, twist_normals(normals, twist)
+             twist: Array, trig: tuple[Array, Array] | None = None) -> tuple[Array, ...]:
+    """`target_frame` from the spine's `jet` `(C, T, k)` and `normals` `(I, J)` (each (3,));
+    `trig`: `(cos, sin)` of `twist`, where the caller has them."""
+    (c, _, k), (i, j) = jet, twist_normals(normals, twist, trig)
     return c, i, j, jnp.stack([dot(k, i), dot(k, j)])
 
 
@@ -63,9 +64,10 @@ class TargetFrames(eqx.Module):
             # The frames at the table's nodes from the values it was fit to there: read back
             # from its cubics (coefficients times the nodes' powers), XLA fused the values'
             # making (a bent limb's rotations) into every read of them, a tenth of a float32
-            # frame of spot's leg.
+            # frame of spot's leg. (The twist's sine and cosine held: `held_trig`.)
+            trig = held_trig(twist)[0]
             frames = jax.vmap(jax.vmap(lambda jet, normals: jnp.concatenate(
-                frame_of(jet, normals, twist))))(*at_nodes)
+                frame_of(jet, normals, twist, trig))))(*at_nodes)
             self.table = self.spine.cubics.refit(frames)
         elif tabulate:
             prepared = self.spine  # (not `self` in a lambda: the module is not frozen yet)

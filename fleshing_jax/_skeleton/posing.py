@@ -27,6 +27,7 @@ stay bit for bit.
 
 from __future__ import annotations
 
+from functools import partial
 from typing import NamedTuple
 
 import equinox as eqx
@@ -443,12 +444,12 @@ def posed(registration: SkeletonRegistration, skeleton: Skeleton, poses: dict,
         images, ok, motion = reg.vertices[ids], jnp.ones(n, bool), None
         trust = trusted.get(limb.parent, jnp.asarray(True))
         if pose is not None:
-            images, ok, motion = moved[k]
+            images, ok, motion, table = moved[k]
             images, ok = images[:n], ok[:n]
             if isinstance(pose, LimbPose):
                 trust = trust & sane_angles(pose)
                 images, ok, towards = sections[k] if k in sections else _sections_carried(
-                    reg, k, pose, images, ok)
+                    reg, k, pose, images, ok, table)
                 blend = blend.at[ids].set(towards)
         if carry is not None:
             images = carry(images)
@@ -476,7 +477,7 @@ def _given_back(reg: SkeletonRegistration, vertices: Array, blend: Array) -> Arr
 BLEND_WIDTH = 0.3  # the blend's width, in `JointZone.margins`: done by k₁·d* ≈ 0.65 at most
 
 
-def _sections_carried(registration, k: int, pose: LimbPose, images, valid):
+def _sections_carried(registration, k: int, pose: LimbPose, images, valid, table=None):
     """`(images, valid, blend)` of limb `k`'s region with its vertices past the joint moved
     towards where the bent limb's cross-section at their arc length carries them
     (`PreparedBent.carried`: past the bend, the limb's rigid motion), all flagged:
@@ -494,7 +495,10 @@ def _sections_carried(registration, k: int, pose: LimbPose, images, valid):
       continued: cheburashka's head (exact to 3.3°) at 30°, worst edge 16.4× → 2.6×, ΔV/V
       −1.5 % → −0.7 %; spot's at 45°, 6.2× → 2.6×, −1.7 % → −0.2 %; towards its side,
       −3.9 % → −4.2 %: the volume is then given back (`restore`) in proportion to `blend`
-      (n,), the weight of each validly registered vertex (0 for the others)."""
+      (n,), the weight of each validly registered vertex (0 for the others).
+
+    `table`: the bent spine's own table where the limb's pose already made it (a traced
+    frame: `posed_limbs`), read rather than made again (`_carried_blend`)."""
     n = registration.indices[k].shape[0]
     r = registration.registrations[k]
     s, points = r.arc_length[:n], r.points[:n]
@@ -513,8 +517,8 @@ def _sections_carried(registration, k: int, pose: LimbPose, images, valid):
         images = _carried_blend_program(target, r.points, r.arc_length, padded,
                                         pad_batch(images, size))[:n]
     else:  # a traced frame skips the sections where nothing is carried
-        images = jax.lax.cond(jnp.any(weight > 0), _carried_blend, lambda *a: a[-1],
-                              target, points, s, weight, images)
+        images = jax.lax.cond(jnp.any(weight > 0), partial(_carried_blend, table=table),
+                              lambda *a: a[-1], target, points, s, weight, images)
     _, _, joint, stop, _ = inputs
     # (A weight is 0 before the joint.)
     return images, valid & ~(weight > 0), _restoring(weight, r.valid[:n], s, joint, stop)
@@ -585,14 +589,18 @@ def _stacked_sections(registration: SkeletonRegistration, poses: dict, moved: di
     return sections
 
 
-def _carried_blend(target, points, s, weight, images):
+def _carried_blend(target, points, s, weight, images, table=None):
     """`images` (n, 3) moved by `weight` (n,) towards the sections' motion
-    (`PreparedBent.carried`) at arc lengths `s` (n,); as they are where `weight` is 0."""
+    (`PreparedBent.carried`) at arc lengths `s` (n,); as they are where `weight` is 0.
+    `table`: the bent spine's own table (`_table`), where the caller has it."""
     moved = weight > 0
     prepared = target._prepare()
     # In float32 the sections' positions are read from the bent spine's table (integrated a
     # point at a time: spot's head at 104,644 vertices bent 30°, 22 ms of a 27 ms frame).
-    table = prepared._table() if tabulates(prepared) else None
+    # (Its own table made again here, in the traced frame's conditional, was a limb's whole
+    # preparation again: the pose's is passed in.)
+    if table is None and tabulates(prepared):
+        table = prepared._table()
     placed = jax.vmap(lambda x, s: prepared.carried(x, s, table))(points, jnp.where(moved, s, 0))
     blended = jnp.where((weight == 1)[:, None], placed,
                         images + weight[:, None] * (placed - images))
@@ -606,10 +614,13 @@ _restored_program = persistent(restored_volume)
 def posed_limbs(registration: SkeletonRegistration, poses: dict, method: str, check: bool,
                 stacked: bool) -> dict:
     """Each posed limb's region posed on its own (`_pose_limb`): dict limb index → `(images,
-    valid, end motion)`. `stacked`: the limbs whose registrations and targets have one
-    structure (every `LimbPose`: the limbs' registrations share a bucket size and their rest
-    spines a padded shape) posed as one batch by `vmap`, so that a traced program holds one
-    limb's code, not one per limb (a fit's objective, compiled with its derivatives)."""
+    valid, end motion, table)`, `table` the bent spine's own table its pose read (a traced
+    frame's `LimbPose` on a looked-up rest spine: `_own_table`), for its sections
+    (`_sections_carried`), else `None`. `stacked`: the limbs whose registrations and targets
+    have one structure (every `LimbPose`: the limbs' registrations share a bucket size and
+    their rest spines a padded shape) posed as one batch by `vmap`, so that a traced program
+    holds one limb's code, not one per limb (a fit's objective, compiled with its
+    derivatives)."""
     targets = {k: limb_target(registration, k, pose) for k, pose in poses.items()}
     # Traced poses (a jitted frame, a gradient) pose each limb at its own size, not the largest
     # limb's bucket it is padded to for the eager calls' shared programs (on spot's 100k
@@ -627,15 +638,29 @@ def posed_limbs(registration: SkeletonRegistration, poses: dict, method: str, ch
         # eager pipeline instead (`_fleshing.eager`), a new angle that left a point pending
         # compiled that fallback on the spot: the tube bent 60° then 90°, 0.09 s then 30 s.
         if is_concrete(poses):
-            return {k: _pose_limb_eagerly(reg, target, method, check, on)
+            return {k: (*_pose_limb_eagerly(reg, target, method, check, on), None)
                     for k, (reg, target, on) in pairs.items()}
         posers = _stacked_posers(pairs, method, check)
-        return {k: _posed_by(reg, posers[k]) for k, (reg, _, _) in pairs.items()}
+        # (Unchecked, a pose does not read its table's own values: made in the sections'
+        # conditional only where a limb is blended.)
+        return {k: (*_posed_by(reg, posers[k]),
+                    posers[k].target if check and _own_table(registration, k, poses[k]) else None)
+                for k, (reg, _, _) in pairs.items()}
     moved = {}
     for ks, batch in _stacked_groups(pairs):
         out = jax.vmap(lambda p: _pose_limb(p[0], p[1], method, check, p[2]))(batch)
-        moved.update({k: jax.tree.map(lambda x, i=i: x[i], out) for i, k in enumerate(ks)})
+        moved.update({k: (*jax.tree.map(lambda x, i=i: x[i], out), None)
+                      for i, k in enumerate(ks)})
     return moved
+
+
+def _own_table(registration: SkeletonRegistration, k: int, pose) -> bool:
+    """Whether limb `k`'s `pose` poses it on its bent spine's own table (static): a `LimbPose`
+    on a looked-up rest spine with its node samples (float32), whose bent spine's table the
+    `Poser` reads (`Poser.target`), made from those samples (`BentSpine._table_at_nodes`)."""
+    rest = registration.rests[k]
+    return (isinstance(pose, LimbPose) and isinstance(rest, LookedUpSpine)
+            and rest.samples is not None)
 
 
 def _stacked_posers(pairs: dict, method: str, check: bool) -> dict:

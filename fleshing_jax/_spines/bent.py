@@ -33,7 +33,7 @@ import numpy as np
 from jaxtyping import Array, ArrayLike
 
 from .._checks import as_float_array, is_concrete
-from .._numerics import dot
+from .._numerics import dot, held_trig
 from .looked_up import GAUSS_POINTS, GAUSS_WEIGHTS, LookedUpSpine
 from .spine import AbstractSpine, AbstractTabulatedSpine, torsion_of
 from .table import SpineTable
@@ -63,17 +63,19 @@ def ramp(u: Array) -> tuple[Array, Array]:
     return value, scale * slope
 
 
-def rotate(axis: Array, angle: Array, v: Array) -> Array:
+def rotate(axis: Array, angle: Array, v: Array, trig: tuple[Array, Array] | None = None) -> Array:
     """`v` (..., 3) turned by `angle` radians about the unit `axis` (3,) (Rodrigues): exactly
-    `v` at angle 0. Several vectors turned at once (stacked) are turned exactly as one by one."""
-    cos, sin = jnp.cos(angle), jnp.sin(angle)
+    `v` at angle 0. Several vectors turned at once (stacked) are turned exactly as one by one.
+    `trig`: `(cos, sin)` of `angle`, where the caller has them (`held_trig`)."""
+    cos, sin = (jnp.cos(angle), jnp.sin(angle)) if trig is None else trig
     return cos * v + sin * jnp.cross(axis, v) + (1 - cos) * dot(axis, v)[..., None] * axis
 
 
-def _rotate_coordinates(axis: Array, angle: Array, v: list[Array]) -> list[Array]:
-    """`rotate` with `v` given as its three coordinates (arrays of `angle`'s shape), and
-    returned so: each point's sine and cosine computed once for all three (see `_table`)."""
-    cos, sin = jnp.cos(angle), jnp.sin(angle)
+def _rotate_coordinates(axis: Array, trig: tuple[Array, Array], v: list[Array]) -> list[Array]:
+    """`rotate` with `v` given as its three coordinates (arrays of the angle's shape), and
+    returned so, by the angle's `trig` `(cos, sin)` (`held_trig`: each point's computed once
+    for all three, see `_table_at_nodes`)."""
+    cos, sin = trig
     cross = (axis[1] * v[2] - axis[2] * v[1], axis[2] * v[0] - axis[0] * v[2],
              axis[0] * v[1] - axis[1] * v[0])
     along = (1 - cos) * (axis[0] * v[0] + axis[1] * v[1] + axis[2] * v[2])
@@ -192,17 +194,27 @@ class PreparedBent(AbstractSpine):
         value, slope = ramp(u)
         return value, slope / width
 
-    def _turn(self, r: Array, v: Array) -> Array:
-        """`Q v` for the ramp value `r`."""
-        return rotate(self.bend_axis, self.bend * r, rotate(self.twist_axis, self.twist * r, v))
+    def _trig(self, r: Array) -> tuple[tuple[Array, Array], tuple[Array, Array]]:
+        """The twist's and the bend's `(cos, sin)` for the ramp value `r` (any shape)."""
+        return ((jnp.cos(self.twist * r), jnp.sin(self.twist * r)),
+                (jnp.cos(self.bend * r), jnp.sin(self.bend * r)))
 
-    def _turn_frame(self, r: Array, slope: Array, t0: Array, k0: Array, i0: Array, j0: Array):
+    def _turn(self, r: Array, v: Array, trig: tuple | None = None) -> Array:
+        """`Q v` for the ramp value `r` (`trig`: as `_turn_frame`'s)."""
+        twist, bend = (None, None) if trig is None else trig
+        return rotate(self.bend_axis, self.bend * r,
+                      rotate(self.twist_axis, self.twist * r, v, twist), bend)
+
+    def _turn_frame(self, r: Array, slope: Array, t0: Array, k0: Array, i0: Array, j0: Array,
+                    trig: tuple | None = None):
         """`(Q T₀, Q k₀ + Q′ T₀, Q I₀, Q J₀)` (each (3,)) for the ramp value `r` and its slope
         in `s`. The four vectors and `Q′`'s (`twist_axis × twisted T₀`) are turned as one stack:
-        the same values as one by one, in a fifth of the traced operations."""
-        twisted = rotate(self.twist_axis, self.twist * r, jnp.stack([t0, k0, i0, j0]))
+        the same values as one by one, in a fifth of the traced operations. `trig`: the
+        twist's and the bend's `(cos, sin)` at `r` (`_trig`), where the caller has them."""
+        twist, bend = self._trig(r) if trig is None else trig
+        twisted = rotate(self.twist_axis, self.twist * r, jnp.stack([t0, k0, i0, j0]), twist)
         stack = jnp.concatenate([twisted, jnp.cross(self.twist_axis, twisted[:1])])
-        tangent, k, i, j, about_tangent = rotate(self.bend_axis, self.bend * r, stack)
+        tangent, k, i, j, about_tangent = rotate(self.bend_axis, self.bend * r, stack, bend)
         turn_slope = slope * (self.bend * jnp.cross(self.bend_axis, tangent)
                               + self.twist * about_tangent)
         return tangent, k + turn_slope, i, j
@@ -284,15 +296,17 @@ class PreparedBent(AbstractSpine):
         flat = nodes.reshape(-1)
         (c0, t0, k0), (i0, j0) = at.jet, at.normals
         r, slope = jax.vmap(self._angles)(flat)
-        tangent, k, i, j = jax.vmap(self._turn_frame)(r, slope, t0, k0, i0, j0)
+        # (Each node's sines and cosines computed once for its 15 coordinates: `held_trig`.)
+        trig = held_trig(self.twist * r, self.bend * r)
+        tangent, k, i, j = jax.vmap(self._turn_frame)(r, slope, t0, k0, i0, j0, trig)
 
-        # (Q − 1) T₀ at the quadrature points, one coordinate at a time: XLA's CPU backend
-        # computed the rotations' sines and cosines again for each coordinate of a stacked
-        # vector (a fused kernel an element), a quarter of a float32 frame's preparation.
+        # (Q − 1) T₀ at the quadrature points, one coordinate at a time, each point's sines and
+        # cosines computed once for the three (`held_trig`).
         r = jax.vmap(jax.vmap(lambda s: self._angles(s)[0]))(at.points)  # (P·4, GAUSS)
         tangents = [at.tangents[..., c] for c in range(3)]
-        turned = _rotate_coordinates(self.bend_axis, self.bend * r, _rotate_coordinates(
-            self.twist_axis, self.twist * r, tangents))
+        twist, bend = held_trig(self.twist * r, self.bend * r)
+        turned = _rotate_coordinates(self.bend_axis, bend, _rotate_coordinates(
+            self.twist_axis, twist, tangents))
         weights = jnp.asarray(GAUSS_WEIGHTS, flat.dtype)
         steps = jnp.stack([at.half * sum(w * (q[:, g] - t[:, g]) for g, w in enumerate(weights))
                            for q, t in zip(turned, tangents)], axis=-1)
@@ -329,7 +343,11 @@ def _prepared(spine: BentSpine) -> PreparedBent:
     # Each interval's integral of T₁ (Gauss–Legendre), summed from C₀(joint).
     half = (breaks[1:] - breaks[:-1]) / 2
     points = (breaks[:-1] + half)[:, None] + half[:, None] * jnp.asarray(GAUSS_POINTS, c.dtype)
-    values = jax.vmap(jax.vmap(partial._tangent))(points)  # (M − 1, GAUSS, 3)
+    # (Each point's sines and cosines computed once for its three coordinates: `held_trig`.)
+    r = jax.vmap(jax.vmap(lambda s: partial._angles(s)[0]))(points)
+    trig = held_trig(spine.twist * r, spine.bend * r)
+    values = jax.vmap(jax.vmap(lambda s, r, *trig: partial._turn(r, base._jet(s)[1], trig)))(
+        points, r, *trig)  # (M − 1, GAUSS, 3): T₁ = Q T₀ (`_tangent`)
     steps = half[:, None] * jnp.einsum("g,mgc->mc", jnp.asarray(GAUSS_WEIGHTS, c.dtype), values)
     positions = c + jnp.concatenate([jnp.zeros((1, 3), c.dtype), jnp.cumsum(steps, axis=0)])
     rest_stop = base._jet(spine.stop)[0]

@@ -13,10 +13,12 @@ from .spine import AbstractSpine
 PROJECTION_STEPS = 1024
 
 
-def twist_normals(normals: tuple[Array, Array], twist: ArrayLike) -> tuple[Array, Array]:
-    """Rotates the normals `(I, J)` by `twist` radians about `T = I × J` (right-hand rule)."""
+def twist_normals(normals: tuple[Array, Array], twist: ArrayLike,
+                  trig: tuple[Array, Array] | None = None) -> tuple[Array, Array]:
+    """Rotates the normals `(I, J)` by `twist` radians about `T = I × J` (right-hand rule).
+    `trig`: `(cos, sin)` of `twist`, where the caller has them (`_numerics.held_trig`)."""
     i, j = normals
-    cos, sin = jnp.cos(twist), jnp.sin(twist)
+    cos, sin = (jnp.cos(twist), jnp.sin(twist)) if trig is None else trig
     return cos * i + sin * j, cos * j - sin * i
 
 

@@ -85,7 +85,7 @@ class LookedUpSpine(AbstractSpine):
         return self.table.jet_and_normals(s)
 
     def _jet(self, s: Array):
-        return self._jet_and_normals(s)[0]
+        return self.table.jet(s)
 
     def _normals(self, s: Array):
         return self._jet_and_normals(s)[1]

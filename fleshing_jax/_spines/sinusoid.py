@@ -49,10 +49,11 @@ class Sinusoid(eqx.Module):
         return [a[f] + sin * b[f] + versine * c[f] for f in range(a.shape[0])]
 
 
-    def vector(self, s: Array) -> Array:
-        """The F values at `s` as one (F,) vector (as `PiecewiseCubic.vector`)."""
+    def vector(self, s: Array, count: int | None = None) -> Array:
+        """The F values at `s` as one (F,) vector, or its first `count` (as
+        `PiecewiseCubic.vector`)."""
         sin, _, versine = turn(jnp.asarray(s, self.radius.dtype), self.radius)
-        a, b, c = self.coefficients
+        a, b, c = (v[:count] for v in self.coefficients)
         return a + sin * b + versine * c
 
 

@@ -131,12 +131,19 @@ class PiecewiseCubic(eqx.Module):
         )
         return [b0 + u * (b1 + u * (b2 + u * b3)) for b0, b1, b2, b3 in zip(a0, a1, a2, a3)]
 
-    def vector(self, s: Array) -> Array:
+    def vector(self, s: Array, count: int | None = None) -> Array:
         """The F tabulated values at `s` as one (F,) vector, read in one block: for the paths
         that use them together (building other tables), where `fields` would trace 4 F reads
-        and F polynomials (about half a second of tracing for a spine table's 21 values)."""
+        and F polynomials (about half a second of tracing for a spine table's 21 values).
+        `count` (static): the first `count` values only, read alone (a bent spine's
+        quadrature reads a tangent: the whole block of a point was most of its cost)."""
         piece, u = self._locate(s)
-        b0, b1, b2, b3 = jax.lax.dynamic_index_in_dim(self.coefficients, piece, keepdims=False)
+        if count is None:
+            block = jax.lax.dynamic_index_in_dim(self.coefficients, piece, keepdims=False)
+        else:
+            zero = jnp.zeros_like(piece)
+            block = jax.lax.dynamic_slice(self.coefficients, (piece, zero, zero), (1, 4, count))[0]
+        b0, b1, b2, b3 = block
         return b0 + u * (b1 + u * (b2 + u * b3))
 
     def _locate(self, s: Array) -> tuple[Array, Array]:
@@ -222,8 +229,9 @@ class SpineTable(eqx.Module):
         return [self.jet_and_normals(x) for x in (s, jnp.zeros_like(self.length), self.length)]
 
     def jet(self, s):
-        """`(C, T, k)` at `s`, each (3,)."""
-        return self.jet_and_normals(s)[0]
+        """`(C, T, k)` at `s`, each (3,): their 9 values read alone."""
+        c, t, k = jnp.split(self.cubics.vector(s, 9), 3)
+        return c, t, k
 
     def __call__(self, s):
         """`C(s)`, (3,)."""
