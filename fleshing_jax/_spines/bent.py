@@ -34,7 +34,7 @@ from jaxtyping import Array, ArrayLike
 
 from .._checks import as_float_array, is_concrete
 from .._numerics import dot, held_trig
-from .looked_up import GAUSS_POINTS, GAUSS_WEIGHTS, LookedUpSpine
+from .looked_up import GAUSS_POINTS, GAUSS_WEIGHTS, NODE_WEIGHTS, LookedUpSpine
 from .spine import AbstractSpine, AbstractTabulatedSpine, torsion_of
 from .table import SpineTable
 
@@ -195,9 +195,11 @@ class PreparedBent(AbstractSpine):
         return value, slope / width
 
     def _trig(self, r: Array) -> tuple[tuple[Array, Array], tuple[Array, Array]]:
-        """The twist's and the bend's `(cos, sin)` for the ramp value `r` (any shape)."""
-        return ((jnp.cos(self.twist * r), jnp.sin(self.twist * r)),
-                (jnp.cos(self.bend * r), jnp.sin(self.bend * r)))
+        """The twist's and the bend's `(cos, sin)` for the ramp value `r` (any shape), held in
+        memory (`held_trig`): evaluated a point at a time (double precision), each was
+        computed again for every coordinate of the frame and the quadrature it turns."""
+        twist, bend = held_trig(self.twist * r, self.bend * r)
+        return twist, bend
 
     def _turn(self, r: Array, v: Array, trig: tuple | None = None) -> Array:
         """`Q v` for the ramp value `r` (`trig`: as `_turn_frame`'s)."""
@@ -211,7 +213,7 @@ class PreparedBent(AbstractSpine):
         in `s`. The four vectors and `Q′`'s (`twist_axis × twisted T₀`) are turned as one stack:
         the same values as one by one, in a fifth of the traced operations. `trig`: the
         twist's and the bend's `(cos, sin)` at `r` (`_trig`), where the caller has them."""
-        twist, bend = self._trig(r) if trig is None else trig
+        twist, bend = (None, None) if trig is None else trig
         twisted = rotate(self.twist_axis, self.twist * r, jnp.stack([t0, k0, i0, j0]), twist)
         stack = jnp.concatenate([twisted, jnp.cross(self.twist_axis, twisted[:1])])
         tangent, k, i, j, about_tangent = rotate(self.bend_axis, self.bend * r, stack, bend)
@@ -219,14 +221,20 @@ class PreparedBent(AbstractSpine):
                               + self.twist * about_tangent)
         return tangent, k + turn_slope, i, j
 
-    def _tangent(self, s: Array) -> Array:
-        """`T₁(s) = Q(s) T₀(s)` for `s ∈ [joint, stop]` (the quadrature's integrand)."""
-        return self._turn(self._angles(s)[0], self.base._jet(s)[1])
+    def _tangents(self, s: Array) -> Array:
+        """`T₁(s) = Q(s) T₀(s)` (..., 3) at arc lengths `s` (any shape) in `[joint, stop]`
+        (the quadrature's integrand), each point's sines and cosines held (`_trig`)."""
+        flat = s.reshape(-1)
+        r = self._angles(flat)[0]
+        turned = jax.vmap(lambda p, r, *trig: self._turn(r, self.base._jet(p)[1], trig))(
+            flat, r, *self._trig(r))
+        return turned.reshape(s.shape + (3,))
 
     def _position(self, s: Array, c0: Array, integrate: bool = True) -> Array:
         """`C₁(s)`, given `c0 = C₀(s)`; `integrate=False` for an `s` known to lie outside
         `(joint, stop)` (the ends: no quadrature traced)."""
-        rigid = self.positions[-1] + self._turn(jnp.ones_like(s), c0 - self.rest_stop)
+        one = jnp.ones_like(s)
+        rigid = self.positions[-1] + self._turn(one, c0 - self.rest_stop, self._trig(one))
         if not integrate:
             return jnp.where(s <= self.joint, c0, rigid)
         inside = jnp.where(s < self.joint, self.joint, jnp.where(s > self.stop, self.stop, s))
@@ -235,7 +243,7 @@ class PreparedBent(AbstractSpine):
         start = self.breaks[m]
         half = (inside - start) / 2
         points = start + half * (1 + jnp.asarray(GAUSS_POINTS, s.dtype))
-        values = jax.vmap(self._tangent)(points)
+        values = self._tangents(points)
         integral = self.positions[m] + half * jnp.asarray(GAUSS_WEIGHTS, s.dtype) @ values
         return jnp.where(s <= self.joint, c0, jnp.where(s >= self.stop, rigid, integral))
 
@@ -247,12 +255,14 @@ class PreparedBent(AbstractSpine):
         the caller made it: `C₁(s)` read from it, not integrated (float32 posing)."""
         c0 = self.base._jet(s)[0]
         c1 = self._position(s, c0) if table is None else table.jet(s)[0]
-        return c1 + self._turn(self._angles(s)[0], x - c0)
+        r = self._angles(s)[0]
+        return c1 + self._turn(r, x - c0, self._trig(r))
 
     def _turned(self, s: Array, base, integrate: bool = True):
         """`_jet_and_normals` at `s` from the base's there (`integrate`: as `_position`)."""
         (c0, t0, k0), (i0, j0) = base
-        tangent, k, i, j = self._turn_frame(*self._angles(s), t0, k0, i0, j0)
+        r, slope = self._angles(s)
+        tangent, k, i, j = self._turn_frame(r, slope, t0, k0, i0, j0, self._trig(r))
         return (self._position(s, c0, integrate), tangent, k), (i, j)
 
     def _jet_and_normals(self, s: Array):
@@ -284,10 +294,10 @@ class PreparedBent(AbstractSpine):
         base table's own pieces (the same search range: before the joint the spine is the
         base, past its end the base moved rigidly), from the base's values at their nodes,
         turned: `T₁ = Q T₀`, `k₁ = Q k₀ + Q′ T₀`, `(I₁, J₁) = Q (I₀, J₀)`, and
-        `C₁ = C₀ + ∫ (Q − 1) T₀` by Gauss–Legendre between consecutive nodes (exactly `C₀` up to
-        the joint). A few rotations a node, where evaluating the bent spine there would
-        integrate its position from the nearest break and continue it past its ends; with
-        those values at its nodes, `(jet, normals)`."""
+        `C₁ = C₀ + ∫ (Q − 1) T₀` by Gauss–Legendre between consecutive nodes (`NODE_GAUSS`
+        points; exactly `C₀` up to the joint). A few rotations a node, where evaluating the
+        bent spine there would integrate its position from the nearest break and continue it
+        past its ends; with those values at its nodes, `(jet, normals)`."""
         base = self.base
         if not (isinstance(base, LookedUpSpine) and base.samples is not None):
             return None, None
@@ -297,17 +307,17 @@ class PreparedBent(AbstractSpine):
         (c0, t0, k0), (i0, j0) = at.jet, at.normals
         r, slope = jax.vmap(self._angles)(flat)
         # (Each node's sines and cosines computed once for its 15 coordinates: `held_trig`.)
-        trig = held_trig(self.twist * r, self.bend * r)
+        trig = self._trig(r)
         tangent, k, i, j = jax.vmap(self._turn_frame)(r, slope, t0, k0, i0, j0, trig)
 
         # (Q − 1) T₀ at the quadrature points, one coordinate at a time, each point's sines and
         # cosines computed once for the three (`held_trig`).
-        r = jax.vmap(jax.vmap(lambda s: self._angles(s)[0]))(at.points)  # (P·4, GAUSS)
+        r = jax.vmap(jax.vmap(lambda s: self._angles(s)[0]))(at.points)  # (P·4, NODE_GAUSS)
         tangents = [at.tangents[..., c] for c in range(3)]
-        twist, bend = held_trig(self.twist * r, self.bend * r)
+        twist, bend = self._trig(r)
         turned = _rotate_coordinates(self.bend_axis, bend, _rotate_coordinates(
             self.twist_axis, twist, tangents))
-        weights = jnp.asarray(GAUSS_WEIGHTS, flat.dtype)
+        weights = jnp.asarray(NODE_WEIGHTS, flat.dtype)
         steps = jnp.stack([at.half * sum(w * (q[:, g] - t[:, g]) for g, w in enumerate(weights))
                            for q, t in zip(turned, tangents)], axis=-1)
         c = c0 + jnp.cumsum(steps, axis=0)
@@ -343,11 +353,7 @@ def _prepared(spine: BentSpine) -> PreparedBent:
     # Each interval's integral of T₁ (Gauss–Legendre), summed from C₀(joint).
     half = (breaks[1:] - breaks[:-1]) / 2
     points = (breaks[:-1] + half)[:, None] + half[:, None] * jnp.asarray(GAUSS_POINTS, c.dtype)
-    # (Each point's sines and cosines computed once for its three coordinates: `held_trig`.)
-    r = jax.vmap(jax.vmap(lambda s: partial._angles(s)[0]))(points)
-    trig = held_trig(spine.twist * r, spine.bend * r)
-    values = jax.vmap(jax.vmap(lambda s, r, *trig: partial._turn(r, base._jet(s)[1], trig)))(
-        points, r, *trig)  # (M − 1, GAUSS, 3): T₁ = Q T₀ (`_tangent`)
+    values = partial._tangents(points)  # (M − 1, GAUSS, 3)
     steps = half[:, None] * jnp.einsum("g,mgc->mc", jnp.asarray(GAUSS_WEIGHTS, c.dtype), values)
     positions = c + jnp.concatenate([jnp.zeros((1, 3), c.dtype), jnp.cumsum(steps, axis=0)])
     rest_stop = base._jet(spine.stop)[0]
