@@ -164,9 +164,9 @@ def hub(graph, centers, radii, nodes, thickest: int, limbs: list[LimbPath]) -> i
     them that more limbs leave than leave the body (their geodesic median: six legs pull it
     to the thorax; a head's ears and horns, fewer than the body's limbs, do not), then the
     thickest sphere that holds its centre, then uphill to its part's core (`_uphill`).
-    `thickest` stays the root where the two belong to
-    one thick part (joined by spheres at least `CORE` times as thick as it, as its core is
-    defined): on a torso that is thickest itself, nothing changes."""
+    `thickest` stays the root where the two belong to one thick part (joined by spheres at
+    least `CORE` times as thick as it, as its core is defined): on a torso that is thickest
+    itself, nothing changes."""
     top = [k for k, limb in enumerate(limbs) if limb.parent == -1]
     tips = [int(limbs[k].path[-1]) for k in top]
     for k in top:  # a limb more limbs leave than leave the body (a thorax hung from an
@@ -271,16 +271,8 @@ def _split(graph, centers, radii, nodes, root, parent, limbs, depth, forks=False
         if forks:
             found, groups, waists, stems = _forks(centers, radii, distance, found, groups,
                                                   waists)  # fmt: skip
-        # A waist leads into one limb alone: spheres before its path on another limb's way
-        # from the root are the body's (the front of a body, tapering towards two horns), as
-        # are those another limb leaves from (a dinosaur's chest, tapering towards its neck,
-        # its small arms below: taken as the neck's, they were in the neck's limb).
-        ways = [set(_ancestors(int(f[0][-1]), predecessors).tolist()) for f in found]
-        waists = [w if w is None or not any(
-            set(w[0].tolist()) & ways[j] or (len(w[0]) and sphere_gaps(
-                centers[[found[j][1]]], centers[w[0]], radii[w[0]])[0] < 0)
-            for j in range(len(found)) if j != k) else None
-                  for k, w in enumerate(waists)]  # fmt: skip
+        waists = [None if _shared_waist(centers, radii, predecessors, found, k, w) else w
+                  for k, w in enumerate(waists)]
     for (path, last_inside, core, spheres), (routes, _, _), waist, stem in zip(
             found, groups, waists, stems, strict=True):
         index = len(limbs)
@@ -329,6 +321,25 @@ def _split(graph, centers, radii, nodes, root, parent, limbs, depth, forks=False
             midline = (np.arange(len(stem[0])) + shift, stem[2])
         limbs[index] = LimbPath(first, last_inside, core, spheres, parent, alternatives,
                                 midline=midline)
+
+
+def _shared_waist(centers, radii, predecessors, found, k: int, waist) -> bool:
+    """Whether limb `k`'s `waist` (`_waist`'s, or None) leads into other limbs too: a waist
+    leads into one limb alone. Its spheres before the path are the body's where they lie on
+    another limb's way from the root (the front of a body, tapering towards two horns) or
+    hold the sphere another limb leaves the body from (a dinosaur's chest, tapering towards
+    its neck, its small arms below: taken as the neck's, they were in the neck's limb)."""
+    if waist is None or len(waist[0]) == 0:
+        return False
+    before = waist[0]
+    for j, (path, inside, _, _) in enumerate(found):
+        if j == k:
+            continue
+        way = _ancestors(int(path[-1]), predecessors)
+        if np.isin(before, way).any() or sphere_gaps(
+                centers[[inside]], centers[before], radii[before])[0] < 0:
+            return True
+    return False
 
 
 def _from_thicker_limbs(centers, radii, found, groups, waists):

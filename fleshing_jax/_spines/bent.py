@@ -199,21 +199,21 @@ class PreparedBent(AbstractSpine):
         memory (`held_trig`): evaluated a point at a time (double precision), each was
         computed again for every coordinate of the frame and the quadrature it turns."""
         twist, bend = held_trig(self.twist * r, self.bend * r)
-        return twist, bend
+        return twist, bend  # (a tuple: vmapped as one argument)
 
-    def _turn(self, r: Array, v: Array, trig: tuple | None = None) -> Array:
-        """`Q v` for the ramp value `r` (`trig`: as `_turn_frame`'s)."""
-        twist, bend = (None, None) if trig is None else trig
+    def _turn(self, r: Array, v: Array, trig: tuple) -> Array:
+        """`Q v` for the ramp value `r` (`trig`: `_trig(r)`)."""
+        twist, bend = trig
         return rotate(self.bend_axis, self.bend * r,
                       rotate(self.twist_axis, self.twist * r, v, twist), bend)
 
     def _turn_frame(self, r: Array, slope: Array, t0: Array, k0: Array, i0: Array, j0: Array,
-                    trig: tuple | None = None):
+                    trig: tuple):
         """`(Q T₀, Q k₀ + Q′ T₀, Q I₀, Q J₀)` (each (3,)) for the ramp value `r` and its slope
         in `s`. The four vectors and `Q′`'s (`twist_axis × twisted T₀`) are turned as one stack:
         the same values as one by one, in a fifth of the traced operations. `trig`: the
-        twist's and the bend's `(cos, sin)` at `r` (`_trig`), where the caller has them."""
-        twist, bend = (None, None) if trig is None else trig
+        twist's and the bend's `(cos, sin)` at `r` (`_trig`)."""
+        twist, bend = trig
         twisted = rotate(self.twist_axis, self.twist * r, jnp.stack([t0, k0, i0, j0]), twist)
         stack = jnp.concatenate([twisted, jnp.cross(self.twist_axis, twisted[:1])])
         tangent, k, i, j, about_tangent = rotate(self.bend_axis, self.bend * r, stack, bend)
