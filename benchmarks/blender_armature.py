@@ -154,7 +154,7 @@ def ours(out: Path, character: str, bpy: str):
     poses = poses_of(registration)
     posed = fj.pose_skeleton(registration, skeleton, poses)
     rotations = np.tile(np.eye(3), (count, 1, 1))
-    for k, (_, _, motion) in posed_limbs(registration, poses, "radial", True, False).items():
+    for k, (_, _, motion, _) in posed_limbs(registration, poses, "radial", True, False).items():
         rotations[k] = np.asarray(motion.rotation)
     joints, stops = registration.joints, registration.stops
     limbs = skeleton.limbs
