@@ -11,7 +11,7 @@ its child limbs):
    running from a tip (the sphere reaching farthest in its subtree) towards the root.
 2. Along the path from the root to a tip, the *core*: its spheres up to the end of their
    first run (a limb's: of the run of its thickest sphere) at least `CORE` times as thick as
-   the level's (the hub's; a limb's thickest) and as any sphere further out (the torso; a
+   the level's (the hub's; a limb's path's thickest) and as any sphere further out (the torso; a
    limb's thick part; never past a neck). A sphere whose centre lies inside a core sphere is
    *covered*: it is inside the parent. The tip's path: its spheres from the tip inwards up
    to the first covered one (excluded), less its first spheres far thinner than the limb (a
@@ -63,6 +63,10 @@ SHEET = 0.6
 # times its thickness from their first spheres (`_forks`): insects' heads 2.3-2.5; a leg and
 # the crease beside its top 1.2, legs touching at the thorax 0-0.9.
 FORK = 1.5
+# ... and their strands are alike where they meet: the thinner at least this fraction of the
+# thicker (insects' heads 0.85-0.95; a bird's wing beside its neck, leaving from one
+# sphere, 0.67-0.70: taken as a fork, a stub at the shoulder carried the wing and the head).
+ALIKE = 0.8
 ROUTES = 3  # routes to a limb's own farthest spheres tried for its spine (`LimbPath`)
 
 
@@ -203,10 +207,12 @@ def _uphill(graph, radii, sphere: int) -> int:
 
 
 def _split(graph, centers, radii, nodes, root, parent, limbs, depth, forks=False,
-           branches=()):
+           branches=(), thickness=None):
     """Appends to `limbs` the limbs among `nodes` (the level's spheres) that leave the level's
-    core around `root`, then recursively their children. The level's thickness: the root's
-    radius for the body (its hub, `hub`), a limb's thickest sphere for its children. With
+    core around `root`, then recursively their children. The level's `thickness`: the root's
+    radius for the body (its hub, `hub`), for a limb's children the thickest sphere of its
+    path (not of all its spheres: a bird's neck held a chest sphere beyond a crease, thicker
+    than the neck, whose core then ended before the head, and a spur took the head). With
     `forks`, the body's limbs side by side that fork are joined (`_forks`); `branches`: the
     tips a joined limb's level takes as its children however thick."""
     inside = np.zeros(len(centers), bool)
@@ -215,7 +221,7 @@ def _split(graph, centers, radii, nodes, root, parent, limbs, depth, forks=False
     distance, predecessors = csgraph.dijkstra(sub, directed=False, indices=root,
                                               return_predecessors=True)  # fmt: skip
     reach = np.where(np.isfinite(distance), distance + radii, -np.inf)
-    level = radii[root] if depth == 1 else radii[nodes].max()
+    level = radii[root] if depth == 1 else thickness
     groups = []  # per limb: its paths (the first one the main), last sphere inside, core
     hangs = []  # per limb: (n,) bool, the spheres below its first one in the tree
     waists = []  # per limb: `_waist`'s (spheres before its path, last inside, core), or None
@@ -232,7 +238,7 @@ def _split(graph, centers, radii, nodes, root, parent, limbs, depth, forks=False
         # starts at its first sphere at least `CREASE` times as thick as its thickest.
         path = path[int(np.argmax(radii[path] >= CREASE * radii[path].max())):]
         group_spheres = [np.concatenate(g[0]) for g in groups]
-        same = _same_limb(centers, radii, path, last_inside, group_spheres, graph)
+        same = _same_limb(centers, radii, path, last_inside, [g[0] for g in groups], graph)
         if same is not None:
             groups[same][0].append(path)
             continue
@@ -279,7 +285,7 @@ def _split(graph, centers, radii, nodes, root, parent, limbs, depth, forks=False
         limbs.append(LimbPath(path, last_inside, core, spheres, parent))
         if depth < MAX_DEPTH and len(spheres) > 2:
             _split(graph, centers, radii, spheres, int(path[0]), index, limbs, depth + 1,
-                   branches=() if stem is None else stem[1])
+                   branches=() if stem is None else stem[1], thickness=radii[path].max())
         # The spine runs to the limb's own farthest sphere, not into a child (an ear): none
         # of the children's, none inside them, and far counted with twice the radius, so
         # that a head's runs to its snout, not to the base of an ear.
@@ -370,7 +376,7 @@ def _forks(centers, radii, distance, found, groups, waists):
     body: the head split lengthwise, each half carrying one antenna. Two limbs are one where
     one's first sphere meets the other's path, the spheres where they meet protrude `FORK`
     times their thickness from the paths' first spheres, are alike on both (at least
-    `THINNER` as thick), and at most one path runs on past them at least `WAIST` times as
+    `ALIKE` as thick), and at most one path runs on past them at least `WAIST` times as
     thick (a head's snout; legs side by side both do). The joined limb's path is that of the
     one leaving the body first (a neck), its spheres both. `stems`: per limb, `None` or, for
     a joined one, `(shared, tips, middle)`: the longer of the two paths' parts up to their
@@ -397,7 +403,7 @@ def _forks(centers, radii, distance, found, groups, waists):
             # they leave it (legs, or a leg and an antenna, on a thorax), both alike there
             # (not a leg's top and a crease's bump beside it).
             out = max(distance[p[k]] - distance[p[0]] for p, k in zip((pa, pb), last))
-            if out < FORK * max(thickness) or min(thickness) < THINNER * max(thickness):
+            if out < FORK * max(thickness) or min(thickness) < ALIKE * max(thickness):
                 continue
             if all(radii[p[k + 1 :]].max(initial=0) > WAIST * max(thickness)
                    for p, k in zip((pa, pb), last)):
@@ -438,8 +444,8 @@ def _joined_routes(centers, radii, groups, graph, waists):
     while merged:
         merged = False
         for j in range(1, len(groups)):
-            spheres = [np.concatenate(g[0]) for g in groups[:j]]
-            same = _same_limb(centers, radii, groups[j][0][0], groups[j][1], spheres, graph)
+            same = _same_limb(centers, radii, groups[j][0][0], groups[j][1],
+                              [g[0] for g in groups[:j]], graph)  # fmt: skip
             if same is not None:
                 groups[same][0].extend(groups[j][0])
                 groups = groups[:j] + groups[j + 1 :]
@@ -450,12 +456,15 @@ def _joined_routes(centers, radii, groups, graph, waists):
 
 
 def _same_limb(centers, radii, path, inside: int, limbs, graph) -> int | None:
-    """The index of the limb in `limbs` (each the spheres of its paths) that `path` is
+    """The index of the limb in `limbs` (each its paths, its main one first) that `path` is
     another route to (a head reached through two strips of the neck, a strip's second tip):
     of those whose spheres hold half of the path's centres, or its tip, the one holding most
     (a spur off one paw's top, which lies just inside the other paw's first sphere, is held
     by both: taken by the paw found first, it made that paw hold half of the other's path,
-    and the two paws were one limb: the bunny's at seed 0); or, a sheet (a
+    and the two paws were one limb: the bunny's at seed 0), on a tie the one whose main path
+    holds most (a spur at a bird's neck base, held whole by the neck's paths and by a wing's
+    that reach its root: taken by the wing, the neck's thickest sphere with it, the neck was
+    then a route through the wing); or, a sheet (a
     flat ear: its rim's tips each a path, side by side), whose spheres are joined by the
     medial mesh's edges to most of the path's own spheres (`SHEET`), at least two of them,
     its tip among them: two feet side by side (cheburashka's), touching along a crease, are
@@ -474,10 +483,13 @@ def _same_limb(centers, radii, path, inside: int, limbs, graph) -> int | None:
     not the wing's. (Horns side by side are thickest at their bases: no neck before.)"""
     widest = int(np.argmax(radii[path]))
     necked = np.any(radii[np.r_[inside, path[:widest]]] < WAIST * radii[path[widest]])
+    mains = [paths[0] for paths in limbs]
+    limbs = [np.concatenate(paths) for paths in limbs]
     held = [sphere_gaps(centers[path], centers[s], radii[s]) < 0 for s in limbs]
     holders = [k for k, h in enumerate(held) if h.mean() >= 0.5 or h[-1]]
-    if holders:  # (the one holding most of it: the first on a tie)
-        return max(holders, key=lambda k: held[k].mean())
+    if holders:  # (the one holding most of it, then by its main path; the first on a tie)
+        by_main = [sphere_gaps(centers[path], centers[m], radii[m]) < 0 for m in mains]
+        return max(holders, key=lambda k: (held[k].mean(), by_main[k].mean()))
     for k, (h, spheres) in enumerate(zip(held, limbs)):
         if necked and h[widest] and (WAIST * radii[path[widest]] <= radii[spheres].max()
                                      <= 2 * radii[path[widest]]):
