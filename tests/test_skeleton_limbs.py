@@ -540,3 +540,22 @@ def test_strands_side_by_side_of_unlike_thickness_are_no_fork():
         found = find_limbs(centers, radii, edges)
         top = [limb for limb in found if limb.parent == -1 and centers[limb.path[-1], 1] > 0.3]
         assert [limb.fork for limb in top] == ([True] if forked else [False, False]), found
+
+
+def test_a_parent_s_route_is_judged_by_its_children_s_regions_on_a_tie():
+    """A parent whose region leaves a child no room to bend tries other routes
+    (`build._unit_limbs`) and keeps the one leaving the fewest children without room, then
+    the one whose children hold the most vertices: a dinosaur's chest, from which a small arm
+    leaves (the Blender dinosaur at seed 3), took the arm's hand on its first route (the arm
+    59 vertices, its hand in the body) and left it on its second (418)."""
+    from fleshing_jax._skeleton.build import _Fitted, _lost
+    from fleshing_jax._skeleton.limbs import LimbPath
+
+    one = np.array([0])
+    found = [LimbPath(one, 0, one, one, -1), LimbPath(one, 0, one, one, 0)]
+    region = np.r_[np.zeros(100, int), np.ones(20, int), np.full(10, -1)]
+    narrow = _Fitted(region, [None, None], {0: 0, 1: 1}, [], {1})
+    region = np.r_[np.zeros(70, int), np.ones(50, int), np.full(10, -1)]
+    wide = _Fitted(region, [None, None], {0: 0, 1: 1}, [], {1})
+    lost = _Fitted(region, [None], {0: 0}, [], set())  # (the child no region at all)
+    assert _lost(found, wide, 0) < _lost(found, narrow, 0) < _lost(found, lost, 0)
