@@ -1,14 +1,16 @@
 """Our jointed pose against Blender's armature on the same joint rotations (issues 45/46).
 
     python benchmarks/blender_armature.py --bpy /path/to/venv-with-bpy/bin/python \
-        [--character biped|spot|human|insect] \
+        [--character biped|spot|human|insect|dog] \
         [--figure benchmarks/figures/skeleton-biped-vs-blender.png]
 
 The procedural biped's skeleton (`fj.skeleton`, 200 spheres): one leg posed at its hip 40°,
 knee 70°, ankle 20°, one arm at its shoulder, elbow and wrist alike, the head 30° (float64);
 or spot's (`fj.skeleton`): its head turned 45°, a front leg lifted 45°, a hind leg 60°; or
 the human modelled in Blender (`skin_characters.py`): a leg, an arm and the head forwards;
-or its insect: a front leg raised at hip and knee, a hind leg swung back, the head turned.
+or its insect: a front leg raised at hip and knee, a hind leg swung back, the head turned;
+or its dog: a front leg stepping (shoulder and next joint), a hind leg back, the head turned,
+the tail raised.
 Blender (`pip install bpy` in another environment: `--bpy` names its Python) gets one bone
 per limb (head at the limb's bend start, tail where its bend is complete), a still body
 bone, automatic heat weights, and as each bone's rotation the rotation our pose gives that
@@ -113,6 +115,28 @@ def insect_poses(fj, skeleton):
                                                        up=up)}
 
 
+def dog_poses(fj, skeleton):
+    """The dog modelled in Blender (`skin_characters.py`, z up, +x ahead, +y its left; its own
+    skeleton): its left front leg lifted 40° forwards at the shoulder and its next joint 60°
+    backwards (a step), its right hind leg 30° backwards at the hip, its head (with both ears)
+    turned 30° about up, its tail raised 40°."""
+    up, ahead = np.array([0.0, 0.0, 1.0]), np.array([1.0, 0.0, 0.0])
+    chains = _longest_chains(skeleton)
+    tips = {top: np.asarray(skeleton.limbs[c[-1]].spine(skeleton.limbs[c[-1]].spine.length))
+            for top, c in chains.items()}
+    feet = {t: p for t, p in tips.items() if p[2] < 0.2}
+    front = chains[max(feet, key=lambda t: feet[t][0] + feet[t][1])]  # (ahead, left)
+    hind = chains[min(feet, key=lambda t: feet[t][0] + feet[t][1])]  # (behind, right)
+    high = [t for t, p in tips.items() if p[2] > 0.7]
+    head, tail = max(high, key=lambda t: tips[t][0]), min(high, key=lambda t: tips[t][0])
+    poses = {front[0]: fj.LimbPose(40.0, towards=ahead), hind[0]: fj.LimbPose(30.0, towards=-ahead),
+             tail: fj.LimbPose(40.0, towards=up)}
+    if len(front) > 1:
+        poses[front[1]] = fj.LimbPose(60.0, towards=-ahead)
+    return lambda registration: poses | {head: fj.turn(registration, skeleton, head, 30.0,
+                                                       up=up)}
+
+
 def skin_mesh(bpy: str, name: str):
     """The character `name` of `skin_characters.py`, modelled by Blender in a subprocess
     (`bpy`)."""
@@ -140,10 +164,11 @@ def ours(out: Path, character: str, bpy: str):
         mesh = fj.data.spot()
         skeleton = fj.skeleton(mesh)
         poses_of = spot_poses(fj, skeleton)
-    elif character in ("human", "insect"):
+    elif character in ("human", "insect", "dog"):
         mesh = skin_mesh(bpy, character)
         skeleton = fj.skeleton(mesh)
-        poses_of = (human_poses if character == "human" else insect_poses)(fj, skeleton)
+        poses_of = {"human": human_poses, "insect": insect_poses, "dog": dog_poses}[character](
+            fj, skeleton)
     else:
         mesh = biped()
         skeleton = fj.skeleton(mesh)
@@ -257,7 +282,7 @@ def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--bpy", required=True, help="a Python with `bpy` installed")
     parser.add_argument("--figure", type=Path, default=None)
-    parser.add_argument("--character", choices=("biped", "spot", "human", "insect"),
+    parser.add_argument("--character", choices=("biped", "spot", "human", "insect", "dog"),
                         default="biped")
     parser.add_argument("--blender-side", nargs=2, help=argparse.SUPPRESS)
     args = parser.parse_args()
