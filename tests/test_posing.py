@@ -23,6 +23,7 @@ from fleshing_jax._skeleton.posing import (
     limb_target,
 )
 from fleshing_jax._spines.bent import ramp
+from fleshing_jax._spines.table import SpineTable
 
 
 def _pose(registration, skeleton, poses):
@@ -195,6 +196,13 @@ def test_float32_posing_reads_its_rest_spines_from_tables(tube, skeleton, regist
     assert float(table.lo) + 2 * float(jnp.sum(at.half)) == pytest.approx(float(flat[-1]))
     posed = fj.pose_skeleton(single, skeleton, poses)
     assert posed.vertices.dtype == jnp.float32
+    # A bent limb's target table holds its jet alone (all its valid region reads: 9 values a
+    # node fit, not 21), and says so where the search's terms are asked (the pose's program).
+    table = jax.eval_shape(lambda: limb_poser(
+        single.registrations[0], limb_target(single, 0, poses[0]), "radial")).target
+    assert isinstance(table, SpineTable) and not table.searchable
+    with pytest.raises(ValueError, match="jet .C, T, k. alone"):
+        table._foot_terms(jnp.ones(3, jnp.float32), jnp.float32(0.5))
     exact, valid = _pose(registration, skeleton, poses)
     np.testing.assert_array_equal(np.asarray(posed.valid), valid)
     np.testing.assert_allclose(np.asarray(posed.vertices), exact, atol=2e-5)  # (length 6)

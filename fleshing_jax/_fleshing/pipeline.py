@@ -203,7 +203,9 @@ class Poser(eqx.Module):
         # Tabulated from the spine table (its nodes are the table's, so no exact evaluation),
         # but for lines and arcs: cheap to evaluate exactly, and checked without the table,
         # so that none is built (half the preparation's compilation of an arc).
-        self.target, at_nodes = (target, None) if closed else fast_evaluator_at_nodes(target)
+        # (A table the target makes of itself holds its jet alone: the region reads no more.)
+        self.target, at_nodes = ((target, None) if closed
+                                 else fast_evaluator_at_nodes(target, jet_only=True))
         self.frames = TargetFrames(self.target, twist, tabulate=tabulates(target),
                                    at_nodes=at_nodes)
         self.method, self.check_projection = method, check_projection
@@ -360,7 +362,7 @@ PLACED_APART_FROM = 8192
 
 def _own_table(spine: AbstractSpine) -> SpineTable:
     """The table `spine` makes of itself (`Poser`'s `checked_on`), or `ValueError`."""
-    table = spine._prepare()._table()
+    table = spine._prepare()._table(jet_only=True)  # (the region reads its jet alone)
     if table is None:
         raise ValueError(f"a spine checked on must have a table of its own, got {type(spine)}.")
     return table

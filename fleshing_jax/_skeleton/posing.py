@@ -600,7 +600,7 @@ def _carried_blend(target, points, s, weight, images, table=None):
     # (Its own table made again here, in the traced frame's conditional, was a limb's whole
     # preparation again: the pose's is passed in.)
     if table is None and tabulates(prepared):
-        table = prepared._table()
+        table = prepared._table(jet_only=True)  # (its positions alone are read)
     placed = jax.vmap(lambda x, s: prepared.carried(x, s, table))(points, jnp.where(moved, s, 0))
     blended = jnp.where((weight == 1)[:, None], placed,
                         images + weight[:, None] * (placed - images))

@@ -289,7 +289,7 @@ class PreparedBent(AbstractSpine):
     def _torsion(self, s: Array) -> Array:
         return torsion_of(self._jet, s)
 
-    def _table_at_nodes(self) -> tuple[SpineTable | None, tuple | None]:
+    def _table_at_nodes(self, jet_only: bool = False) -> tuple[SpineTable | None, tuple | None]:
         """On a tabulated base (`LookedUpSpine`, float32 posing), the bent spine's table on the
         base table's own pieces (the same search range: before the joint the spine is the
         base, past its end the base moved rigidly), from the base's values at their nodes,
@@ -297,7 +297,8 @@ class PreparedBent(AbstractSpine):
         `C₁ = C₀ + ∫ (Q − 1) T₀` by Gauss–Legendre between consecutive nodes (`NODE_GAUSS`
         points; exactly `C₀` up to the joint). A few rotations a node, where evaluating the
         bent spine there would integrate its position from the nearest break and continue it
-        past its ends; with those values at its nodes, `(jet, normals)`."""
+        past its ends; with those values at its nodes, `(jet, normals)`. `jet_only`: the table
+        of the jet alone (`SpineTable.refit` without normals)."""
         base = self.base
         if not (isinstance(base, LookedUpSpine) and base.samples is not None):
             return None, None
@@ -326,7 +327,7 @@ class PreparedBent(AbstractSpine):
             return v.reshape(nodes.shape + (3,))
 
         jet, normals = (shaped(c), shaped(tangent), shaped(k)), (shaped(i), shaped(j))
-        return table.refit(jet, normals), (jet, normals)
+        return table.refit(jet, None if jet_only else normals), (jet, normals)
 
     def default_samples(self) -> int:
         return self.base.default_samples()

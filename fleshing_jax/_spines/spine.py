@@ -136,14 +136,15 @@ class AbstractSpine(eqx.Module):
         elsewhere (quadratures split there: `bent`); none (the default) for analytic spines."""
         return jnp.zeros((0,), self.length.dtype)
 
-    def _table(self):
+    def _table(self, jet_only: bool = False):
         """This (prepared) spine's `table.SpineTable` if it has a cheaper way to build it than
-        evaluating itself at the table's nodes (`bent`); `None` (the default) otherwise."""
-        return self._table_at_nodes()[0]
+        evaluating itself at the table's nodes (`bent`); `None` (the default) otherwise.
+        `jet_only` (static): a table of the jet alone (`SpineTable.searchable`)."""
+        return self._table_at_nodes(jet_only)[0]
 
-    def _table_at_nodes(self):
-        """`(_table(), (jet, normals))`: the table and the values it was fit to at its nodes,
-        each (P, 4, 3), from which other tables on its pieces are fit (`TargetFrames`);
+    def _table_at_nodes(self, jet_only: bool = False):
+        """`(_table(jet_only), (jet, normals))`: the table and the values it was fit to at its
+        nodes, each (P, 4, 3), from which other tables on its pieces are fit (`TargetFrames`);
         `(None, None)` (the default) for a spine without a table of its own."""
         return None, None
 

@@ -48,6 +48,7 @@ from .spine import AbstractSpine
 DEGREE = 3
 END_PIECES = 32  # pieces on each continuation (at most a quarter turn, or one length, long)
 MIN_PIECES = 128  # pieces on [0, length], at least (else the spine's search samples)
+JET_VALUES = 9  # C, T, k: the first values a table holds, all a jet-only table holds (`refit`)
 
 
 _READ = jax.lax.GatherDimensionNumbers(
@@ -195,7 +196,8 @@ class SpineTable(eqx.Module):
     **Fields:** `length`, `lo`, `hi`: the spine's length and search range; `cubics`: the
     values `C, T, k, I, J` and the products `C·T, k·C, C·I, C·J, k·I, k·J` (F = 21) as a
     `PiecewiseCubic`, or exactly as a `Sinusoid` on an arc (`tabulated`); `samples`: static,
-    the spine's `default_samples()`.
+    the spine's `default_samples()`. A table `refit` from a jet alone holds `C, T, k` (F = 9):
+    it provides `jet` and `__call__`, not the normals nor the search's terms (`searchable`).
     """
 
     length: Array
@@ -210,15 +212,40 @@ class SpineTable(eqx.Module):
         self.cubics = tabulated(spine, lambda s: table_values(*spine.jet_and_normals(s)), inner)
         self.samples = spine.default_samples()
 
-    def refit(self, jets: tuple[Array, Array, Array], normals: tuple[Array, Array]) -> SpineTable:
+    def refit(
+        self, jets: tuple[Array, Array, Array], normals: tuple[Array, Array] | None = None
+    ) -> SpineTable:
         """The table of another spine over the same search range, from its jet and normals at
         this table's `cubics.nodes()` (each (P, 4, 3)): no evaluation of that spine elsewhere
-        (`_spines.bent`: a bent limb, whose search range is its rest spine's)."""
-        samples = jax.vmap(jax.vmap(table_values))(jets, normals)
+        (`_spines.bent`: a bent limb, whose search range is its rest spine's). Without
+        `normals`, a table of the jet alone (not `searchable`): 9 values a node fit, not 21
+        (a posed limb's target, whose valid region reads only `C, T, k`: its normals and
+        products were a tenth of a float32 frame of spot's 9 limbs)."""
+        if normals is None:
+            samples = jnp.concatenate(jets, axis=-1)
+        else:
+            samples = jax.vmap(jax.vmap(table_values))(jets, normals)
         return eqx.tree_at(lambda table: table.cubics, self, self.cubics.refit(samples))
+
+    @property
+    def searchable(self) -> bool:
+        """Whether the table holds the normals and the search's products, not the jet `C, T, k`
+        alone (`refit` without normals; static: from the coefficients' shape)."""
+        cubics = self.cubics
+        return not isinstance(cubics, PiecewiseCubic) or cubics.coefficients.shape[-1] > JET_VALUES
+
+    def _searched(self, what: str) -> None:
+        """`ValueError` where this table holds the jet alone (`searchable`), for `what`."""
+        if not self.searchable:
+            raise ValueError(
+                f"{what} needs a spine table with its normals and products; this one holds "
+                "the jet (C, T, k) alone (SpineTable.refit without normals): use the spine's "
+                "full table (fast_evaluator)."
+            )
 
     def jet_and_normals(self, s):
         """`((C, T, k), (I, J))` at `s`, each (3,)."""
+        self._searched("jet_and_normals")
         # For the rare paths (global search, building other tables): the batched search uses
         # `_foot_terms` and `_local_terms`, whose lookups fuse.
         c, t, k, i, j = jnp.split(self.cubics.vector(s)[:15], 5)
@@ -230,7 +257,7 @@ class SpineTable(eqx.Module):
 
     def jet(self, s):
         """`(C, T, k)` at `s`, each (3,): their 9 values read alone."""
-        c, t, k = jnp.split(self.cubics.vector(s, 9), 3)
+        c, t, k = jnp.split(self.cubics.vector(s, JET_VALUES), 3)
         return c, t, k
 
     def __call__(self, s):
@@ -244,6 +271,7 @@ class SpineTable(eqx.Module):
     def _foot_terms(self, x, s):
         """`(f, slope, distance)` at `s` for a point `x` (3,), as `AbstractSpine._foot_terms`:
         `f = C·T − x·T`, `slope = 1 + k·C − x·k`, `distance = |x − C|`."""
+        self._searched("the closest-point search")
         v = self.cubics.fields(s)
         f = v[15] - _dot(x, v[3:6])
         slope = 1 + v[16] - _dot(x, v[6:9])
@@ -253,6 +281,7 @@ class SpineTable(eqx.Module):
     def _local_terms(self, x, s):
         """`(offset (2,), curvature (2,), slope)` at `s`, as `AbstractSpine._local_terms`:
         offset `(x·I − C·I, x·J − C·J)`, curvature `(k·I, k·J)`, slope `1 + k·C − x·k`."""
+        self._searched("the registration's local terms")
         v = self.cubics.fields(s)
         offset = jnp.stack([_dot(x, v[9:12]) - v[17], _dot(x, v[12:15]) - v[18]])
         return offset, jnp.stack(v[19:21]), 1 + v[16] - _dot(x, v[6:9])
@@ -310,14 +339,17 @@ def fast_evaluator(spine: AbstractSpine) -> AbstractSpine | SpineTable:
     return fast_evaluator_at_nodes(spine)[0]
 
 
-def fast_evaluator_at_nodes(spine: AbstractSpine) -> tuple[AbstractSpine | SpineTable,
-                                                          tuple | None]:
+def fast_evaluator_at_nodes(
+    spine: AbstractSpine, jet_only: bool = False
+) -> tuple[AbstractSpine | SpineTable, tuple | None]:
     """`(fast_evaluator(spine), at_nodes)`: `at_nodes` the values `(jet, normals)` (each (P, 4,
     3)) that a table the spine made of itself was fit to at its nodes (a bent limb's:
     `AbstractSpine._table_at_nodes`), else `None`. A table of other values on its pieces is fit
-    from them (`_fleshing.target.TargetFrames`), not from the table read back at its nodes."""
+    from them (`_fleshing.target.TargetFrames`), not from the table read back at its nodes.
+    `jet_only` (static): such a table of the jet alone (`SpineTable.searchable`), for a caller
+    that reads nothing else of it (a pose's valid region)."""
     spine = spine._prepare()
     if not tabulates(spine):
         return spine, None
-    own, at_nodes = spine._table_at_nodes()
+    own, at_nodes = spine._table_at_nodes(jet_only)
     return (SpineTable(spine), None) if own is None else (own, at_nodes)
