@@ -218,6 +218,36 @@ def test_float32_posing_reads_its_rest_spines_from_tables(tube, skeleton, regist
     np.testing.assert_array_equal(np.asarray(posed.vertices)[region == -1], rest[region == -1])
 
 
+def test_the_sampled_test_is_compiled_ahead(tube, skeleton, single, monkeypatch):
+    # `register_skeleton` starts compiling the valid region's sampled test (run where a point
+    # is unclear) beside its other programs, for the arguments it would be called with: the
+    # same pytrees, shapes, dtypes and weak types (else it would be compiled twice).
+    from fleshing_jax._fleshing import eager
+    from fleshing_jax._skeleton import posing
+
+    def signature(args, quick):
+        leaves, tree = jax.tree.flatten(args)
+        return repr((tree, quick, [(np.shape(a), np.dtype(a.dtype).name,
+                                    bool(getattr(a, "weak_type", False))) for a in leaves]))
+
+    program, pending, prepared, needed = eager._register_clear, posing.registered_pending, [], []
+
+    class Spy:
+        def prepare(self, *args, quick=True):
+            prepared.append(signature(args, quick))
+            return program.prepare(*args, quick=quick)
+
+    def registered(registrar, points, certified):
+        index = eager.pending_index(np.ones(certified[2].shape, bool))  # (any point unclear)
+        needed.append(signature((registrar, certified[0], index), True))
+        return pending(registrar, points, certified)
+
+    monkeypatch.setattr(eager, "_register_clear", Spy())
+    monkeypatch.setattr(posing, "registered_pending", registered)
+    fj.register_skeleton(tube, skeleton, margin=0.06, dtype=jnp.float32)
+    assert len(needed) == len(skeleton.limbs) and set(needed) == set(prepared)
+
+
 def test_a_bent_limb_s_frames_are_fit_from_its_table_s_values_at_its_nodes(single):
     """In float32 a bent limb's frames' table is fit from the values its spine's table was fit
     to at its nodes (`fast_evaluator_at_nodes`), not from that table read back there: the same

@@ -40,7 +40,7 @@ from .._batching.buckets import bucket, pad_batch, unpad_batch
 from .._batching.quick import QUICK_BATCH, Program
 from .._checks import as_margin, is_concrete
 from .._exported import persistent
-from .._fleshing.eager import certified_registration, registered_pending
+from .._fleshing.eager import certified_registration, clear_ahead, registered_pending
 from .._fleshing.ends import EndFrames, aligned_twist, target_ends
 from .._fleshing.methods import check_method
 from .._fleshing.pipeline import Poser, pose_prepared, prepare_target
@@ -236,11 +236,14 @@ def _compile_ahead(spines: list, batch: jax.ShapeDtypeStruct, margin: Array) -> 
             return
         prepared, table, _ = rests
         tabled = tabulates(spine, batch.dtype)
-        _registration.prepare(prepared, batch, margin, table.table if tabled else None,
-                              quick=batch.shape[0] <= QUICK_BATCH)
+        registered = _registration.prepare(prepared, batch, margin,
+                                           table.table if tabled else None,
+                                           quick=batch.shape[0] <= QUICK_BATCH)
         _frames_at.prepare(table if tabled else prepared,
                            jax.ShapeDtypeStruct(batch.shape[:1], batch.dtype),
                            jax.ShapeDtypeStruct((), batch.dtype))
+        if registered is not None:
+            clear_ahead(*registered)
 
 
 def _triangles(faces: np.ndarray) -> np.ndarray:
