@@ -75,6 +75,15 @@ def test_a_skeleton_with_non_finite_vertices_is_refused_at_construction(skeleton
         fj.Skeleton(skeleton.limbs, skeleton.region, vertices)
 
 
+def test_a_skeleton_with_a_region_entry_out_of_range_is_refused(skeleton):
+    count = len(skeleton.limbs)
+    for wrong, seen in ((count, f"[-1, {count}]"), (-2, f"[-2, {count - 1}]")):
+        region = np.array(skeleton.region)
+        region[7] = wrong
+        with pytest.raises(ValueError, match=rf"limb indices in \[-1, {count}\), got \{seen}"):
+            fj.Skeleton(skeleton.limbs, region, skeleton.vertices)
+
+
 def test_faces_with_a_repeated_vertex_are_named_degenerate(tube):
     faces = np.array(tube.faces)
     faces[[4, 9], 1] = faces[[4, 9], 0]

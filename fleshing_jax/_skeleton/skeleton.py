@@ -126,11 +126,14 @@ class Skeleton(eqx.Module):
             raise ValueError(f"`region` must have shape (n,), got {self.region.shape}.")
         if self.vertices.shape != (n, 3):
             raise ValueError(f"`vertices` must have shape ({n}, 3), got {self.vertices.shape}.")
-        if is_concrete(self.vertices) and not bool(jnp.all(jnp.isfinite(self.vertices))):
+        # (Checked on the host: as device operations, each of the four reductions was a
+        # program compiled in a new process, 0.3-0.5 s of CPU before a skeleton's first use.)
+        if is_concrete(self.vertices) and not np.isfinite(np.asarray(self.vertices)).all():
             # (Else saved, it is a file `load_skeleton` refuses, and no mesh matches it.)
             raise ValueError("`vertices` must be finite (found NaN or inf).")
         if is_concrete(self.region) and n:
-            low, high = int(jnp.min(self.region)), int(jnp.max(self.region))
+            region = np.asarray(self.region)
+            low, high = int(region.min()), int(region.max())
             if low < -1 or high >= len(self.limbs):
                 raise ValueError(
                     f"`region` must hold limb indices in [-1, {len(self.limbs)}), "
