@@ -683,3 +683,30 @@ def test_vertices_not_registered_in_the_zone_move_with_their_cross_section(tube,
     edges = tube.edges_unique[np.isin(tube.edges_unique, ids[zone]).any(axis=1)]
     stretch = _stretch(tube, np.asarray(tube.vertices), np.asarray(moved.vertices), edges)
     assert 1 / 1.5 < stretch.min() and stretch.max() < 1.5, (stretch.min(), stretch.max())
+
+
+def test_a_fit_s_blend_is_its_value_differentiated_as_the_images_it_moves():
+    """`posing._held_blend` without its tangent (a shape fit's objective: `posed`'s
+    `blend_tangent=False`): the blend's value where some weight is positive, else the images
+    themselves; differentiated as the images alone, whatever the blend's own derivative."""
+    from fleshing_jax._skeleton.posing import _held_blend
+
+    def blend(target, points, s, weight, images):
+        return images + weight[:, None] * (target * points - images) + s[:, None]
+
+    points, s = jnp.arange(6.0).reshape(2, 3), jnp.asarray([0.5, 2.0])
+    images = points + 1
+
+    def held(target, weight, images, tangent):
+        return _held_blend(blend, tangent, target, points, s, weight, images)
+
+    for weight in (jnp.asarray([0.0, 0.25]), jnp.zeros(2)):
+        args = (jnp.asarray(3.0), weight, images)
+        ones = jax.tree.map(jnp.ones_like, args)
+        (v, dv), (w, dw) = (jax.jvp(lambda *a, t=t: held(*a, t), args, ones)
+                            for t in (True, False))
+        np.testing.assert_array_equal(v, w)
+        np.testing.assert_array_equal(v, blend(*args[:1], points, s, *args[1:])
+                                      if weight.any() else images)
+        np.testing.assert_array_equal(dw, jnp.ones_like(images))
+        assert np.array_equal(dv, dw) != bool(weight.any())

@@ -258,8 +258,11 @@ class ShapeProblem(eqx.Module):
         """The restricted registration's vertices (n, 3) posed at `y`."""
         # Without the global projection check (as the markers' fit): the result's validity is
         # checked on the whole mesh afterwards.
+        # The sections' blend past a joint's range (where another start bends a limb) is
+        # valued exactly, differentiated as the map's images (`posing._held_blend`): exact
+        # within the range, where a fit ends; its first call compiled in less time.
         return posed(self.registration, self.skeleton, self.poses(y), self.method, False,
-                     stacked=True).vertices
+                     stacked=True, blend_tangent=False).vertices
 
     def residuals(self, vertices: Array) -> tuple:
         """The residuals of the posed `vertices` (n, 3): the target's, then the markers'."""

@@ -416,12 +416,15 @@ def motion_between(rest: EndFrames, posed: EndFrames) -> Rigid:
 
 
 def posed(registration: SkeletonRegistration, skeleton: Skeleton, poses: dict,
-          method: str, check: bool = True, stacked: bool = False) -> PosedSkeleton:
+          method: str, check: bool = True, stacked: bool = False,
+          blend_tangent: bool = True) -> PosedSkeleton:
     """`pose_skeleton` on a registration (traceable: `poses` are its only free values).
     `check=False` skips the global projection check of traced poses (a fit's objective:
     smooth, and a much smaller program; `valid` then flags only the local tests).
     `stacked=True` poses the limbs as one batch (`posed_limbs`), and carries their sections
-    as one (`_stacked_sections`), for traced poses."""
+    as one (`_stacked_sections`), for traced poses. `blend_tangent=False` differentiates the
+    sections' blend past a joint's range as the map's own images (`_held_blend`; a fit's
+    objective: its values unchanged, its program smaller)."""
     reg = registration
     vertices = reg.vertices
     valid = jnp.ones(vertices.shape[0], bool)
@@ -433,7 +436,7 @@ def posed(registration: SkeletonRegistration, skeleton: Skeleton, poses: dict,
     stacked = stacked or (len(poses) > given and not is_concrete(poses))
     moved = posed_limbs(reg, poses, method, check, stacked)
     # Stacked, the limbs' sections are carried as one batch too (`_stacked_sections`).
-    sections = _stacked_sections(reg, poses, moved) if stacked else {}
+    sections = _stacked_sections(reg, poses, moved, blend_tangent) if stacked else {}
     carried: dict[int, Rigid | None] = {}  # what moves each touched limb's children
     trusted: dict[int, Array] = {}  # whether the angles of the limb and its ancestors are sane
     blend = jnp.zeros(vertices.shape[0], vertices.dtype)  # towards the sections (`restore`)
@@ -452,7 +455,7 @@ def posed(registration: SkeletonRegistration, skeleton: Skeleton, poses: dict,
             if isinstance(pose, LimbPose):
                 trust = trust & sane_angles(pose)
                 images, ok, towards = sections[k] if k in sections else _sections_carried(
-                    reg, k, pose, images, ok, table)
+                    reg, k, pose, images, ok, table, blend_tangent)
                 blend = blend.at[ids].set(towards)
         if carry is not None:
             images = carry(images)
@@ -480,7 +483,8 @@ def _given_back(reg: SkeletonRegistration, vertices: Array, blend: Array) -> Arr
 BLEND_WIDTH = 0.3  # the blend's width, in `JointZone.margins`: done by k₁·d* ≈ 0.65 at most
 
 
-def _sections_carried(registration, k: int, pose: LimbPose, images, valid, table=None):
+def _sections_carried(registration, k: int, pose: LimbPose, images, valid, table=None,
+                      tangent: bool = True):
     """`(images, valid, blend)` of limb `k`'s region with its vertices past the joint moved
     towards where the bent limb's cross-section at their arc length carries them
     (`PreparedBent.carried`: past the bend, the limb's rigid motion), all flagged:
@@ -501,12 +505,15 @@ def _sections_carried(registration, k: int, pose: LimbPose, images, valid, table
       (n,), the weight of each validly registered vertex (0 for the others).
 
     `table`: the bent spine's own table where the limb's pose already made it (a traced
-    frame: `posed_limbs`), read rather than made again (`_carried_blend`)."""
+    frame: `posed_limbs`), read rather than made again (`_carried_blend`). `tangent=False`:
+    traced, differentiated as `images` alone (`_held_blend`)."""
     n = registration.indices[k].shape[0]
     r = registration.registrations[k]
     s, points = r.arc_length[:n], r.points[:n]
     concrete = is_concrete(pose, registration)
     inputs = _section_inputs(registration, k, pose, None if concrete else n)
+    if not (tangent or concrete):  # (the weights' margins undifferentiated too)
+        inputs = jax.lax.stop_gradient(inputs)
     weight = _section_weights(*inputs, n)[:n]
     target = limb_target(registration, k, pose)
     if concrete:
@@ -520,8 +527,8 @@ def _sections_carried(registration, k: int, pose: LimbPose, images, valid, table
         images = _carried_blend_program(target, r.points, r.arc_length, padded,
                                         pad_batch(images, size))[:n]
     else:  # a traced frame skips the sections where nothing is carried
-        images = jax.lax.cond(jnp.any(weight > 0), partial(_carried_blend, table=table),
-                              lambda *a: a[-1], target, points, s, weight, images)
+        images = _held_blend(partial(_carried_blend, table=table), tangent, target, points, s,
+                             weight, images)
     _, _, joint, stop, _ = inputs
     # (A weight is 0 before the joint.)
     return images, valid & ~(weight > 0), _restoring(weight, r.valid[:n], s, joint, stop)
@@ -566,12 +573,13 @@ def _restoring(weight, valid, s, joint, stop) -> Array:
     return jnp.where(valid, weight, 0) * u * u * (3 - 2 * u)
 
 
-def _stacked_sections(registration: SkeletonRegistration, poses: dict, moved: dict) -> dict:
+def _stacked_sections(registration: SkeletonRegistration, poses: dict, moved: dict,
+                      tangent: bool = True) -> dict:
     """`_sections_carried` of the traced limbs posed by a `LimbPose` that share their
     structure and shapes (every limb of a fit: `posed_limbs`'s `stacked`), as one batch by
     `vmap`: dict limb index → `(images, valid, blend)` of its region. One limb's code in the
     program, not one per limb (each its bent spine's sections at every row: a third of a
-    gradient's program on the tube, with its free child posed)."""
+    gradient's program on the tube, with its free child posed). `tangent`: `_held_blend`'s."""
     if is_concrete(poses):
         return {}
     args = {k: (*_section_inputs(registration, k, pose), limb_target(registration, k, pose),
@@ -580,16 +588,44 @@ def _stacked_sections(registration: SkeletonRegistration, poses: dict, moved: di
     for ks, batch in _stacked_groups(args, smallest=2):
         ns = jnp.asarray([registration.indices[k].shape[0] for k in ks])
         zone, r, joint, stop, angles, target, images = batch
+        if not tangent:  # (the weights' margins undifferentiated too)
+            joint, stop, angles = jax.lax.stop_gradient((joint, stop, angles))
         weight = jax.vmap(_section_weights)(zone, r, joint, stop, angles, ns)
         # (One test for the batch: a traced frame skips the sections where none is carried.)
-        images = jax.lax.cond(jnp.any(weight > 0), jax.vmap(_carried_blend), lambda *a: a[-1],
-                              target, r.points, r.arc_length, weight, images)
+        images = _held_blend(jax.vmap(_carried_blend), tangent, target, r.points,
+                             r.arc_length, weight, images)
         for i, k in enumerate(ks):
             n = registration.indices[k].shape[0]
             sections[k] = (images[i, :n], moved[k][1][:n] & ~(weight[i, :n] > 0),
                            _restoring(weight[i, :n], r.valid[i, :n], r.arc_length[i, :n],
                                       joint[i], stop[i]))
     return sections
+
+
+def _held_blend(blend, tangent: bool, target, points, s, weight, images):
+    """`blend(target, points, s, weight, images)` (`_carried_blend`) where some `weight` is
+    positive, else `images`. `tangent=False`: differentiated as `images` alone, the blend's
+    own derivative left out of the program (a fit's objective: the blend, its conditional
+    and the weights' margins were a tenth of a shape fit's solve); its values the same
+    formulas (compiled in another program, they may round otherwise). Within the joint's
+    range (every weight 0) the derivative is exact; past it, a Gauss–Newton step is taken on
+    the map's own slope, its loss the exact one."""
+    args = (target, points, s, weight, images)
+    if not tangent:
+        args = jax.lax.stop_gradient(args)
+    out = jax.lax.cond(jnp.any(weight > 0), blend, lambda *a: a[-1], *args)
+    return out if tangent else _valued_as(out, images)
+
+
+@jax.custom_jvp
+def _valued_as(value: Array, like: Array) -> Array:
+    """`value`, differentiated as `like` (of its shape)."""
+    return value
+
+
+@_valued_as.defjvp
+def _valued_as_jvp(primals, tangents):
+    return primals[0], tangents[1]
 
 
 def _carried_blend(target, points, s, weight, images, table=None):
