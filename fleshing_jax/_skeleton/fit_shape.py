@@ -15,7 +15,10 @@ pose's vertices, samples of a mesh), from the rest pose:
   posed vertex to its nearest target point's plane (along the target's sampled normals) has a
   floor, their curvature between samples, that pulled spot's short legs 5–15° off; the result's
   check still reads that direction. The choices are made on stopped gradients: everything else
-  is differentiated through the posing, end to end.
+  is differentiated through the posing, end to end, but for the sections' blend past a joint's
+  range (where another start bends a limb), valued exactly and differentiated as the map's own
+  images (`posing._held_blend`): exact within the range, where a fit ends, and a solve's
+  program 8 % smaller (spot's first fit 26–29 → 22–24.5 s of CPU).
   Cauchy's influence falls off as `1/|d|`: a stray scan point pulls ever less the farther it
   is; a partial scan simply has no points on its unseen side.
 - **The solve's points.** At most `SOLVE_POINTS` of the target, shared out by the part of
