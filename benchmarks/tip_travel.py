@@ -1,17 +1,20 @@
 """How far each tip moves when its chain's top limb bends 30° (issue 45's check).
 
     python benchmarks/tip_travel.py [--only spot cheburashka biped jointed_quadruped insect]
+    python benchmarks/tip_travel.py --only human dog --bpy /path/to/venv-with-bpy/bin/python
 
-Each character's default skeleton (`fj.skeleton`, float64, radial). For every chain that
-leaves the body: its tip (the vertex of the chain's regions farthest from the top limb's
-joint), the top limb bent 30° alone towards 0, 90, 180 and 270° (`LimbPose(30, direction=…)`),
-and how far the tip moves: the least displacement among the vertices within 1 % of the
-bounding-box diagonal of it, as % of the diagonal (the issue asks ≥ 4 %). Prints one Markdown
-row per chain: its limbs, the lever (tip to joint, % of the diagonal), the bend's zone at 30°
-beside the limb's room to bend (`JointZone.length`: the whole room means the limb bends as one
-arc, its thickness near the joint allowing no shorter zone), the travel (least and most over
-the four directions), vertices flagged (most), |ΔV/V| (most) and whether everything outside
-the chain stayed bit for bit.
+Each character's default skeleton (`fj.skeleton`, float64, radial); `human`, `cow`, `insect`,
+`horse`, `dog`, `dinosaur` and `bird` are `skin_characters.py`'s, modelled by Blender (`--bpy`
+names a Python with `bpy`). For every chain that leaves the body: its tip (the vertex of the
+chain's regions farthest along the line from the top limb's joint to the farthest of its
+limbs' spine ends), the top limb bent 30° alone towards 0, 90, 180 and 270°
+(`LimbPose(30, direction=…)`), and how far the tip moves: the least displacement among the
+vertices within 1 % of the bounding-box diagonal of it, as % of the diagonal (the issue asks
+≥ 4 %). Prints one Markdown row per chain: its limbs, the lever (tip to joint, % of the
+diagonal), the bend's zone at 30° beside the limb's room to bend (`JointZone.length`: the whole
+room means the limb bends as one arc, its thickness near the joint allowing no shorter zone),
+the travel (least and most over the four directions), vertices flagged (most), |ΔV/V| (most)
+and whether everything outside the chain stayed bit for bit.
 """
 
 from __future__ import annotations
@@ -41,9 +44,16 @@ CHARACTERS = {
 DIRECTIONS = (0.0, 90.0, 180.0, 270.0)
 
 
-def rows(name: str):
+def rows(name: str, bpy: str | None = None):
     """One Markdown row per chain leaving the body of character `name`."""
-    mesh = CHARACTERS[name]()
+    if name in CHARACTERS:
+        mesh = CHARACTERS[name]()
+    elif bpy is None:
+        raise SystemExit(f"{name!r} is modelled by Blender: give --bpy")
+    else:
+        from blender_armature import skin_mesh
+
+        mesh = skin_mesh(bpy, name)
     rest, faces = np.asarray(mesh.vertices), np.asarray(mesh.faces)
     skeleton = fj.skeleton(mesh)
     registration = fj.register_skeleton(mesh, skeleton)
@@ -82,12 +92,14 @@ def rows(name: str):
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--only", nargs="*", default=list(CHARACTERS))
+    parser.add_argument("--bpy", help="a Python with `bpy` (the characters Blender models)")
     args = parser.parse_args()
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
     print("| character | top limb | limbs | lever (%) | zone / room at 30° | tip travel (%) "
           "| flagged | \\|ΔV/V\\| (%) | rest still |")
     print("|---|---:|---:|---:|---|---|---:|---:|---|")
     for name in args.only:
-        for row in rows(name):
+        for row in rows(name, args.bpy):
             print(row, flush=True)
 
 
