@@ -25,8 +25,9 @@ its child limbs):
    side, one hanging from the other's top in the tree: a limb of its own). The spheres hanging below
    the limbs' first spheres go to the limb whose path is nearest (a strip of slabs hangs
    below its path).
-3. Two limbs side by side that share their first part and fork (an insect's head, a strand
-   per antenna) are one limb, the forks its children (`_forks`).
+3. Two limbs side by side, alike in thickness, that share their first part and fork (an
+   insect's head, a strand per antenna; not a bird's wing beside its thicker neck) are one
+   limb, the forks its children (`_forks`).
 4. The limb's spine path runs to its own farthest sphere (not into a child, an ear; far
    counted with twice the radius, which prefers a head's snout to the base of its ears).
 
@@ -221,7 +222,7 @@ def _split(graph, centers, radii, nodes, root, parent, limbs, depth, forks=False
     distance, predecessors = csgraph.dijkstra(sub, directed=False, indices=root,
                                               return_predecessors=True)  # fmt: skip
     reach = np.where(np.isfinite(distance), distance + radii, -np.inf)
-    level = radii[root] if depth == 1 else thickness
+    level = radii[root] if thickness is None else thickness
     groups = []  # per limb: its paths (the first one the main), last sphere inside, core
     hangs = []  # per limb: (n,) bool, the spheres below its first one in the tree
     waists = []  # per limb: `_waist`'s (spheres before its path, last inside, core), or None
@@ -483,18 +484,19 @@ def _same_limb(centers, radii, path, inside: int, limbs, graph) -> int | None:
     not the wing's. (Horns side by side are thickest at their bases: no neck before.)"""
     widest = int(np.argmax(radii[path]))
     necked = np.any(radii[np.r_[inside, path[:widest]]] < WAIST * radii[path[widest]])
-    mains = [paths[0] for paths in limbs]
-    limbs = [np.concatenate(paths) for paths in limbs]
-    held = [sphere_gaps(centers[path], centers[s], radii[s]) < 0 for s in limbs]
+    def holds(spheres):  # (n,) whether each of the path's centres lies inside `spheres`
+        return sphere_gaps(centers[path], centers[spheres], radii[spheres]) < 0
+
+    every = [np.concatenate(paths) for paths in limbs]  # each limb's spheres
+    held = [holds(spheres) for spheres in every]
     holders = [k for k, h in enumerate(held) if h.mean() >= 0.5 or h[-1]]
     if holders:  # (the one holding most of it, then by its main path; the first on a tie)
-        by_main = [sphere_gaps(centers[path], centers[m], radii[m]) < 0 for m in mains]
-        return max(holders, key=lambda k: (held[k].mean(), by_main[k].mean()))
-    for k, (h, spheres) in enumerate(zip(held, limbs)):
+        return max(holders, key=lambda k: (held[k].mean(), holds(limbs[k][0]).mean()))
+    for k, (h, spheres) in enumerate(zip(held, every)):
         if necked and h[widest] and (WAIST * radii[path[widest]] <= radii[spheres].max()
                                      <= 2 * radii[path[widest]]):
             return k
-    for k, spheres in enumerate(limbs):  # (a limb that holds it first)
+    for k, spheres in enumerate(every):  # (a limb that holds it first)
         own = path[~np.isin(path, spheres)]  # (in order: the path's tip last, if own)
         if len(own) >= 2:
             joined = (graph[own][:, spheres].getnnz(axis=1) > 0) | (
