@@ -4,6 +4,7 @@
 import tracemalloc
 import warnings
 
+import jax
 import numpy as np
 import pytest
 import trimesh
@@ -176,3 +177,62 @@ def test_long_slivers_split_into_few_pieces(monkeypatch):
     points = np.random.default_rng(2).uniform(-1.0, 1.0, size=(300, 3)) * [1, 1, 3]
     for a, b in zip(bounded.query(points), unbounded.query(points), strict=True):
         assert np.allclose(a, b, rtol=0, atol=1e-12)
+
+
+def test_a_path_far_shorter_than_its_radii_is_fitted_straight():
+    """A limb's path 0.023 long among medial radii of 0.15-0.22 (a hand's, in its unit
+    frame): no smoothing meets the curvature bound, and the smoothest fit with straight ends
+    shrank towards a point (0.023 -> 4e-6 long; in float32 its control points coincided and
+    `fj.skeleton` raised). It is the straight segment between the path's ends; a limb's fit
+    (`strict`) has none."""
+    from fleshing_jax._skeleton.fit import fit_bspline
+
+    points = np.array([[-0.0374859, -0.0228842, 0.2812773], [-0.0344045, -0.0248035, 0.2843151],
+                       [-0.0311177, -0.0117843, 0.2973408], [-0.0306066, -0.0097597, 0.2993664]])
+    radii = np.array([0.2161913, 0.2069146, 0.1580697, 0.1521033])
+    spine = fit_bspline(points, radii, 8, bounded=True, straight_ends=True)
+    t = np.linspace(0.0, 1.0, 9)
+    length = float(spine.length)
+    assert length == pytest.approx(np.linalg.norm(points[-1] - points[0]), rel=1e-9)
+    on = np.asarray(jax.vmap(spine)(t * length))
+    assert np.allclose(on, points[0] + t[:, None] * (points[-1] - points[0]), atol=1e-10)
+    bend = np.linalg.norm(np.asarray(jax.vmap(spine.curvature_vector)(t * length)), axis=1)
+    assert np.all(bend < 1e-6)
+    assert fit_bspline(points, radii, 8, bounded=True, straight_ends=True, strict=True) is None
+
+
+def test_a_route_with_no_length_has_no_spine():
+    """A route whose one sphere's centre, start and tip are one point (a knuckle's, far thinner
+    than the palm it leaves) gets no spine and so no limb: its fit raised before."""
+    from fleshing_jax._skeleton.limb_fit import limb_spine
+    from fleshing_jax._skeleton.limbs import LimbPath
+
+    centers = np.array([[0.0, 0.0, 0.0], [1e-7, 0.0, 0.0]])
+    radii = np.array([1.0, 1e-6])
+    route = LimbPath(np.array([1]), 0, np.array([0]), np.array([1]), -1)
+    # (No vertex on the route's ray, which would take its tip out to the surface.)
+    turn = trimesh.transformations.euler_matrix(0.3, 0.5, 0.7)[:3, :3]
+    vertices = trimesh.creation.icosphere(2).vertices @ turn.T
+    assert limb_spine(route, centers, radii, vertices, margin=1e-3) is None
+
+
+def test_the_librarys_own_medial_mesh_is_not_refused(monkeypatch):
+    """Where a character's skin overlaps itself (Blender's skin modifier where legs branch:
+    a kangaroo's, a spider's), vertices lie inside the volume, nearer an unfitted sphere's
+    centre than a fifth of its radius, and `fj.skeleton` refused the medial mesh it had just
+    computed. The belonging check is for a medial mesh the user gives."""
+    from fleshing_jax._medial_axis import construct
+
+    mesh = trimesh.creation.capsule(height=2.0, radius=0.5, count=[8, 8])
+    frame = UnitFrame.of(np.asarray(mesh.vertices))  # (where `fj.skeleton` finds limbs)
+    unit = (frame.to_unit(np.asarray(mesh.vertices)), np.asarray(mesh.faces))
+    medial = construct.medial_mesh(unit, 10, refine=0, progress=False)
+    radii = np.asarray(medial.radii).copy()
+    radii[np.argmax(radii)] *= 6.0  # past `REACHES` times its distance to a vertex
+    medial = fj.MedialMesh(medial.centers, radii, medial.edges, medial.faces)
+    monkeypatch.setattr(construct, "medial_mesh", lambda *args, **kwargs: medial)
+    assert len(fj.skeleton(mesh).limbs) <= 1  # (refused before)
+    given = fj.MedialMesh(frame.from_unit(np.asarray(medial.centers)), radii * frame.scale,
+                          medial.edges, medial.faces)
+    with pytest.raises(ValueError, match="does not belong"):
+        fj.skeleton(mesh, medial=given)

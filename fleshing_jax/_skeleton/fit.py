@@ -80,7 +80,8 @@ def extend_beyond(inward: np.ndarray, r: float, surface) -> np.ndarray:
 
 
 def fit_bspline(points, radii, control_points=None, degree=5, *, bounded=None,
-                subdivisions=None, straight_ends=False) -> BSpline:  # fmt: skip
+                subdivisions=None, straight_ends=False,
+                strict=False) -> BSpline | None:  # fmt: skip
     """A B-spline through `points` ((k, 3), in order) in least squares, its ends nearly at the
     first and last point.
 
@@ -89,11 +90,13 @@ def fit_bspline(points, radii, control_points=None, degree=5, *, bounded=None,
     and 16); `degree`; `bounded`: whether to bound the curvature (default: unless
     `control_points` is given); `subdivisions`: passed to `fj.BSpline` (given, with the same
     `control_points`, spines share their compiled programs); `straight_ends`: with no
-    curvature at either end (a limb's: see `_skeleton.build`).
+    curvature at either end (a limb's: see `_skeleton.build`); `strict`: `None` where no
+    smoothing meets the curvature bound (a route far shorter than its radii).
 
     **Returns:** an `fj.BSpline` (float64) whose curvature stays below
     `CURVATURE_MARGIN / r` (`r` the radii interpolated along it) when `bounded`: the smoothing
-    penalty grows until it does (a straight line is the limit).
+    penalty grows until it does; where none does, the straight segment between the first and
+    last point (or `None`, when `strict`).
     """
     chord = np.r_[0, np.cumsum(np.linalg.norm(np.diff(points, axis=0), axis=1))]
     keep = np.r_[True, np.diff(chord) > 1e-12 * chord[-1]]
@@ -132,6 +135,16 @@ def fit_bspline(points, radii, control_points=None, degree=5, *, bounded=None,
         curve = ScipyBSpline(knots, coefficients, degree)
         if not bounded or np.all(curvature(curve, at) < bound):
             break
+    else:
+        # No smoothing meets the bound (a path much shorter than its radii: a knuckle's). The
+        # penalty's limit is then no line but a point (straight ends ask `C″ = 0` there, which
+        # evenly spaced control points do not give on clamped knots): the straight segment
+        # between the path's ends instead, its control points at the knots' averages
+        # (Greville's abscissae), on which a B-spline is the segment at constant speed.
+        if strict:
+            return None
+        greville = np.convolve(knots[1:-1], np.ones(degree) / degree, mode="valid")
+        coefficients = points[0] + greville[:, None] * (points[-1] - points[0])
     return BSpline(coefficients, degree=degree, subdivisions=subdivisions)
 
 

@@ -40,6 +40,11 @@ WIDE = 2
 # quadrupeds', the biped's, cheburashka's and the modelled human's and cow's skeletons are
 # unchanged by the rule).
 BENT_KEEPS = 0.6
+# A route whose points (its start, spheres and tip) span less than this fraction of its
+# thickest sphere's radius (or its parent's there) has no length: no spine (a hand's knuckle
+# at one seed: its start, sphere and tip within 2e-6 of each other; in float32 its spine's
+# control points coincided and `fj.skeleton` raised).
+DEGENERATE = 1e-3
 
 
 def fit_limb(found: LimbPath, centers, radii, vertices, adjacency, allowed, margin,
@@ -80,9 +85,11 @@ def _fit(found, centers, radii, vertices, adjacency, allowed, margin, cut_at, wi
          deeper=0.0):
     """`fit_limb`'s spine and region, the cut `deeper` radii of the path's first sphere
     further in, the arc lengths of the spine's fitted points (`limb_spine`'s `arc`) and the
-    limb's tip."""
-    spine, cut, tip, arc, local = limb_spine(found, centers, radii, vertices, margin,
-                                             cut_at=cut_at, deeper=deeper)
+    limb's tip; all `None` for a route with no spine (`limb_spine`)."""
+    fitted = limb_spine(found, centers, radii, vertices, margin, cut_at=cut_at, deeper=deeper)
+    if fitted is None:
+        return None, None, None, None
+    spine, cut, tip, arc, local = fitted
     # A part wider than its spine's medial radii say: a head's crown beyond them (the region
     # grown within them is its lower half, bordering the body its whole length, a knob:
     # spot's head at seeds 6 and 11), a flat ear's lobe (a slab: its radius is its half
@@ -108,7 +115,8 @@ def _fit(found, centers, radii, vertices, adjacency, allowed, margin, cut_at, wi
         for share in STRAIGHTER:
             refit = limb_spine(found, centers, radii, vertices, margin, share * far, cut_at,
                                deeper)
-            refit_part = limb_region(*refit, vertices, adjacency, allowed, **how)
+            refit_part = (None if refit is None
+                          else limb_region(*refit, vertices, adjacency, allowed, **how))
             if refit_part is not None:
                 break
         # Straightened, a limb bent at rest (an insect's leg rising to its knee, then down)
@@ -147,7 +155,8 @@ def limb_spine(found: LimbPath, centers, radii, vertices, margin, far=None, cut_
     """The limb's rest spine, the arc length where it leaves its parent, the point at its
     tip, and the medial radius at arc lengths along it (at least `far` at each path point, when
     given: the curvature bound then keeps those distances within reach), the cut `deeper`
-    radii of the path's first sphere further in (at most at the spine's start)."""
+    radii of the path's first sphere further in (at most at the spine's start); `None` for a
+    route with no length (`DEGENERATE`) or none within the curvature bound."""
     path = centers[found.path]
     inside = centers[found.inside]
     # s = 0 a little inside the parent: towards the last sphere inside it, at most two
@@ -158,6 +167,9 @@ def limb_spine(found: LimbPath, centers, radii, vertices, margin, far=None, cut_
     tip = extend_beyond(np.concatenate([path[::-1], inside[None]]), radii[found.path[-1]],
                         vertices)  # fmt: skip
     points = np.concatenate([start[None], path, tip[None]])
+    thickest = max(radii[found.inside], radii[found.path].max())
+    if np.linalg.norm(np.ptp(points, axis=0)) < DEGENERATE * thickest:
+        return None  # a route with no length (its sphere's centre and tip as one): none
     # At the start, the parent's radius: the spine may not turn there tighter than the
     # parent is thick (an ear's spine, from inside the head).
     local = radii[np.r_[found.inside, found.path, found.path[-1]]]
@@ -171,7 +183,12 @@ def limb_spine(found: LimbPath, centers, radii, vertices, margin, far=None, cut_
     # vertices that needed a straighter fit): the surface around the spine must stay clear
     # of its focal set by the valid region's margin.
     spine = fit_bspline(points, bound + margin, LIMB_CONTROL_POINTS, bounded=True,
-                        subdivisions=LIMB_SUBDIVISIONS, straight_ends=True)
+                        subdivisions=LIMB_SUBDIVISIONS, straight_ends=True, strict=True)
+    if spine is None:
+        # No curve within the bound follows the route (far shorter than its radii): no
+        # spine. (Its straight segment instead, fitted for the deeper cut of the Blender
+        # insect's head at seed 2, left that head in the body.)
+        return None
     s, samples, _ = map(np.asarray, spine_samples(spine))
     chord = np.r_[0, np.cumsum(np.linalg.norm(np.diff(points, axis=0), axis=1))]
     arc = chord * (s[-1] / chord[-1])
