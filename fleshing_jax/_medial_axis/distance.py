@@ -24,18 +24,33 @@ def medial_distance(medial: MedialMesh, mesh, *, samples: int = 20_000, resoluti
                     seed: int = 0) -> tuple[float, float]:
     """The two one-sided Hausdorff distances between a surface and a medial mesh's envelope
     (the boundary of the union of its spheres, cones and slabs), as fractions of the mesh's
-    bounding-box diagonal, as Q-MAT (Li et al. 2015) reports them.
+    bounding-box diagonal, as Q-MAT (Li et al. 2015) reports them: the largest of
+    `point_distances`'s.
 
-    - surface → envelope: over the mesh's vertices and `samples` random surface points
+    **Arguments:** `medial`; `mesh`: a `trimesh.Trimesh` or `(vertices, faces)`; `samples`,
+    `resolution` and `seed`: see `point_distances`.
+
+    **Returns:** `(surface_to_envelope, envelope_to_surface)`, floats.
+    """
+    to_envelope, to_surface = point_distances(medial, mesh, samples=samples,
+                                              resolution=resolution, seed=seed)
+    return float(to_envelope.max()), float(to_surface.max())
+
+
+def point_distances(medial: MedialMesh, mesh, *, samples: int = 20_000, resolution: int = 96,
+                    seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """Each point's distance between a surface and a medial mesh's envelope, as fractions of
+    the mesh's bounding-box diagonal (`medial_distance` reports their largest):
+
+    - surface → envelope: of the mesh's vertices and `samples` random surface points
       (`seed`). A point outside the union gets its exact distance (the minimum over the
       primitives' closed-form distances); a point inside gets its distance to the envelope
       mesh (`MedialMesh.envelope(resolution)`, whose vertices lie on the exact envelope).
     - envelope → surface: the exact distance to the mesh of every vertex of the envelope
       mesh (points of the exact envelope, about `resolution` per side).
 
-    **Arguments:** `medial`; `mesh`: a `trimesh.Trimesh` or `(vertices, faces)`.
-
-    **Returns:** `(surface_to_envelope, envelope_to_surface)`, floats.
+    **Returns:** `(surface_to_envelope (V + samples,), envelope_to_surface (m,))`, `m` the
+    envelope mesh's vertices.
     """
     if not isinstance(medial, MedialMesh):
         raise TypeError(f"`medial` must be a MedialMesh, got {type(medial).__name__}")
@@ -57,4 +72,4 @@ def medial_distance(medial: MedialMesh, mesh, *, samples: int = 20_000, resoluti
     if inner.any():
         to_envelope[inner] = SurfaceQuery(env_vertices, env_faces).query(points[inner])[0]
     to_surface = SurfaceQuery(vertices, faces).query(env_vertices)[0]
-    return float(to_envelope.max() / diagonal), float(to_surface.max() / diagonal)
+    return to_envelope / diagonal, to_surface / diagonal
