@@ -33,6 +33,7 @@ os.environ.setdefault(
     " --xla_cpu_opt_preset=CPU_OPT_PRESET_FAST_COMPILE",
 )
 
+import equinox as eqx  # noqa: E402
 import jax  # noqa: E402
 import numpy as np  # noqa: E402
 import pytest  # noqa: E402
@@ -55,6 +56,14 @@ gc.freeze()
 gc.set_threshold(50_000, 20, 100)
 
 
+@eqx.filter_jit
+def _frames_and_centres(spine, s):
+    """The spine's rotation-minimising frames and points at arc lengths `s`: `(n, 3, 3)`,
+    `(n, 3)`. One compiled program for spines of one kind (their values are its arguments):
+    batched eagerly, the frames ran operation by operation, half the CPU of a file's clouds."""
+    return jax.vmap(lambda t: (fj.rotation_minimizing_frame(spine, t), spine(t)))(s)
+
+
 def cloud(spine, n=32, radius=0.5, seed=0, overshoot=0.0):
     """Random points in a tube of `radius` around `spine`, optionally past its ends.
 
@@ -64,10 +73,9 @@ def cloud(spine, n=32, radius=0.5, seed=0, overshoot=0.0):
     rng = np.random.default_rng(seed)
     length = float(spine.length)
     s = rng.uniform(-overshoot * length, (1 + overshoot) * length, n)
-    frames = np.asarray(jax.vmap(lambda t: fj.rotation_minimizing_frame(spine, t))(s))
+    frames, centre = map(np.asarray, _frames_and_centres(spine, s))
     angle = rng.uniform(0, 2 * np.pi, n)
     r = radius * np.sqrt(rng.uniform(0, 1, n))
-    centre = np.asarray(jax.vmap(spine)(s))
     return (
         centre
         + (r * np.cos(angle))[:, None] * frames[:, 1]
