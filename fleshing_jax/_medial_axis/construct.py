@@ -35,8 +35,7 @@ def medial_mesh(mesh, spheres: int = 200, *, seed: int = 0, samples: int = 20_00
        weighted towards the worst covered (an approximate `Σ |d|⁴`: the targets are
        Hausdorff distances), with every sphere kept inside the surface; then up to 21
        steps twice as long, centres kept inside, in rounds of 3 kept while they bring the
-       worst sample nearer, a round stopped at a step taking it 15 % further
-       (`refine.refine_spheres`). On sphere-like shapes, where nearly
+       worst sample nearer (`refine.refine_spheres`). On sphere-like shapes, where nearly
        every primitive lies near every sample, a regular selection of the samples is fitted.
        Last, every centre is put inside the surface (told by rays: `surface.ray_inside`)
        and no sphere overhangs it by more than the farthest sample lies outside the union.

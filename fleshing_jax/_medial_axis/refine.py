@@ -48,12 +48,7 @@ cones and slabs, by damped Gauss-Newton (Levenberg-Marquardt) steps:
   at 50 spheres when every step is long), drop the first round. Without the guard on the
   centres (`_centres_kept_inside`), the long steps moved spheres of the box at 60 spheres
   out of it (by up to 1.2 % of the diagonal): the samples at its corners pull their small
-  spheres outwards, and the containment penalty on `s(c) + r` is soft. A round stops at a
-  step that leaves the worst more than `GIVE_UP` (15 %) further than at the round's start
-  (it is then dropped): each fit ends on a dropped round, and on spot, cheburashka and the
-  capped bunny (seeds 0–3) 8 of the 12 dropped rounds went past that at their first step
-  and 2 at a later one, while no step of a kept round went past 11.9 % (the same spheres,
-  up to two steps fewer a fit).
+  spheres outwards, and the containment penalty on `s(c) + r` is soft.
 
 - where nearly every primitive lies within every sample's band (over `CROWDED` candidate
   pairs a sample: a sphere-like shape, whose spheres all sit near its centre), the fit keeps
@@ -149,8 +144,6 @@ def _centres_kept_inside(surface: SurfaceQuery, params, trial):
 
 ROUND = 3  # the longer steps after the fit are taken, and kept or dropped, this many at a time
 
-GIVE_UP = 0.15  # a round stops at a step that takes the worst this much further (relative)
-
 CROWDED = 100  # candidate pairs per sample beyond which the fit thins its samples (see below)
 
 THIN = 2_000_000  # about the candidate pairs a thinned fit keeps
@@ -196,7 +189,6 @@ def refine_spheres(points, targets, centers, radii, edges, faces, *, scale: floa
       least squares; see the module's notes).
     - `extra`: most steps taken after `iterations` with twice the `margin`, centres kept
       inside `surface`, in rounds of `ROUND` kept while they bring the worst sample nearer
-      (a round stops at a step taking it `GIVE_UP` further)
       (see the module's notes; 0: none).
 
     **Returns:** `(centers (n, 3), radii (n,))`, radii `>= 0`; every accepted step lowers
@@ -257,11 +249,10 @@ def refine_spheres(points, targets, centers, radii, edges, faces, *, scale: floa
         over = residual[len(points):len(points) + n] / contain_weight if surface else 0.0
         return max(np.abs(residual[:len(points)]).max(), np.max(over, initial=0.0))
 
-    def descend(params, pairs, fitted, iterations, margin, guard, give_up=np.inf):
+    def descend(params, pairs, fitted, iterations, margin, guard):
         """`iterations` damped Gauss-Newton steps from `params` (`pairs`: its candidates
         for `margin`, or None: found at the first trial; `fitted`: its `evaluate`);
-        `guard`: keep the centres inside `surface`; no step after one that leaves the
-        worst distance (`worst`) beyond `give_up`."""
+        `guard`: keep the centres inside `surface`."""
         damping = 1e-3
         residual, jac, attained = fitted
 
@@ -303,8 +294,6 @@ def refine_spheres(points, targets, centers, radii, edges, faces, *, scale: floa
                 damping *= 4
             else:
                 break  # no step along the damped directions helps: a (local) optimum
-            if worst(residual) > give_up:
-                break
         return params, (residual, jac, attained)
 
     pairs = search(params, margin)
@@ -323,9 +312,7 @@ def refine_spheres(points, targets, centers, radii, edges, faces, *, scale: floa
     # Then rounds of steps twice as long, centres kept inside, each kept only if it brings
     # the worst sample (or sphere past the surface) nearer (see the module's notes).
     for _ in range(0, extra, ROUND):
-        # A round whose step takes the worst `GIVE_UP` further away is dropped there.
-        trial, t_fitted = descend(params, None, fitted, ROUND, 2 * margin, True,
-                                  (1 + GIVE_UP) * worst(fitted[0]))
+        trial, t_fitted = descend(params, None, fitted, ROUND, 2 * margin, True)
         if worst(t_fitted[0]) >= worst(fitted[0]):
             break
         params, fitted = trial, t_fitted
