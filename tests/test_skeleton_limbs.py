@@ -559,3 +559,30 @@ def test_a_parent_s_route_is_judged_by_its_children_s_regions_on_a_tie():
     wide = _Fitted(region, [None, None], {0: 0, 1: 1}, [], {1})
     lost = _Fitted(region, [None], {0: 0}, [], set())  # (the child no region at all)
     assert _lost(found, wide, 0) < _lost(found, narrow, 0) < _lost(found, lost, 0)
+
+
+def test_a_limb_left_no_spheres_is_none():
+    """A spider modelled in Blender (`benchmarks/skin_characters.py`), its medial mesh at seed
+    1 (200 spheres, unit frame): within a limb's level, two routes to one leg were found, and
+    every sphere went to the other: a limb of no spheres, on which `find_limbs` raised (its
+    thickest sphere asked of an empty set). It is none; every limb found has spheres, and the
+    eight legs' ends are each in a limb of the body."""
+    data = np.load(Path(__file__).parent / "data" / "spider-medial.npz")
+    centers, radii = data["centers"], data["radii"]
+    limbs = find_limbs(centers, radii, data["edges"])
+    assert all(len(limb.spheres) for limb in limbs)
+    # The legs' ends: the lowest spheres (the feet stand on the ground), one per foot (the
+    # feet lie 0.16 apart or more).
+    ends = []
+    for k in np.argsort(centers[:, 2]):
+        if all(np.linalg.norm(centers[k] - centers[e]) > 0.1 for e in ends):
+            ends.append(int(k))
+        if len(ends) == 8:
+            break
+    tops = set()
+    for end in ends:
+        k = max(k for k, limb in enumerate(limbs) if end in limb.spheres)
+        while limbs[k].parent != -1:
+            k = limbs[k].parent
+        tops.add(k)
+    assert len(tops) == 8

@@ -282,6 +282,12 @@ def _split(graph, centers, radii, nodes, root, parent, limbs, depth, forks=False
                   for k, w in enumerate(waists)]
     for (path, last_inside, core, spheres), (routes, _, _), waist, stem in zip(
             found, groups, waists, stems, strict=True):
+        if len(spheres) == 0:
+            # Every sphere went to the limbs beside it (`_assign`): none. (A spider's leg at
+            # seed 1, found twice within a limb's level: the level's search, on the graph
+            # restricted to its spheres, still steps through the stored zeros of the edges
+            # cut off, and one route began at a sibling's sphere.)
+            continue
         index = len(limbs)
         limbs.append(LimbPath(path, last_inside, core, spheres, parent))
         if depth < MAX_DEPTH and len(spheres) > 2:
