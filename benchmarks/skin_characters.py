@@ -1,11 +1,13 @@
 """The rig `fj.skeleton` finds on characters modelled in Blender, not by us (issue 45).
 
     python benchmarks/skin_characters.py --bpy /path/to/venv-with-bpy/bin/python \
-        [--seeds 4] [--spheres 200] [--figures DIR] [--joints]
+        [--seeds 4] [--spheres 200] [--figures DIR] [--joints] [--only spider hand]
 
 Our procedural characters share one way of building a surface (`_medial_axis.characters`).
 Here a human, a horned cow, an insect (its legs bent at rest), a horse, a dog, a dinosaur
-(small arms below its neck) and a bird (wings spread) are modelled as an artist blocks a
+(small arms below its neck), a bird (wings spread), a spider (eight legs at a thorax, a large
+abdomen), a kangaroo (a thick tail, small arms) and a hand (a palm, four fingers and a
+thumb) are modelled as an artist blocks a
 character out in Blender: a stick figure of joints with a radius each, its skin
 modifier's quad surface, subdivided twice (`pip install bpy` in another
 environment: `--bpy` names its Python; the meshes are made there). Each gets `fj.skeleton`
@@ -13,7 +15,8 @@ at medial seeds 0 … n−1 (holes from the skin's branch points capped by `fj.c
 faces the skin winds against their neighbours flipped). Prints a Markdown table: limbs,
 chains from the body and their lengths, and which of the tips an animator would pose (head,
 hands, feet; muzzle, horns, tail, hooves; head, antennae, feet; ears; snout, ears, paws; jaw,
-hands; beak, wings) lie in a limb of their own, outside the body. `--joints`: issue 46's
+hands; beak, wings; eight feet, abdomen; snout, ears, paws, feet, tail; fingertips, forearm)
+lie in a limb of their own, outside the body. `--joints`: issue 46's
 joint targets on the human instead (its exact range per joint and direction, then each
 pose's flagged vertices, volume change and worst edge stretch, float64).
 """
@@ -213,8 +216,96 @@ def _bird() -> dict:
     return {"joints": joints, "bones": bones, "tips": tips}
 
 
+def _chained(joints: dict, bones: list, chains: list):
+    """Adds each chain `[(existing joint, None), (joint, (point, radius)), ...]` to `joints`
+    and `bones`, each joint joined to the one before it."""
+    for chain in chains:
+        for (a, _), (b, joint) in zip(chain, chain[1:]):
+            joints[b] = joint
+            bones.append((a, b))
+
+
+def _spider() -> dict:
+    """Eight legs of four bones from the cephalothorax, each rising to its knee and down, a
+    thin waist (pedicel) to a large abdomen, the eyes' bump in front."""
+    joints = {"cephalothorax": ((0, 0, 0.3), 0.12), "pedicel": ((-0.15, 0, 0.31), 0.04),
+              "abdomen": ((-0.33, 0, 0.35), 0.18), "abdomen tip": ((-0.52, 0, 0.33), 0.06),
+              "eyes": ((0.12, 0, 0.33), 0.07)}
+    bones = [("cephalothorax", "pedicel"), ("pedicel", "abdomen"), ("abdomen", "abdomen tip"),
+             ("cephalothorax", "eyes")]
+    tips = [("abdomen", "abdomen tip", (-0.05, 0, 0))]
+    chains = []
+    for s, sign in (("left", 1), ("right", -1)):
+        for i, angle in enumerate(np.radians([50, 20, -15, -50])):
+            out = np.array([np.sin(angle), sign * np.cos(angle), 0.0])  # (x ahead, y aside)
+            name = f"{s} leg {i} "
+            chains.append([("cephalothorax", None)] + [
+                (name + joint, (tuple(reach * out + (0, 0, z)), radius))
+                for joint, reach, z, radius in (
+                    ("hip", 0.08, 0.3, 0.03), ("knee", 0.3, 0.55, 0.025),
+                    ("ankle", 0.55, 0.2, 0.018), ("foot", 0.65, 0.02, 0.012))])
+            tips.append((f"{s} leg {i}", name + "foot", (0, 0, 0)))
+    _chained(joints, bones, chains)
+    return {"joints": joints, "bones": bones, "tips": tips}
+
+
+def _kangaroo() -> dict:
+    """Large hind legs of four bones (the long foot on the ground), a thick tail of three, small
+    arms of three below the chest, a neck and head with a snout and two upright ears."""
+    joints = {"pelvis": ((0, 0, 0.6), 0.2), "chest": ((0.15, 0, 0.95), 0.16),
+              "neck": ((0.22, 0, 1.2), 0.08), "head": ((0.28, 0, 1.32), 0.09),
+              "snout": ((0.45, 0, 1.28), 0.05), "tail 1": ((-0.3, 0, 0.4), 0.12),
+              "tail 2": ((-0.7, 0, 0.15), 0.07), "tail 3": ((-1.1, 0, 0.05), 0.03)}
+    bones = [("pelvis", "chest"), ("chest", "neck"), ("neck", "head"), ("head", "snout"),
+             ("pelvis", "tail 1"), ("tail 1", "tail 2"), ("tail 2", "tail 3")]
+    tips = [("snout", "snout", (0.04, 0, 0)), ("tail", "tail 3", (-0.03, 0, 0))]
+    chains = []
+    for s, sign in (("left", 1), ("right", -1)):
+        chains += [
+            [("head", None), (f"{s} ear", ((0.24, 0.05 * sign, 1.45), 0.03)),
+             (f"{s} ear tip", ((0.2, 0.07 * sign, 1.58), 0.015))],
+            [("chest", None), (f"{s} shoulder", ((0.25, 0.12 * sign, 0.95), 0.04)),
+             (f"{s} elbow", ((0.3, 0.14 * sign, 0.8), 0.03)),
+             (f"{s} paw", ((0.42, 0.12 * sign, 0.78), 0.025))],
+            [("pelvis", None), (f"{s} hip", ((0.05, 0.15 * sign, 0.55), 0.1)),
+             (f"{s} knee", ((0.25, 0.17 * sign, 0.35), 0.06)),
+             (f"{s} ankle", ((-0.05, 0.17 * sign, 0.08), 0.04)),
+             (f"{s} toe", ((0.3, 0.17 * sign, 0.03), 0.035))]]
+        tips += [(f"{s} ear", f"{s} ear tip", (0, 0, 0.01)),
+                 (f"{s} paw", f"{s} paw", (0.02, 0, 0)), (f"{s} foot", f"{s} toe", (0.03, 0, 0))]
+    _chained(joints, bones, chains)
+    return {"joints": joints, "bones": bones, "tips": tips}
+
+
+def _hand() -> dict:
+    """A palm on a forearm's stub, four fingers of four bones fanning out a little, a thumb of
+    four from the palm's side (a rig's hand: a chain per finger)."""
+    joints = {"palm": ((0, 0, 0.1), 0.045), "wrist": ((0, 0, 0.0), 0.03),
+              "forearm": ((0, 0, -0.12), 0.032)}
+    bones = [("palm", "wrist"), ("wrist", "forearm")]
+    tips = [("forearm", "forearm", (0, 0, -0.02))]
+    chains = []
+    for i, (x, length, r) in enumerate(((-0.042, 0.085, 0.0095), (-0.014, 0.1, 0.01),
+                                        (0.014, 0.095, 0.0095), (0.042, 0.075, 0.0085))):
+        name = f"finger {i} "
+        chains.append([("palm", None)] + [
+            (name + joint, ((x * (1 + 0.25 * along * length / 0.1), y, 0.15 + along * length),
+                            scale * r))
+            for joint, along, y, scale in (("1", 0, 0, 1), ("2", 0.45, 0.005, 0.9),
+                                           ("3", 0.75, 0.01, 0.8), ("tip", 1.0, 0.012, 0.7))])
+        tips.append((f"finger {i}", name + "tip", (0, 0, 0.005)))
+    chains.append([("palm", None)] + [
+        (f"thumb {joint}", (point, radius)) for joint, point, radius in (
+            ("1", (0.05, 0.01, 0.06), 0.014), ("2", (0.08, 0.02, 0.09), 0.012),
+            ("3", (0.1, 0.025, 0.12), 0.011), ("tip", (0.115, 0.03, 0.145), 0.009))])
+    tips.append(("thumb", "thumb tip", (0.003, 0, 0.003)))
+    _chained(joints, bones, chains)
+    return {"joints": joints, "bones": bones, "tips": tips}
+
+
 CHARACTERS = {"human": HUMAN, "cow": COW, "insect": _insect(), "horse": _horse(), "dog": _dog(),
-              "dinosaur": _dinosaur(), "bird": _bird()}
+              "dinosaur": _dinosaur(), "bird": _bird(), "spider": _spider(),
+              "kangaroo": _kangaroo(), "hand": _hand()}
 
 
 def blender_side(out: Path):
@@ -248,7 +339,7 @@ def blender_side(out: Path):
     np.savez(out, **arrays)
 
 
-def rig_table(data: Path, seeds: int, spheres: int, figures: Path | None):
+def rig_table(data: Path, seeds: int, spheres: int, figures: Path | None, names: list[str]):
     import trimesh
 
     import fleshing_jax as fj
@@ -256,7 +347,8 @@ def rig_table(data: Path, seeds: int, spheres: int, figures: Path | None):
     arrays = np.load(data)
     print("| character | vertices | seed | limbs | limbs per chain | tips in a limb of their own |")
     print("|---|---:|---:|---:|---|---|")
-    for name, figure in CHARACTERS.items():
+    for name in names:
+        figure = CHARACTERS[name]
         mesh = trimesh.Trimesh(arrays[f"{name}_vertices"], arrays[f"{name}_faces"],
                                process=False)
         mesh = mesh if mesh.is_watertight else fj.cap_holes(mesh)
@@ -335,6 +427,7 @@ def main():
     parser.add_argument("--spheres", type=int, default=200)
     parser.add_argument("--figures", type=Path)
     parser.add_argument("--joints", action="store_true", help="issue 46's joint targets")
+    parser.add_argument("--only", nargs="+", choices=list(CHARACTERS), help="these characters")
     args = parser.parse_args()
     if args.blender_side is not None:
         return blender_side(args.blender_side)
@@ -348,7 +441,7 @@ def main():
 
             jax.config.update("jax_enable_x64", True)
             return human_joints(data)
-        rig_table(data, args.seeds, args.spheres, args.figures)
+        rig_table(data, args.seeds, args.spheres, args.figures, args.only or list(CHARACTERS))
 
 
 if __name__ == "__main__":
