@@ -28,8 +28,11 @@ import hashlib
 import importlib.util
 import os
 import pickle
+import re
+import sys
 import tempfile
 import threading
+import types
 from collections import OrderedDict
 from pathlib import Path
 from typing import NamedTuple
@@ -87,6 +90,18 @@ def _key(name: str, signature: tuple) -> str:
     return digest.hexdigest()
 
 
+def _by_name(value):
+    """`value`, or for a function defined at a module's top level (a solver's `norm`:
+    `optimistix.max_norm`), its module and name: what it is in every process (the library's
+    and its dependencies' versions are in the key), where it prints by its address."""
+    if not isinstance(value, types.FunctionType) or "<" in value.__qualname__:
+        return value
+    module = sys.modules.get(value.__module__)
+    if getattr(module, value.__qualname__, None) is not value:
+        return value
+    return ("function", value.__module__, value.__qualname__)
+
+
 def _write(path: Path, data: bytes) -> None:
     """Writes `data` to `path` through a temporary file and a rename (never a partial file);
     a folder that cannot be written leaves the program unsaved."""
@@ -98,6 +113,26 @@ def _write(path: Path, data: bytes) -> None:
         os.replace(temporary, path)
     except OSError:
         pass
+
+
+def _exported(jitted, avals):
+    """`jax.export`'s program of `jitted` at `avals`, or `None` where JAX cannot export it (a
+    host callback in it). Custom calls without JAX's compatibility guarantee across versions
+    (LAPACK's QR in a Levenberg–Marquardt step's linear solve) are allowed: a kept program
+    is only loaded by the versions of JAX and jaxlib that exported it (`_key`)."""
+    try:
+        return jax.export.export(jitted)(*avals)
+    except ValueError as error:  # (the message names every such call: `@target(`)
+        targets = set(re.findall(r"custom_call @(\w+)\(", str(error)))
+        if not targets:
+            return None
+    except Exception:  # noqa: BLE001
+        return None
+    checks = [jax.export.DisabledSafetyCheck.custom_call(t) for t in sorted(targets)]
+    try:  # (the trace is jit's cached one: only lowered again)
+        return jax.export.export(jitted, disabled_checks=checks)(*avals)
+    except Exception:  # noqa: BLE001
+        return None
 
 
 class _Leaf:
@@ -138,9 +173,8 @@ def _program(folder: Path, key: str, fun, avals):
         outlines.append(outline)
         return arrays
 
-    try:
-        exported = jax.export.export(jax.jit(flat))(*avals)
-    except Exception:  # noqa: BLE001 (a program JAX cannot export: a host callback in it)
+    exported = _exported(jax.jit(flat), avals)
+    if exported is None:
         return None
     try:
         data = pickle.dumps((outlines[0], bytes(exported.serialize())))
@@ -197,6 +231,7 @@ def persistent(fun=None, *, compiler_options: dict | None = None):
         # What decides the trace, hashable: compared in memory on every call (a few
         # microseconds), written out as the file's key only for a program not loaded yet.
         constants, constants_def = jax.tree.flatten(static)
+        constants = [_by_name(c) for c in constants]
         signature = (str(folder), canonicalize_dtype(float).name, treedef, tuple(constants),
                      constants_def, tuple((np.shape(a), np.dtype(a.dtype).name,
                                            bool(getattr(a, "weak_type", False))) for a in leaves))

@@ -128,6 +128,32 @@ def test_a_static_value_printed_by_its_address_is_not_kept(folder):
     assert list(folder.iterdir()) == []
 
 
+def _norm(x):
+    return jnp.max(jnp.abs(x))
+
+
+class Normed(eqx.Module):
+    factor: jax.Array
+    norm: object  # (a field, not static: a leaf that is not an array, as a solver's `norm`)
+
+
+def test_a_function_among_the_static_values_keys_a_program_by_its_name(folder):
+    # A module's function among the values not traced (a solver's `norm`) prints by its
+    # address, but is the same in every process: keyed by its module and name, kept.
+    traced = _exported.persistent(lambda normed: normed.norm(normed.factor))
+    np.testing.assert_array_equal(traced(Normed(jnp.asarray(-3.0), _norm)), 3.0)
+    assert len(list(folder.iterdir())) == 1
+
+
+def test_a_registration_s_skeleton_key_is_the_same_in_every_process():
+    # Its static `skeleton_id` is in the key of the programs kept on disk: digests, not
+    # Python's `hash` of bytes, which is salted per process.
+    from fleshing_jax._skeleton.posing import _digest
+
+    assert _digest(b"spot") == _digest(b"spot") == -1178126572939867824
+    assert _digest(b"sp", b"ot") != _digest(b"spot")
+
+
 def test_a_free_form_spine_s_static_fields_print_the_same_in_every_process():
     # A prepared spine's evaluators (static) print by their functions' names: the key of the
     # skeleton's registration programs kept on disk (`_skeleton.posing`), not their addresses.
@@ -150,8 +176,8 @@ doubled_on_the_host = _exported.persistent(_doubled_on_the_host)
 
 
 def test_a_program_jax_cannot_export_is_jitted(folder):
-    # A host callback (a k-d tree in a shape fit) cannot be exported: jitted as without a
-    # folder, tried once (not traced again on the next call), nothing written.
+    # A host callback cannot be exported: jitted as without a folder, tried once (not traced
+    # again on the next call), nothing written.
     x = np.arange(3.0)
     np.testing.assert_array_equal(doubled_on_the_host(x), 2 * x + 1)
     np.testing.assert_array_equal(doubled_on_the_host(x), 2 * x + 1)

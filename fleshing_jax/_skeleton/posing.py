@@ -27,6 +27,7 @@ stay bit for bit.
 
 from __future__ import annotations
 
+import hashlib
 from functools import partial
 from typing import NamedTuple
 
@@ -137,11 +138,22 @@ def fingerprint(skeleton: Skeleton) -> tuple[int, int, int]:
     so that a pose never uses another skeleton's regions (limbs swapped, merged, split), nor
     a registration of another mesh or of spines since edited (the registration's, not the
     skeleton's, would be posed: silently)."""
-    parents = tuple(limb.parent for limb in skeleton.limbs)
-    spines = tuple(np.asarray(x).tobytes()
-                   for x in jax.tree.leaves([(limb.spine, limb.joint) for limb in skeleton.limbs]))
-    return (hash((np.asarray(skeleton.region).tobytes(), parents)),
-            hash(np.asarray(skeleton.vertices, np.float64).tobytes()), hash(spines))
+    parents = np.asarray([limb.parent for limb in skeleton.limbs], np.int64).tobytes()
+    spines = [np.asarray(x).tobytes()
+              for x in jax.tree.leaves([(limb.spine, limb.joint) for limb in skeleton.limbs])]
+    return (_digest(np.asarray(skeleton.region).tobytes(), parents),
+            _digest(np.asarray(skeleton.vertices, np.float64).tobytes()), _digest(*spines))
+
+
+def _digest(*parts: bytes) -> int:
+    """A digest of `parts` as an integer, the same in every process (Python's `hash` of bytes
+    is salted per process: a registration's static `skeleton_id` is part of the key of the
+    programs kept on disk, `_exported`)."""
+    digest = hashlib.blake2b(digest_size=8)
+    for part in parts:
+        digest.update(len(part).to_bytes(8, "little"))
+        digest.update(part)
+    return int.from_bytes(digest.digest(), "little", signed=True)
 
 
 def register_skeleton(mesh, skeleton: Skeleton, *, margin: float | None = None,
