@@ -90,9 +90,10 @@ def compilation_cache_settings(
     programs to store); empty when there is nothing to change (a cache already configured) or
     the cache stays off (`FLESHING_JAX_CACHE=off`).
 
-    The library's largest programs (the medial pose: `arap_medial`, `MedialRig.pose`) also
-    keep their traced programs in that folder (`jax.export`, a `fleshing-jax-exported`
-    subfolder), so that a new process's first call neither traces nor compiles them.
+    The library's largest programs (the medial pose: `arap_medial`, `MedialRig.pose`; a
+    skeleton pose's fit, `fit_skeleton_pose`) also keep their traced programs in that folder
+    (`jax.export`, a `fleshing-jax-exported` subfolder), so that a new process's first call
+    neither traces nor compiles them.
 
     The cache is trusted code: never point it at a folder that others can write to.
     """

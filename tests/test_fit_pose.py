@@ -396,7 +396,7 @@ def test_the_distance_to_a_surface_is_to_its_closest_triangle_point():
     import jax.numpy as jnp
     import trimesh
 
-    from fleshing_jax._fit.surface import closest_weights, rings, to_surface
+    from fleshing_jax._fit.surface import closest_weights, covers, pool, rings, to_surface
 
     rng = np.random.default_rng(0)
     u = rng.uniform(size=(20000, 2))
@@ -421,8 +421,15 @@ def test_the_distance_to_a_surface_is_to_its_closest_triangle_point():
     ring = jnp.asarray(rings(ball.faces, len(ball.vertices)))
     y = np.concatenate([rng.normal(size=(40, 3)), [[12, 0.05, 0]]])
 
+    # Each point's nearest vertices chosen in the program among a pool found on the host: a
+    # pool found on the surface moved a little still holds them (`covers`), one found far
+    # from it does not.
+    candidates = pool(y, ball.vertices)
+    assert covers(candidates, y, ball.vertices + 0.01)
+    assert not covers(pool(y + 3.0, ball.vertices), y, ball.vertices)
+
     def squared(v):  # (the distances and their gradient as one program: eagerly, op by op)
-        d = to_surface(jnp.asarray(y), v, faces, ring)
+        d = to_surface(jnp.asarray(y), v, faces, ring, jnp.asarray(candidates))
         return jnp.sum(d**2), d
 
     (_, d), grad = jax.jit(jax.value_and_grad(squared, has_aux=True))(jnp.asarray(ball.vertices))

@@ -19,16 +19,17 @@ residual `y − Σ wᵢ vᵢ` then has the derivative of the distance itself in 
 weights minimise it: their own derivative drops out), and its square sums to the squared
 distance.
 
-The nearest vertices are found by a k-d tree on the host (`nearest_vertices`, a callback from
-the traced program: the choice is on stopped gradients, so nothing differentiates through
-it). Built on the surface as it is at each evaluation, it keeps every step of a solve on its
-own neighbours; at a shape fit's sizes (1,500 target points, 2,930 posed vertices) it took
-11 ms where the brute-force search took 128 ms (load 9), most of a step's residuals.
+The nearest vertices are chosen inside the program from a pool of candidates per point,
+found outside it by a k-d tree on the host (`pool`: each point's `POOL` nearest vertices of
+the surface as it was): the distances to the pool's vertices, and their `NEAREST` smallest
+(`nearest_in`, on stopped gradients: nothing differentiates through the choice). While the
+surface moves less than the pool's reach, the choice is the k-d tree's own on the moved
+surface (`covers` checks it, and a solve finds new pools where it does not). The program
+then holds no host callback: JAX's persistent cache keeps it (it stores no program with
+one), and the pool's search costs a solve's step less than the callback's round trip did.
 """
 
 from __future__ import annotations
-
-import functools
 
 import jax
 import jax.numpy as jnp
@@ -104,35 +105,50 @@ def closest_weights(y: Array, a: Array, b: Array, c: Array) -> Array:
 
 
 NEAREST = 3  # the vertices whose one-rings hold a point's candidate triangles
+# Each point's pool of candidate nearest vertices (`pool`): a solve's steps move the surface
+# by less than the pool's reach (about twice the vertex spacing) before it is found again.
+POOL = 16
 
 
-def _query(points: np.ndarray, vertices: np.ndarray, count: int) -> np.ndarray:
+def pool(points: np.ndarray, vertices: np.ndarray, count: int = POOL) -> np.ndarray:
+    """Each of `points`' (K, 3) `count` nearest of `vertices` (V, 3), as indices (K, count),
+    nearest first (a k-d tree, on the host; with fewer vertices than `count`, the nearest
+    repeated)."""
     near = cKDTree(vertices).query(points, count)[1].reshape(len(points), -1)
     # (Fewer vertices than `count`: the tree pads with `len(vertices)`; its nearest repeated.)
     return np.where(near < len(vertices), near, near[:, :1]).astype(np.int32)
 
 
-def nearest_vertices(points: Array, vertices: Array, count: int) -> Int[Array, "K c"]:
-    """Each of `points`' (K, 3) `count` nearest of `vertices` (V, 3), as indices (K, count)
-    (a k-d tree on the host: traceable, on stopped gradients; batched one call per member)."""
-    return jax.pure_callback(functools.partial(_query, count=count),
-                             jax.ShapeDtypeStruct((points.shape[0], count), jnp.int32),
-                             jax.lax.stop_gradient(points), jax.lax.stop_gradient(vertices),
-                             vmap_method="sequential")
+def covers(candidates: np.ndarray, points: np.ndarray, vertices: np.ndarray) -> bool:
+    """Whether each point's (K, 3) `NEAREST` nearest of `vertices` (V, 3) lie in its row of
+    `candidates` (K, M) (a `pool`): then `nearest_in` chooses them, as the k-d tree would."""
+    near = pool(points, vertices, NEAREST)
+    return bool(np.all(np.any(candidates[:, :, None] == near[:, None, :], axis=1)))
 
 
-def to_surface(points: Array, vertices: Array, faces: Array, ring: Array,
+def nearest_in(points: Array, vertices: Array, candidates: Int[Array, "K M"],
+               count: int = NEAREST) -> Int[Array, "K c"]:
+    """Each of `points`' (K, 3) `count` nearest of its `candidates` (K, M) among `vertices`
+    (V, 3), nearest first, as indices (K, count) (on stopped gradients)."""
+    points, vertices = jax.lax.stop_gradient(points), jax.lax.stop_gradient(vertices)
+    squared = jnp.sum((vertices[candidates] - points[:, None]) ** 2, axis=-1)  # (K, M)
+    _, best = jax.lax.top_k(-squared, count)
+    return jnp.take_along_axis(candidates, best, axis=1)
+
+
+def to_surface(points: Array, vertices: Array, faces: Array, ring: Array, candidates: Array,
                along_normal: bool = False) -> Array:
     """The difference vectors (K, 3) from the closest points of the surface `(vertices (V, 3),
     faces (F, 3))` to `points` (K, 3), their squared norms the squared distances; `ring`
-    (V, R): `rings(faces, V)`. Differentiable in both `points` and `vertices` (the module's
+    (V, R): `rings(faces, V)`; `candidates` (K, M): each point's `pool` (its nearest vertices
+    chosen among them, `nearest_in`). Differentiable in both `points` and `vertices` (the module's
     docstring). With `along_normal`, each vector's part along its triangle's unit normal
     (stopped; a collapsed triangle keeps the whole vector): point to plane, whose derivative
     sees only the surface's motion across itself. (The closest point's weights are stopped,
     so the whole vector's derivative also counts the surface sliding along itself, which moves
     no distance: with noisy points that made the fit rugged and its spread too narrow.)"""
     fixed = jax.lax.stop_gradient(vertices)
-    near = nearest_vertices(points, fixed, NEAREST)
+    near = nearest_in(points, fixed, candidates)
     candidates = ring[near].reshape(near.shape[0], -1)  # (K, NEAREST·R) faces, -1 padding
 
     # Each candidate's corners by coordinate (K, C), for `_weights`.

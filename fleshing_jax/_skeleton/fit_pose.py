@@ -28,6 +28,7 @@ from jaxtyping import Array, ArrayLike, Bool, Float
 
 from .._batching.buckets import bucket
 from .._checks import check_vertex_ids
+from .._exported import persistent
 from .._fit.budget import limited
 from .._fit.jacobian import compressed
 from .._fit.problem import (
@@ -234,10 +235,11 @@ def dependence(skeleton: Skeleton, limbs: tuple[int, ...], per_limb: int,
 SOLVE_COMPILE = {"xla_cpu_use_fusion_emitters": False}
 
 
-@eqx.filter_jit(compiler_options=SOLVE_COMPILE)
-def _solve(problem: PoseProblem, solver, y0: Array, max_steps: int, throw: bool,
-           linearised: bool = False):
-    """`optimistix.least_squares` on `problem`: `(y, trust radius, result, stats, linear)`.
+def _solving(problem: PoseProblem, solver, y0: Array, max_steps: int, throw: bool,
+           linearised: bool = False, posed_end: bool = False):
+    """`optimistix.least_squares` on `problem`: `(y, trust radius, result, stats, linear)`,
+    and with `posed_end` `problem.vertices(y)` after them (a shape fit's surface where the
+    solve ended: the candidates of its next solve's nearest vertices, `_fit.surface.pool`).
     The losses are read from eager poses outside, which share their programs with
     `pose_skeleton`. The residuals' Jacobian is materialised at each step for a least-squares
     solver (`_fit.jacobian`: the solve compiles in half the time). With `linearised`, `linear`
@@ -257,7 +259,13 @@ def _solve(problem: PoseProblem, solver, y0: Array, max_steps: int, throw: bool,
     solution = optx.least_squares(function, solver, y0, max_steps=max_steps, throw=throw)
     radius = trust_radius(solver, solution, y0.dtype)
     linear = _linear_state(solution.state) if linearised else None
-    return solution.value, radius, solution.result, solution.stats, linear
+    out = solution.value, radius, solution.result, solution.stats, linear
+    return (*out, traced(solution.value)) if posed_end else out
+
+
+# With JAX's persistent cache on, the solve's traced program is kept too (`_exported`): a
+# new process's first fit neither traces, lowers nor compiles it.
+_solve = persistent(_solving, compiler_options=SOLVE_COMPILE)
 
 
 def _linear_state(state):

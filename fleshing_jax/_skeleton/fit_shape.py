@@ -63,12 +63,15 @@ pose's vertices, samples of a mesh), from the rest pose:
   (steps rejected on the piecewise-smooth loss until one tiny enough passed the solver's own
   test) would be reported successful.
 
-Nearest vertices by a k-d tree on the host, called from inside the solve
-(`_fit.surface.nearest_vertices`): every Levenberg–Marquardt step sees its own neighbours
-(the true gradient, no outer ICP loop of separate solves), and the tree, rebuilt on the posed
-surface at each evaluation, costs a tenth of the brute-force search it replaced. scipy's
-`cKDTree` also serves the one-off checks outside the solve (the noise level and the final
-distances).
+Nearest vertices chosen inside the solve among a pool of each target point's nearest found by
+a k-d tree on the host where the solve starts (`_solved`, `_fit.surface.pool`): while the
+pool holds the moved surface's nearest, every Levenberg–Marquardt step sees its own
+neighbours, as with the k-d tree called from inside the solve that it replaces (the true
+gradient); where it no longer does when the solve stops, the solve goes on from there with
+new pools. The solve's program then holds no host callback, and JAX's persistent cache
+keeps it with its traced program (`_exported`): a new process's first fit neither traces
+nor compiles it. scipy's `cKDTree` also serves the one-off checks outside the solve (the
+noise level and the final distances).
 """
 
 from __future__ import annotations
@@ -83,7 +86,7 @@ from scipy.spatial import cKDTree
 
 from .._fit.budget import limited
 from .._fit.problem import check_cloud
-from .._fit.surface import rings, to_surface
+from .._fit.surface import NEAREST, POOL, covers, pool, rings, to_surface
 from .._fit.uncertainty import block_spread, covariance
 from .fit_pose import (
     SkeletonFit,
@@ -239,6 +242,7 @@ class ShapeProblem(eqx.Module):
     rings: Array  # (m + s, R) each surface vertex's faces (`_fit.surface.rings`)
     cloud: Array  # (K, 3): the target's sample, padded to `SOLVE_POINTS` rows (`_padded`)
     weights: Array  # (K,): 1 for the target's points, 0 for the padding
+    pool: Array  # (K, M): each point's candidate nearest surface vertices (`_solved`)
     sigma: Array  # (): the Cauchy scale of the stage (`STAGES`)
     markers: Array  # (k,) rows of the marker vertices (k = 0: none)
     marker_targets: Array  # (k, 3)
@@ -267,12 +271,17 @@ class ShapeProblem(eqx.Module):
         return posed(self.registration, self.skeleton, self.poses(y), self.method, False,
                      stacked=True, blend_tangent=False).vertices
 
+    def surface(self, vertices: Array) -> Array:
+        """The solve's surface's vertices (m + s, 3) (the moving sample's, then the still
+        ones) of the restricted registration's posed `vertices` (n, 3)."""
+        return jnp.concatenate([vertices[self.moving], self.still])
+
     def residuals(self, vertices: Array) -> tuple:
         """The residuals of the posed `vertices` (n, 3): the target's, then the markers'."""
-        surface = jnp.concatenate([vertices[self.moving], self.still])
         # The target to the posed surface itself (its triangles), not to its vertices: zero at
         # the true pose, however far apart the vertices (`_fit.surface`).
-        backward = _cauchy(to_surface(self.cloud, surface, self.faces, self.rings, True),
+        backward = _cauchy(to_surface(self.cloud, self.surface(vertices), self.faces,
+                                      self.rings, self.pool, True),
                            self.sigma) * self.weights[:, None]
         # In units of σ: the loss is then on one scale whatever the mesh's size, and so are
         # the solver's tolerances on its decrease (in the mesh's units, a mean squared
@@ -362,57 +371,62 @@ def fit_to_shape(registration: SkeletonRegistration, skeleton: Skeleton, target,
     problem = ShapeProblem(
         small, skeleton, held, starts[:, 2], rows[: len(moving)], jnp.asarray(rest[still]),
         jnp.asarray(faces), jnp.asarray(ring), *_padded(cloud[solved]),
-        jnp.zeros((), dtype), rows[len(moving):], marker_targets,
+        jnp.zeros((SOLVE_POINTS, POOL), jnp.int32), jnp.zeros((), dtype), rows[len(moving):],
+        marker_targets,
         *dependence(skeleton, limbs, 3 if fit_twist else 2, np.concatenate([moving, markers])),
         limbs, method)
     y = starts if fit_twist else starts[:, :2]
     steps = 0
     kept = np.concatenate([moving, still])
     owners = _owners(skeleton, limbs)
+    # The solve's surface where each solve starts (`_solved`'s pools): at rest, the rest's.
+    surface = rest[kept] if not held and not np.any(np.asarray(starts)) else None
     for i, sigma in enumerate(STAGES):
         problem = eqx.tree_at(lambda p: p.sigma, problem, jnp.asarray(sigma * diagonal, dtype))
         last = i == len(STAGES) - 1
         # Each stage's step budget is a value (`_fit.budget`): the stages share one compiled
         # solve (two, with `throw`: the last stage's own).
-        budget, limit = limited(solver, max_steps,
-                                None if last else min(max_steps, COARSE_STEPS))
-        y, _, result, stats, linear = _solve(problem, budget, y, limit, throw and last, True)
+        problem, y, result, stats, linear, surface = _solved(
+            problem, solver, y, max_steps if last else min(max_steps, COARSE_STEPS), max_steps,
+            throw and last, surface)
         steps += int(stats["num_steps"])
         if i == len(STAGES) - 2:
-            # (The whole mesh posed eagerly, by the programs that pose the result below.)
-            whole = pose_skeleton(registration, skeleton, problem.poses(y), method=method)
-            surface, parts = np.asarray(whole.vertices)[kept], region[kept]
+            parts = region[kept]
             # Neither when the body's part of the target is itself unexplained (`MISPLACED`):
             # another shape, or a scan not aligned, which no limb's start explains (a ball's
             # fit tried 8 starts for nothing) and whose parts are no limb's.
             if _body_level(*_parts(problem, linear, surface, parts)) <= MISPLACED:
+                before = y
                 y, tried = _restarted(problem, solver, y, linear, max_steps, surface, parts)
                 steps += tried
                 # The last stage's points shared out by the parts they lie nearest to here.
                 # (The stages before keep the uniform sample: from the rest pose a limb far
                 # from its part owns others, and re-chosen before the middle stage, spot's
-                # clean fit took 45 steps, not 36.)
-                owner = owners[region[cKDTree(np.asarray(whole.vertices)).query(cloud)[1]]]
+                # clean fit took 45 steps, not 36.) The whole mesh's vertices: the solve's
+                # surface holds every moving one.
+                whole = rest.copy()
+                whole[moving] = surface[: len(moving)]
+                owner = owners[region[cKDTree(whole).query(cloud)[1]]]
                 problem = eqx.tree_at(lambda p: (p.cloud, p.weights), problem,
                                       _padded(cloud[_shares(owner, SOLVE_POINTS, rng)]))
-    poses = dict(sorted(problem.poses(y).items()))
-    whole = pose_skeleton(registration, skeleton, poses, method=method)
-    again, tried = _resettled(problem, solver, y, linear, max_steps,
-                              np.asarray(whole.vertices)[kept], region[kept], throw)
+                surface = surface if y is before else None  # (another start kept: posed anew)
+    again, tried = _resettled(problem, solver, y, linear, max_steps, surface, region[kept],
+                              throw)
     steps += tried
     if again is not None:
-        y, _, result, stats, linear = again
-        poses = dict(sorted(problem.poses(y).items()))
-        whole = pose_skeleton(registration, skeleton, poses, method=method)
+        problem, y, result, stats, linear, surface = again
+    poses = dict(sorted(problem.poses(y).items()))
+    # The result posed exactly (the solve's posing reads the rest spines' tables).
+    whole = pose_skeleton(registration, skeleton, poses, method=method)
     vertices = np.asarray(whole.vertices)
     backward, nearest = cKDTree(vertices).query(cloud)
     forward, nearest_to = cKDTree(cloud).query(vertices)
     # To the posed triangles: a target point between vertices is not unexplained (along the
     # target's normals to the nearest vertex, a thin ear's sides seen from one side were).
-    off = np.linalg.norm(np.asarray(_distances(jnp.asarray(cloud), whole.vertices,
-                                               registration.triangles,
-                                               jnp.asarray(rings(triangles, len(vertices))))),
-                         axis=-1)
+    off = np.linalg.norm(np.asarray(_distances(
+        jnp.asarray(cloud), whole.vertices, registration.triangles,
+        jnp.asarray(rings(triangles, len(vertices))), jnp.asarray(pool(cloud, vertices, NEAREST)))),
+        axis=-1)
     loss = (np.mean(forward**2) + np.mean(backward**2)) / 2
     if ids is not None:
         loss = loss + np.mean(np.sum((vertices[ids] - np.asarray(targets)) ** 2, axis=-1))
@@ -450,6 +464,38 @@ def fit_to_shape(registration: SkeletonRegistration, skeleton: Skeleton, target,
 _distances = eqx.filter_jit(to_surface)
 
 
+def _solved(problem: ShapeProblem, solver, y: Array, steps: int, max_steps: int, throw: bool,
+            surface: np.ndarray | None = None):
+    """`problem` solved from `y` for at most `steps` steps (`fit_pose._solve`, under the
+    static limit of `_fit.budget.limited(·, max_steps)`), each target point's nearest surface
+    vertices chosen among its `_fit.surface.POOL` nearest where the solve starts (found on the
+    host, `_fit.surface.pool`: no host callback in the program), and solved again from where
+    it stopped, with pools found there, while they do not hold that surface's nearest
+    (`covers`: the solve's own choice is then the k-d tree's) and steps are left. `surface`
+    (m + s, 3): the solve's surface posed at `y` (`ShapeProblem.surface`), else posed here.
+    `(problem with its last pools, y, result, stats (num_steps: every round's), linear,
+    the surface at y)`, `y`, `result`, `linear` as `_solve`'s."""
+    cloud = np.asarray(problem.cloud)
+
+    def solve(problem, y, budget, throw=throw):
+        bounded, limit = limited(solver, max_steps, budget)
+        y, _, result, stats, linear, vertices = _solve(problem, bounded, y, limit, throw, True,
+                                                       True)
+        return y, result, stats, linear, np.asarray(problem.surface(vertices))
+
+    if surface is None:  # (no step: the program's posing of y, with the pools it holds)
+        surface = solve(problem, y, 0, False)[-1]
+    taken = 0
+    while True:
+        candidates = pool(cloud, surface)
+        problem = eqx.tree_at(lambda p: p.pool, problem, jnp.asarray(candidates))
+        y, result, stats, linear, surface = solve(problem, y, steps - taken)
+        taken += int(stats["num_steps"])
+        if (taken >= steps or result != optx.RESULTS.successful
+                or covers(candidates, cloud, surface)):
+            return problem, y, result, {**stats, "num_steps": taken}, linear, surface
+
+
 def _loss(linear) -> float:
     return float(jnp.sum(linear[1] ** 2))
 
@@ -480,7 +526,6 @@ def _restarted(problem: ShapeProblem, solver, y: Array, linear, max_steps: int,
     taken)`; the best start's solve is to be continued. With `floor`: only the limbs
     `_stuck` at that floor (`_resettled`)."""
     best, taken = _loss(linear), 0
-    short, limit = limited(solver, max_steps, min(max_steps, COARSE_STEPS))
     if floor is None:
         spread = _spreads(linear, problem.limbs, y.shape[-1])
         tried = {i for i, k in enumerate(problem.limbs) if spread[k] > ANGLE_SPREAD}
@@ -490,8 +535,8 @@ def _restarted(problem: ShapeProblem, solver, y: Array, linear, max_steps: int,
         tried = set(_stuck(problem, linear, surface, region, floor))
     for i in sorted(tried):
         for start in _starts(np.asarray(y[i, :2])):
-            trial, _, _, stats, out = _solve(problem, short, y.at[i, :2].set(start), limit,
-                                             False, True)
+            _, trial, _, stats, out, _ = _solved(problem, solver, y.at[i, :2].set(start),
+                                                 min(max_steps, COARSE_STEPS), max_steps, False)
             taken += int(stats["num_steps"])
             if _loss(out) < best * (1 - IMPROVED):
                 y, best = trial, _loss(out)
@@ -527,8 +572,7 @@ def _resettled(problem: ShapeProblem, solver, y: Array, linear, max_steps: int,
                               SETTLED_FLOOR)
     if start is y:  # (no start lowered the loss)
         return None, taken
-    budget, limit = limited(solver, max_steps, None)
-    again = _solve(problem, budget, start, limit, throw, True)
+    again = _solved(problem, solver, start, max_steps, max_steps, throw)
     taken += int(again[3]["num_steps"])
     return (again if _loss(again[4]) < _loss(linear) * (1 - IMPROVED) else None), taken
 
