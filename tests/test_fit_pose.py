@@ -288,6 +288,8 @@ def test_a_solve_traces_its_residuals_once():
     # The solver evaluates and linearises the residuals where it starts and in its step: one
     # trace of the posing serves both, so that a fit's posing is traced once. Its Jacobian
     # from one forward pass for both parameters, each moving its own row (`dependence`).
+    import uuid
+
     import equinox as eqx
     import jax.numpy as jnp
     import optimistix as optx
@@ -300,6 +302,9 @@ def test_a_solve_traces_its_residuals_once():
         target: jnp.ndarray
         seeds: jnp.ndarray = eqx.field(default_factory=lambda: jnp.ones((1, 2), bool))
         moves: jnp.ndarray = eqx.field(default_factory=lambda: jnp.eye(2, dtype=bool))
+        # A new program each run: the solve is kept on disk, and a second run of the suite
+        # loaded it from there without tracing (the count below then read 0).
+        run: str = eqx.field(default_factory=lambda: uuid.uuid4().hex)
 
         def vertices(self, y):
             traced.append(None)
