@@ -77,6 +77,17 @@ COW = {
         "front left ", "front right ", "hind left ", "hind right ")],
 }
 
+def _chained(joints: dict, bones: list, chains):
+    """Adds each chain `[(existing joint, None), (joint, (point, radius)), ...]` to `joints`
+    and `bones`, each joint joined to the one before it (a `None` joint within a chain starts
+    a new one from that existing joint)."""
+    for chain in chains:
+        for (a, _), (b, joint) in zip(chain, chain[1:]):
+            if joint is not None:
+                joints[b] = joint
+                bones.append((a, b))
+
+
 def _insect() -> dict:
     """Six legs from the thorax, each rising to its knee and down (bent at rest), a waist to
     the abdomen, a neck to the head, two antennae."""
@@ -99,10 +110,7 @@ def _insect() -> dict:
                       (name + "ankle", ((x + 1.6 * dx, sign * 0.45, 0.08), 0.022)),
                       (name + "foot", ((x + 1.9 * dx, sign * 0.5, 0.02), 0.016))]
             tips.append((f"{s} {leg} foot", name + "foot", (0, 0, 0)))
-        for (a, _), (b, joint) in zip(chain, chain[1:]):
-            if joint is not None:  # (a None joint starts a new chain from an existing one)
-                joints[b] = joint
-                bones.append((a, b))
+        _chained(joints, bones, [chain])
     return {"joints": joints, "bones": bones, "tips": tips}
 
 
@@ -174,17 +182,14 @@ def _dinosaur() -> dict:
              ("hips", "tail 1"), ("tail 1", "tail 2"), ("tail 2", "tail 3")]
     tips = [("jaw", "jaw", (0.06, 0, 0)), ("tail", "tail 3", (-0.03, 0, 0))]
     for s, sign in (("left", 1), ("right", -1)):
-        arm = [("chest", None), ("shoulder", ((0.55, 0.15 * sign, 1.05), 0.05)),
-               ("elbow", ((0.65, 0.2 * sign, 0.9), 0.035)),
-               ("hand", ((0.78, 0.2 * sign, 0.85), 0.03))]
-        leg = [("hips", None), ("hip", ((0.0, 0.16 * sign, 0.8), 0.12)),
-               ("knee", ((0.12, 0.18 * sign, 0.5), 0.08)),
-               ("ankle", ((-0.05, 0.18 * sign, 0.15), 0.05)),
-               ("toe", ((0.15, 0.18 * sign, 0.04), 0.045))]
-        for chain in (arm, leg):
-            for (a, _), (b, joint) in zip(chain, chain[1:]):
-                joints[f"{s} {b}"] = joint
-                bones.append((a if a in ("chest", "hips") else f"{s} {a}", f"{s} {b}"))
+        arm = [("chest", None), (f"{s} shoulder", ((0.55, 0.15 * sign, 1.05), 0.05)),
+               (f"{s} elbow", ((0.65, 0.2 * sign, 0.9), 0.035)),
+               (f"{s} hand", ((0.78, 0.2 * sign, 0.85), 0.03))]
+        leg = [("hips", None), (f"{s} hip", ((0.0, 0.16 * sign, 0.8), 0.12)),
+               (f"{s} knee", ((0.12, 0.18 * sign, 0.5), 0.08)),
+               (f"{s} ankle", ((-0.05, 0.18 * sign, 0.15), 0.05)),
+               (f"{s} toe", ((0.15, 0.18 * sign, 0.04), 0.045))]
+        _chained(joints, bones, (arm, leg))
         tips += [(f"{s} hand", f"{s} hand", (0.02, 0, 0)), (f"{s} foot", f"{s} toe", (0.03, 0, 0))]
     return {"joints": joints, "bones": bones, "tips": tips}
 
@@ -200,29 +205,17 @@ def _bird() -> dict:
              ("body", "tail"), ("tail", "tail tip")]
     tips = [("beak", "beak", (0.02, 0, 0)), ("tail", "tail tip", (-0.02, 0, 0))]
     for s, sign in (("left", 1), ("right", -1)):
-        wing = [("breast", None), ("shoulder", ((0.12, 0.14 * sign, 0.6), 0.04)),
-                ("elbow", ((0.05, 0.4 * sign, 0.62), 0.03)),
-                ("wrist", ((0.1, 0.65 * sign, 0.64), 0.025)),
-                ("wing tip", ((0.0, 0.9 * sign, 0.64), 0.015))]
-        leg = [("body", None), ("hip", ((0.0, 0.07 * sign, 0.38), 0.045)),
-               ("knee", ((0.05, 0.08 * sign, 0.22), 0.025)),
-               ("foot", ((0.1, 0.08 * sign, 0.03), 0.02))]
-        for chain in (wing, leg):
-            for (a, _), (b, joint) in zip(chain, chain[1:]):
-                joints[f"{s} {b}"] = joint
-                bones.append((a if a in ("breast", "body") else f"{s} {a}", f"{s} {b}"))
+        wing = [("breast", None), (f"{s} shoulder", ((0.12, 0.14 * sign, 0.6), 0.04)),
+                (f"{s} elbow", ((0.05, 0.4 * sign, 0.62), 0.03)),
+                (f"{s} wrist", ((0.1, 0.65 * sign, 0.64), 0.025)),
+                (f"{s} wing tip", ((0.0, 0.9 * sign, 0.64), 0.015))]
+        leg = [("body", None), (f"{s} hip", ((0.0, 0.07 * sign, 0.38), 0.045)),
+               (f"{s} knee", ((0.05, 0.08 * sign, 0.22), 0.025)),
+               (f"{s} foot", ((0.1, 0.08 * sign, 0.03), 0.02))]
+        _chained(joints, bones, (wing, leg))
         tips += [(f"{s} wing", f"{s} wing tip", (0, 0.015 * sign, 0)),
                  (f"{s} foot", f"{s} foot", (0.02, 0, 0))]
     return {"joints": joints, "bones": bones, "tips": tips}
-
-
-def _chained(joints: dict, bones: list, chains: list):
-    """Adds each chain `[(existing joint, None), (joint, (point, radius)), ...]` to `joints`
-    and `bones`, each joint joined to the one before it."""
-    for chain in chains:
-        for (a, _), (b, joint) in zip(chain, chain[1:]):
-            joints[b] = joint
-            bones.append((a, b))
 
 
 def _spider() -> dict:
