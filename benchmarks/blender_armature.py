@@ -1,7 +1,7 @@
 """Our jointed pose against Blender's armature on the same joint rotations (issues 45/46).
 
     python benchmarks/blender_armature.py --bpy /path/to/venv-with-bpy/bin/python \
-        [--character biped|spot|human|insect|dog] \
+        [--character biped|spot|human|insect|dog|kangaroo] \
         [--figure benchmarks/figures/skeleton-biped-vs-blender.png]
 
 The procedural biped's skeleton (`fj.skeleton`, 200 spheres): one leg posed at its hip 40°,
@@ -10,7 +10,8 @@ or spot's (`fj.skeleton`): its head turned 45°, a front leg lifted 45°, a hind
 the human modelled in Blender (`skin_characters.py`): a leg, an arm and the head forwards;
 or its insect: a front leg raised at hip and knee, a hind leg swung back, the head turned;
 or its dog: a front leg stepping (shoulder and next joint), a hind leg back, the head turned,
-the tail raised.
+the tail raised; or its kangaroo: the tail raised, a hind leg forwards, an arm raised, the
+head turned.
 Blender (`pip install bpy` in another environment: `--bpy` names its Python) gets one bone
 per limb (head at the limb's bend start, tail where its bend is complete), a still body
 bone, automatic heat weights, and as each bone's rotation the rotation our pose gives that
@@ -137,6 +138,25 @@ def dog_poses(fj, skeleton):
                                                        up=up)}
 
 
+def kangaroo_poses(fj, skeleton):
+    """The kangaroo modelled in Blender (`skin_characters.py`, z up, +x ahead; its own
+    skeleton): its tail raised 30°, a hind leg swung 30° forwards at the hip, an arm raised
+    40° forwards, its head (with its ears) turned 30° about up."""
+    up, ahead = np.array([0.0, 0.0, 1.0]), np.array([1.0, 0.0, 0.0])
+    chains = _longest_chains(skeleton)
+    tips = {top: np.asarray(skeleton.limbs[c[-1]].spine(skeleton.limbs[c[-1]].spine.length))
+            for top, c in chains.items()}
+    tail = min(tips, key=lambda t: tips[t][0])
+    head = max(tips, key=lambda t: tips[t][2])
+    feet = [t for t, p in tips.items() if p[2] < 0.2 and t != tail]
+    arms = [t for t in tips if t not in (tail, head, *feet)]
+    poses = {tail: fj.LimbPose(30.0, towards=up),
+             chains[feet[0]][0]: fj.LimbPose(30.0, towards=ahead),
+             chains[arms[0]][0]: fj.LimbPose(40.0, towards=ahead)}
+    return lambda registration: poses | {head: fj.turn(registration, skeleton, head, 30.0,
+                                                       up=up)}
+
+
 def skin_mesh(bpy: str, name: str):
     """The character `name` of `skin_characters.py`, modelled by Blender in a subprocess
     (`bpy`)."""
@@ -164,11 +184,12 @@ def ours(out: Path, character: str, bpy: str):
         mesh = fj.data.spot()
         skeleton = fj.skeleton(mesh)
         poses_of = spot_poses(fj, skeleton)
-    elif character in ("human", "insect", "dog"):
+    elif character in ("human", "insect", "dog", "kangaroo"):
         mesh = skin_mesh(bpy, character)
+        mesh = mesh if mesh.is_watertight else fj.cap_holes(mesh)  # (the skin's branch holes)
         skeleton = fj.skeleton(mesh)
-        poses_of = {"human": human_poses, "insect": insect_poses, "dog": dog_poses}[character](
-            fj, skeleton)
+        poses_of = {"human": human_poses, "insect": insect_poses, "dog": dog_poses,
+                    "kangaroo": kangaroo_poses}[character](fj, skeleton)
     else:
         mesh = biped()
         skeleton = fj.skeleton(mesh)
@@ -282,8 +303,8 @@ def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--bpy", required=True, help="a Python with `bpy` installed")
     parser.add_argument("--figure", type=Path, default=None)
-    parser.add_argument("--character", choices=("biped", "spot", "human", "insect", "dog"),
-                        default="biped")
+    parser.add_argument("--character", default="biped",
+                        choices=("biped", "spot", "human", "insect", "dog", "kangaroo"))
     parser.add_argument("--blender-side", nargs=2, help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.blender_side:
