@@ -561,24 +561,28 @@ def test_a_parent_s_route_is_judged_by_its_children_s_regions_on_a_tie():
     assert _lost(found, wide, 0) < _lost(found, narrow, 0) < _lost(found, lost, 0)
 
 
-def test_a_limb_left_no_spheres_is_none():
-    """A spider modelled in Blender (`benchmarks/skin_characters.py`), its medial mesh at seed
-    1 (200 spheres, unit frame): within a limb's level, two routes to one leg were found, and
-    every sphere went to the other: a limb of no spheres, on which `find_limbs` raised (its
-    thickest sphere asked of an empty set). It is none; every limb found has spheres, and the
-    eight legs' ends are each in a limb of the body."""
+def _spider():
+    """A spider modelled in Blender (`benchmarks/skin_characters.py`): its medial mesh at seed
+    1 (200 spheres, unit frame), its limbs, and its legs' ends (the lowest spheres: the feet
+    stand on the ground, one per foot, 0.16 apart or more)."""
     data = np.load(Path(__file__).parent / "data" / "spider-medial.npz")
     centers, radii = data["centers"], data["radii"]
-    limbs = find_limbs(centers, radii, data["edges"])
-    assert all(len(limb.spheres) for limb in limbs)
-    # The legs' ends: the lowest spheres (the feet stand on the ground), one per foot (the
-    # feet lie 0.16 apart or more).
     ends = []
     for k in np.argsort(centers[:, 2]):
         if all(np.linalg.norm(centers[k] - centers[e]) > 0.1 for e in ends):
             ends.append(int(k))
         if len(ends) == 8:
             break
+    return centers, radii, find_limbs(centers, radii, data["edges"]), ends
+
+
+def test_a_limb_left_no_spheres_is_none():
+    """The spider: within a limb's level, two routes to one leg were found, and every sphere
+    went to the other: a limb of no spheres, on which `find_limbs` raised (its thickest
+    sphere asked of an empty set). It is none; every limb found has spheres, and the eight
+    legs' ends are each in a limb of the body."""
+    _, _, limbs, ends = _spider()
+    assert all(len(limb.spheres) for limb in limbs)
     tops = set()
     for end in ends:
         k = max(k for k, limb in enumerate(limbs) if end in limb.spheres)
@@ -586,3 +590,17 @@ def test_a_limb_left_no_spheres_is_none():
             k = limbs[k].parent
         tops.add(k)
     assert len(tops) == 8
+
+
+def test_a_part_thicker_than_the_body_beyond_a_waist_is_a_limb():
+    """The spider: its body's root is the thorax, where the eight legs meet, and its abdomen,
+    twice as thick, lies beyond a waist. No sphere of the thorax being thick beside the
+    abdomen, the body's core ran on from the thorax through the whole abdomen: the limb that
+    held the abdomen's spheres ran along a spur at its end (spheres a tenth as thick), and its
+    spine left the abdomen in the body (at this seed and one other in four). The abdomen is a
+    limb of the body whose path runs through its thickest sphere, and holds no leg's end."""
+    _, radii, limbs, ends = _spider()
+    holding = [limb for limb in limbs if np.argmax(radii) in limb.spheres]
+    assert len(holding) == 1 and holding[0].parent == -1
+    assert np.argmax(radii) in holding[0].path
+    assert not np.isin(ends, holding[0].spheres).any()

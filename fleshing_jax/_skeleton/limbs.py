@@ -554,7 +554,9 @@ def _covered(centers, radii, chain, thickness, thickest_run=False):
     thickest) and as every sphere further out; and the core part's sphere indices. With
     `thickest_run` (a limb's level), up to the end of the run holding the chain's thickest
     sphere instead: a limb's thick part is its head, not the base of its neck, thick enough
-    on its own (spot at seed 8, whose ears and horns then hung from a core of one sphere)."""
+    on its own (spot at seed 8, whose ears and horns then hung from a core of one sphere).
+    On the body's level, a root thinner than a part further out (a spider's thorax) has a
+    core no longer than its own run at least `CORE` times as thick as `thickness`."""
     outwards = chain[::-1]
     # Thin: thinner than the level's thickest, or than a part further out (a neck before a
     # head thicker than the body's hub): a limb starts at a waist.
@@ -566,7 +568,15 @@ def _covered(centers, radii, chain, thickness, thickest_run=False):
     if thickest_run and thick.any():
         first = int(np.argmax(np.where(thick, radii[outwards], -np.inf)))
     thin = np.flatnonzero(~thick[first:])
-    core = outwards[: first + thin[0] if len(thin) else len(chain)]
+    end = first + thin[0] if len(thin) else len(chain)
+    if first > 0 and not thickest_run:
+        # The body's root thinner than a part further out (a spider's thorax before its
+        # abdomen, twice as thick): the core ends where the root's own thickness does, if
+        # sooner (at the waist between the two: the core ran on through the abdomen, in the
+        # body, when no sphere of the thorax was thick beside it).
+        own = np.flatnonzero(radii[outwards] < CORE * thickness)
+        end = min(end, own[0] if len(own) else len(chain))
+    core = outwards[:end]
     return sphere_gaps(centers[chain], centers[core], radii[core]) < 0, core
 
 
