@@ -561,6 +561,17 @@ def test_a_parent_s_route_is_judged_by_its_children_s_regions_on_a_tie():
     assert _lost(found, wide, 0) < _lost(found, narrow, 0) < _lost(found, lost, 0)
 
 
+def _chain_tops(limbs, spheres) -> set[int]:
+    """The limbs leaving the body whose chains hold `spheres` (each in its deepest limb)."""
+    tops = set()
+    for sphere in spheres:
+        k = max(k for k, limb in enumerate(limbs) if sphere in limb.spheres)
+        while limbs[k].parent != -1:
+            k = limbs[k].parent
+        tops.add(k)
+    return tops
+
+
 def _spider():
     """A spider modelled in Blender (`benchmarks/skin_characters.py`): its medial mesh at seed
     1 (200 spheres, unit frame), its limbs, and its legs' ends (the lowest spheres: the feet
@@ -583,13 +594,7 @@ def test_a_limb_left_no_spheres_is_none():
     legs' ends are each in a limb of the body."""
     _, _, limbs, ends = _spider()
     assert all(len(limb.spheres) for limb in limbs)
-    tops = set()
-    for end in ends:
-        k = max(k for k, limb in enumerate(limbs) if end in limb.spheres)
-        while limbs[k].parent != -1:
-            k = limbs[k].parent
-        tops.add(k)
-    assert len(tops) == 8
+    assert len(_chain_tops(limbs, ends)) == 8
 
 
 def test_a_part_thicker_than_the_body_beyond_a_waist_is_a_limb():
@@ -604,3 +609,23 @@ def test_a_part_thicker_than_the_body_beyond_a_waist_is_a_limb():
     assert len(holding) == 1 and holding[0].parent == -1
     assert np.argmax(radii) in holding[0].path
     assert not np.isin(ends, holding[0].spheres).any()
+
+
+def test_a_hub_that_finds_fewer_limbs_than_the_thickest_sphere_is_not_the_root():
+    """A hand modelled in Blender (`benchmarks/skin_characters.py`: a forearm's stub, a flat
+    palm, four fingers and a thumb), its medial mesh at seed 0 (200 spheres, unit frame). The
+    thickest spheres are the forearm's; the tips' geodesic median (`hub`) lay on the palm's
+    edge among the fingers' bases, a sheet a third as thick, and from there three of the
+    five fingers were in the body. Each fingertip and the thumb's tip is in a chain of its own
+    leaving the body."""
+    data = np.load(Path(__file__).parent / "data" / "hand-medial.npz")
+    centers = data["centers"]
+    limbs = find_limbs(centers, data["radii"], data["edges"])
+    tips = []  # the four fingertips (the highest spheres, 0.05 apart), the thumb's (the last)
+    for k in np.argsort(-centers[:, 2]):
+        if all(np.linalg.norm(centers[k] - centers[t]) > 0.05 for t in tips):
+            tips.append(int(k))
+        if len(tips) == 4:
+            break
+    tips.append(int(np.argmax(centers[:, 0])))
+    assert len(_chain_tops(limbs, tips)) == 5

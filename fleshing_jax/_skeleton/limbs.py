@@ -126,7 +126,12 @@ def find_limbs(centers: np.ndarray, radii: np.ndarray, edges: np.ndarray) -> lis
     for other in [root] * (root != thickest) + _thick_parts(radii, thickest, first, root):
         found: list[LimbPath] = []
         _split(graph, centers, radii, largest, other, -1, found, depth=1)
-        if other == root or _count(found) > _count(limbs):  # (the hub's replace the first)
+        # The hub's limbs replace the first ones unless fewer of them hold more than two
+        # spheres: a hand's hub lay on its palm's edge among the fingers' bases (the palm a
+        # flat sheet, thin beside the forearm, its thickest), from which three of its five
+        # fingers were no limbs. (Spurs of one or two spheres are no measure: an insect's
+        # hub, its thorax, finds fewer of them than its head does.)
+        if _count(found) > _count(limbs) or (other == root and _sized(found) >= _sized(limbs)):
             limbs, chosen = found, other
     # Forks are joined from the chosen root only: from another one (an abdomen), a path
     # runs through the thorax into a leg, and legs sharing the thorax would look like one.
@@ -157,6 +162,11 @@ def _count(limbs: list[LimbPath]) -> tuple[int, int]:
     """`(limbs leaving the body, all limbs)`: a body's candidate root is better the more limbs
     leave it (the thorax's six legs, head and abdomen, against the abdomen's one thorax)."""
     return sum(limb.parent == -1 for limb in limbs), len(limbs)
+
+
+def _sized(limbs: list[LimbPath]) -> int:
+    """How many of `limbs` hold more than two spheres."""
+    return sum(len(limb.spheres) > 2 for limb in limbs)
 
 
 def hub(graph, centers, radii, nodes, thickest: int, limbs: list[LimbPath]) -> int:
