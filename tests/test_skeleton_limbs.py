@@ -465,17 +465,21 @@ def test_a_neck_beside_a_thinner_limb_is_not_a_route_through_it():
         assert _same_limb(centers, radii, path, 9, [[np.arange(3)]], graph) == route
 
 
-def test_a_waist_from_which_other_limbs_leave_is_the_body_s():
+@pytest.mark.parametrize("neck_thickness", [0.03, 0.04])
+def test_a_waist_from_which_other_limbs_leave_is_the_body_s(neck_thickness):
     """A limb from the body starts at its waist, where the core tapers to `WAIST` of its
     thickest (a hip). A dinosaur's torso tapers from its hips to its chest, whose small arms
     leave it below the neck's base by routes of their own (a second strand of the chest):
     the neck started at the chest, and the arms were in the neck's limb. Spheres that
-    another limb leaves from are the body's: the neck starts past them."""
+    another limb leaves from are the body's: the neck starts past them. A neck thick enough
+    to be core (0.04 of a torso's 0.06) starts at its next waist further out, past the arms'
+    (it started at the neck's top, the whole neck in the body: the Blender dinosaur's)."""
     g = _Graph()
     x = np.arange(7) * 0.05
     torso = g.add(np.c_[x, np.zeros((7, 2))],
                   np.array([0.06, 0.06, 0.058, 0.055, 0.05, 0.046, 0.044]))
-    neck = g.add(*_chain([0.34, 0, 0.03], [0.42, 0, 0.15], 5, 0.03, 0.028), link_to=torso[-1])
+    neck = g.add(*_chain([0.34, 0, 0.03], [0.42, 0, 0.15], 5, neck_thickness, 0.028),
+                 link_to=torso[-1])  # fmt: skip
     g.add(*_chain([0.46, 0, 0.17], [0.56, 0, 0.16], 4, 0.035, 0.02), link_to=neck[-1])
     chest = g.add(*_chain([0.05, 0, -0.02], [0.25, 0, -0.02], 5, 0.045, 0.045),
                   link_to=torso[0])  # (the arms' own route from the hips)
@@ -490,6 +494,7 @@ def test_a_waist_from_which_other_limbs_leave_is_the_body_s():
     assert len(found) == 6  # neck and head, two arms, two legs, the tail
     head = next(f for f in found if f.path[-1] == neck[-1] + 4)
     assert centers[head.path[0], 0] > 0.3  # past the arms' (was 0.25: the chest's)
+    assert centers[head.path[0], 0] < 0.36  # in the neck (was 0.40, its top)
 
 
 def test_a_bird_s_neck_and_wings_leave_its_body_as_limbs_of_their_own():

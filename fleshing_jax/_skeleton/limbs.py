@@ -288,8 +288,8 @@ def _split(graph, centers, radii, nodes, root, parent, limbs, depth, forks=False
         if forks:
             found, groups, waists, stems = _forks(centers, radii, distance, found, groups,
                                                   waists)  # fmt: skip
-        waists = [None if _shared_waist(centers, radii, predecessors, found, k, w) else w
-                  for k, w in enumerate(waists)]
+        waists = [_unshared_waist(centers, radii, predecessors, found, k, w)
+                  for k, w in enumerate(waists)]  # fmt: skip
     for (path, last_inside, core, spheres), (routes, _, _), waist, stem in zip(
             found, groups, waists, stems, strict=True):
         if len(spheres) == 0:
@@ -344,6 +344,25 @@ def _split(graph, centers, radii, nodes, root, parent, limbs, depth, forks=False
             midline = (np.arange(len(stem[0])) + shift, stem[2])
         limbs[index] = LimbPath(first, last_inside, core, spheres, parent, alternatives,
                                 midline=midline)
+
+
+def _unshared_waist(centers, radii, predecessors, found, k: int, waist):
+    """Limb `k`'s `waist` or, where it leads into other limbs too (`_shared_waist`), its next
+    waist further out that does not (a kangaroo's neck: its waist at the shoulders held the
+    small arms' tops; the next one up the neck holds none), or None."""
+    if waist is None or len(waist[0]) == 0 or not _shared_waist(
+            centers, radii, predecessors, found, k, waist):
+        return waist
+    path, inside = found[k][0], found[k][1]
+    chain = _ancestors(int(path[-1]), predecessors)
+    cut = int(np.flatnonzero(chain == inside)[0])
+    for which in range(1, len(chain)):
+        further = _waist(centers, radii, chain, found[k][2], cut, which)
+        if len(further[0]) == 0:
+            return None
+        if not _shared_waist(centers, radii, predecessors, found, k, further):
+            return further
+    return None
 
 
 def _shared_waist(centers, radii, predecessors, found, k: int, waist) -> bool:
@@ -590,7 +609,7 @@ def _covered(centers, radii, chain, thickness, thickest_run=False):
     return sphere_gaps(centers[chain], centers[core], radii[core]) < 0, core
 
 
-def _waist(centers, radii, chain, core, cut: int):
+def _waist(centers, radii, chain, core, cut: int, which: int = 0):
     """`(before, last_inside, core)`: where a limb from the body found along `chain` (tip …
     root; its path `chain[:cut]`, `core` its parent's core along it) starts instead, at its
     waist (a hip): the core ends at its first sphere past the root at most `WAIST` times as
@@ -603,7 +622,7 @@ def _waist(centers, radii, chain, core, cut: int):
     beyond = np.maximum.accumulate(radii[chain])[::-1][: len(core)]  # outwards, as `core`
     waist = np.flatnonzero((outwards <= WAIST * np.maximum.accumulate(outwards))
                            & (outwards >= beyond))  # fmt: skip
-    waist = waist[waist > 0]
+    waist = waist[waist > 0][which:]
     # Only where the core runs on past the waist's own sphere (a thigh's top; not a shoulder,
     # the core's last sphere there: moved into the arm, a 30° bend flagged its armpit).
     if not len(waist) or np.linalg.norm(
