@@ -64,6 +64,14 @@ def _frames_and_centres(spine, s):
     return jax.vmap(lambda t: (fj.rotation_minimizing_frame(spine, t), spine(t)))(s)
 
 
+@eqx.filter_jit
+def mapped(f, *args):
+    """`jax.vmap(f)(*args)` as one compiled program, `f` a module whose values are its arguments
+    (a spine, its bound method, `eqx.Partial(function, spine)`): one program per kind of spine
+    and shape. Called eagerly, each operation of `f` ran, and compiled, on its own."""
+    return jax.vmap(f)(*args)
+
+
 def cloud(spine, n=32, radius=0.5, seed=0, overshoot=0.0):
     """Random points in a tube of `radius` around `spine`, optionally past its ends.
 

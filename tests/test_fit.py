@@ -11,7 +11,7 @@ import jax.numpy as jnp
 import numpy as np
 import optimistix as optx
 import pytest
-from conftest import cloud
+from conftest import cloud, mapped
 
 import fleshing_jax as fj
 from fleshing_jax._fit import start
@@ -424,8 +424,7 @@ def test_a_far_bend_from_the_rest_spine_starts_from_the_targets():
     y = start.initial(parameters, fj.register(source, rest), rest, target,
                       np.ones(len(source)), None)
     s = np.linspace(0, 4, 9)
-    shaped = np.asarray(jax.vmap(parameters.spine(y))(s))
-    truth = np.asarray(jax.vmap(bent)(s))
+    shaped, truth = (np.asarray(mapped(spine, s)) for spine in (parameters.spine(y), bent))
     assert np.abs(shaped - truth).max() < 0.02 * diagonal  # the rest spine: 0.6
     fit = fj.fit_spine(rest, rest, source, target)
     assert fit.converged, fit.message

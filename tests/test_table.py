@@ -12,7 +12,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from conftest import cloud
+from conftest import cloud, mapped
 
 import fleshing_jax as fj
 from fleshing_jax._fleshing.projection import Registrar, _nearest
@@ -46,8 +46,7 @@ def test_table_matches_the_spine_over_its_search_range(name):
     table = SpineTable(spine, max(128, spine.default_samples()))
     assert float(table.lo) < 0 and float(table.hi) > float(spine.length)
     s = jnp.linspace(table.lo, table.hi, 5001)
-    exact = jax.vmap(lambda t: _values(spine, t))(s)
-    tabulated = jax.vmap(lambda t: _values(table, t))(s)
+    exact, tabulated = (mapped(eqx.Partial(_values, f), s) for f in (spine, table))
     error = np.abs(np.asarray(exact - tabulated))
     # Position, tangent and normals to 1e-7, curvature to 1e-6: below float32's resolution
     # once multiplied by the offsets (≲ the reach, ≲ 1/κ).
@@ -67,7 +66,7 @@ def test_tabulated_target_frames_match_the_exact_ones(name):
     assert float(tabulated.lo) == float(exact.lo) and float(tabulated.hi) == float(exact.hi)
     s = jnp.linspace(exact.lo, exact.hi, 5001)
     error = np.abs(
-        np.concatenate(jax.vmap(exact)(s), axis=-1) - np.concatenate(jax.vmap(tabulated)(s), -1)
+        np.concatenate(mapped(exact, s), axis=-1) - np.concatenate(mapped(tabulated, s), -1)
     )
     assert error[:, :9].max() < 1e-7, error.max(axis=0)
     assert error[:, 9:].max() < 1e-6, error[:, 9:].max()
@@ -92,7 +91,7 @@ def test_arc_target_frames_are_a_sinusoid(radius, length):
     assert isinstance(looked_up.table, Sinusoid) and looked_up.table.coefficients.shape == (3, 11)
     s = jnp.linspace(exact.lo - 2 * length, exact.hi + 2 * length, 4001)
     error = np.abs(
-        np.concatenate(jax.vmap(exact)(s), axis=-1) - np.concatenate(jax.vmap(looked_up)(s), -1)
+        np.concatenate(mapped(exact, s), axis=-1) - np.concatenate(mapped(looked_up, s), -1)
     )
     assert error.max() < 1e-13 * (1 + length), error.max(axis=0)
     # So are the values and products its registration reads (`SpineTable`): no cubic pieces.
@@ -101,7 +100,7 @@ def test_arc_target_frames_are_a_sinusoid(radius, length):
     assert float(table.lo) == float(exact.lo) and float(table.hi) == float(exact.hi)
     for name in ("_foot_terms", "_local_terms"):
         x = jnp.asarray([0.3, -0.2, 1.1])
-        terms = [jax.vmap(lambda t: getattr(spine, name)(x, t))(s) for spine in (arc, table)]
+        terms = [mapped(eqx.Partial(getattr(spine, name), x), s) for spine in (arc, table)]
         for a, b in zip(*terms):
             np.testing.assert_allclose(np.asarray(b), np.asarray(a), rtol=0, atol=1e-12 * length)
     # A spine that is not an arc keeps its table of cubic pieces.
@@ -146,15 +145,15 @@ def test_tabulated_search_terms_match_the_spine(name):
     table = SpineTable(spine)
     rng = np.random.default_rng(3)
     s = jnp.asarray(rng.uniform(float(table.lo), float(table.hi), 400))
-    x = jax.vmap(spine)(s) + jnp.asarray(rng.normal(0, 0.3, (400, 3)))
+    x = mapped(spine, s) + jnp.asarray(rng.normal(0, 0.3, (400, 3)))
     for terms in ("_foot_terms", "_local_terms"):
-        exact = jax.vmap(getattr(spine, terms))(x, s)
-        tabulated = jax.vmap(getattr(table, terms))(x, s)
+        exact = mapped(getattr(spine, terms), x, s)
+        tabulated = mapped(getattr(table, terms), x, s)
         for e, t in zip(exact, tabulated):
             np.testing.assert_allclose(np.asarray(t), np.asarray(e), rtol=0, atol=2e-6)
     # What the terms are: f = (C − x)·T, f' = 1 − k·(x − C), |x − C|.
-    (c, t, k) = jax.vmap(spine.jet)(s)
-    f, slope, distance = jax.vmap(table._foot_terms)(x, s)
+    (c, t, k) = mapped(spine.jet, s)
+    f, slope, distance = mapped(table._foot_terms, x, s)
     np.testing.assert_allclose(f, jnp.sum((c - x) * t, -1), atol=2e-6)
     np.testing.assert_allclose(slope, 1 - jnp.sum(k * (x - c), -1), atol=2e-6)
     np.testing.assert_allclose(distance, jnp.linalg.norm(x - c, axis=-1), atol=2e-6)
@@ -168,14 +167,16 @@ def test_nearest_sample_by_packed_keys(dtype):
     rng = np.random.default_rng(4)
     samples = jnp.asarray(rng.normal(size=(17, 3)), dtype)
     points = jnp.asarray(rng.normal(size=(500, 3)), dtype)
-    picked = jax.vmap(lambda x: _nearest(samples.T, x, range(17)))(points)
+    picked = jax.jit(jax.vmap(lambda x: _nearest(samples.T, x, range(17))))(points)
     squared = np.sum((np.asarray(points)[:, None] - np.asarray(samples)[None]) ** 2, -1)
     best = squared[np.arange(500), np.asarray(picked)]
     np.testing.assert_array_less(best, squared.min(1) * (1 + 2.0**-17) + 1e-30)
     assert np.mean(np.asarray(picked) == squared.argmin(1)) > 0.99
     # Traced candidate indices (the finer levels) and exact ties: the first one wins.
     twice = jnp.concatenate([samples, samples])
-    picked = jax.vmap(lambda x: _nearest(twice.T, x, [jnp.int32(i) for i in range(34)]))(points)
+    picked = jax.jit(jax.vmap(lambda x: _nearest(twice.T, x, [jnp.int32(i) for i in range(34)])))(
+        points
+    )
     assert np.all(np.asarray(picked) < 17)
 
 
