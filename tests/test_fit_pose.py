@@ -567,3 +567,32 @@ def test_a_shape_solve_reads_the_rest_spines_from_their_tables(registration):
     assert all(a is b for a, b in zip(leaves, jax.tree.leaves(tables), strict=True))
     assert jax.tree.leaves(tabled.registrations)[0] is jax.tree.leaves(
         registration.registrations)[0]
+
+
+def test_a_shape_solve_starts_damped_at_its_own_curvature():
+    # A shape fit's solver starts its damping λ = 1 / step size at `SHAPE_DAMPING` times the
+    # largest diagonal entry of JᵀJ (`_fit.problem._ScaledTrustRegion`), not at 1: a leg's
+    # curvature, in units of σ, is 1e-4 to 1e-3, and from λ = 1 it crept until λ had come
+    # down to it. After the first step, the classical trust region's rule, unchanged.
+    import jax.numpy as jnp
+    import lineax as lx
+
+    from fleshing_jax._fit.problem import default_solver
+    from fleshing_jax._skeleton.fit_shape import SHAPE_DAMPING
+
+    search = default_solver("least_squares", np.float64, 1e-8, 1e-8,
+                            damping=SHAPE_DAMPING).search
+    y = jnp.zeros(2)
+    jac = jnp.array([[1e-2, 0.0], [0.0, 1e-1], [0.0, 0.0]])
+    info = optx.FunctionInfo.ResidualJac(jnp.array([1.0, 1.0, 1.0]), lx.MatrixLinearOperator(jac))
+    state = search.init(y, info)
+    step = search.step
+    size, accept, _, state = step(jnp.array(True), y, y, info, info, state)
+    np.testing.assert_allclose(size, 1 / (SHAPE_DAMPING * 1e-2))
+    assert bool(accept) and float(state.step_size) == float(size)
+    # A step that raised the loss: rejected, its size a quarter, as optimistix's.
+    worse = optx.FunctionInfo.ResidualJac(jnp.array([2.0, 2.0, 2.0]), info.jac)
+    again, accept, _, _ = step(jnp.array(False), y, y + 1, info, worse, state)
+    assert not bool(accept) and float(again) == float(size) / 4
+    assert float(default_solver("least_squares", np.float64, 1e-8, 1e-8).search.init(
+        y, info).step_size) == 1.0

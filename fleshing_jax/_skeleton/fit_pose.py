@@ -425,17 +425,19 @@ def fit_skeleton_pose(
             raise TypeError(f"`init[{k}]` must be a LimbPose: limb {k} is fitted.")
     dtype = registration.vertices.dtype
     if solver is None:
-        tol = default_tolerance(dtype)
+        tol, damping = default_tolerance(dtype), None
         if target is not None:
             # Here to avoid an import cycle: the shape's fit builds on this module's pieces.
-            from .fit_shape import SHAPE_TOLERANCE
+            from .fit_shape import SHAPE_DAMPING, SHAPE_TOLERANCE
 
             tol = max(SHAPE_TOLERANCE, tol)  # float32: its own
+            damping = SHAPE_DAMPING
         # The tolerances as arrays, leaves of the solver: a fit with its own runs the default's
         # compiled solve.
         solver = default_solver(
             "least_squares", dtype,
-            *(jnp.asarray(tol if t is None else t, dtype) for t in (rtol, atol)))
+            *(jnp.asarray(tol if t is None else t, dtype) for t in (rtol, atol)),
+            damping=damping)
     if target is not None:
         from .fit_shape import fit_to_shape
 
