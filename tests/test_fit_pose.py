@@ -596,3 +596,21 @@ def test_a_shape_solve_starts_damped_at_its_own_curvature():
     assert not bool(accept) and float(again) == float(size) / 4
     assert float(default_solver("least_squares", np.float64, 1e-8, 1e-8).search.init(
         y, info).step_size) == 1.0
+
+
+def test_a_shape_fit_poses_its_limbs_at_their_own_size(registration):
+    # The shape fit's registration keeps the largest limb's rows, not a bucket's
+    # (`restricted(bucketed=False)`): every padded row cost the solve its forward derivative.
+    # The limbs' rows are the bucketed registration's first ones.
+    from fleshing_jax._batching.buckets import bucket
+    from fleshing_jax._skeleton.fit_pose import restricted
+
+    ids = np.arange(0, registration.vertices.shape[0], 3)
+    own, rows = restricted(registration, ids, bucketed=False)
+    padded, same_rows = restricted(registration, ids)
+    largest = max(int(np.isin(np.asarray(i), ids).sum()) for i in registration.indices)
+    assert bucket(largest) > largest
+    for a, b in zip(own.registrations, padded.registrations):
+        assert a.points.shape[0] == largest and b.points.shape[0] == bucket(largest)
+        np.testing.assert_array_equal(np.asarray(a.points), np.asarray(b.points)[:largest])
+    np.testing.assert_array_equal(np.asarray(rows), np.asarray(same_rows))

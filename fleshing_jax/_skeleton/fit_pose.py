@@ -173,16 +173,19 @@ class PoseProblem(eqx.Module):
         return self.residuals(self.vertices(y))
 
 
-def restricted(registration: SkeletonRegistration, ids: np.ndarray):
+def restricted(registration: SkeletonRegistration, ids: np.ndarray, bucketed: bool = True):
     """`registration` reduced to the vertices `ids` (k,): `(registration, rows (k,))`, `rows`
     the vertices' positions in its `vertices`.
 
     Each limb keeps the rows of its region's chosen vertices (one row of its own if none,
-    never used: only its end motion is), padded to one bucket size for all (one compiled
-    program, `_batching.buckets`)."""
+    never used: only its end motion is), padded to one size for all: a bucket's (one
+    compiled program for markers of nearby counts, `_batching.buckets`), or with `bucketed=False`
+    the largest limb's own (a shape fit's whole regions: each posed limb is posed at that
+    size, spot's head's 513 rows a bucket of 768)."""
     unique = np.unique(ids)
     picked = [np.flatnonzero(np.isin(np.asarray(i), unique)) for i in registration.indices]
-    size = bucket(max(1, *(len(p) for p in picked)))
+    size = max(1, *(len(p) for p in picked))
+    size = bucket(size) if bucketed else size
     registrations, indices = [], []
     for reg, limb_ids, rows in zip(registration.registrations, registration.indices, picked):
         keep = rows if len(rows) else np.zeros(1, int)

@@ -371,7 +371,9 @@ def fit_to_shape(registration: SkeletonRegistration, skeleton: Skeleton, target,
     still = _still(triangles, region, moving_limbs, rng)
     faces, ring = surface_of(triangles, np.concatenate([moving, still]))
     markers = np.zeros(0, np.int64) if ids is None else ids
-    small, rows = restricted(registration, np.concatenate([moving, markers]))
+    # (Each posed limb at the largest limb's own size, not a bucket's: the solve poses whole
+    # regions, and every padded row costs its forward derivative.)
+    small, rows = restricted(registration, np.concatenate([moving, markers]), bucketed=False)
     small = _on_tables(small)
     marker_targets = (jnp.zeros((0, 3), dtype) if targets is None
                       else jnp.asarray(targets, dtype))
