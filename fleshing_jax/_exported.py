@@ -222,11 +222,14 @@ def persistent(fun=None, *, compiler_options: dict | None = None):
 
     def program(args, arrays):
         """`(key, leaves, loaded)` of a call on `args` (`arrays` tells its traced leaves):
-        `loaded` a `_Loaded`, `None` where the program is not kept (`jitted` then)."""
+        `loaded` a `_Loaded`, `None` where the program is not kept (`jitted` then; without a
+        cache folder, at once: a shape fit's solve has thousands of leaves)."""
         folder = _folder()
+        if folder is None:  # (before the arguments are split: `jitted` splits them itself)
+            return None, None, None
         dynamic, static = eqx.partition(args, arrays)
         leaves, treedef = jax.tree.flatten(dynamic)
-        if folder is None or any(isinstance(a, jax.core.Tracer) for a in leaves):
+        if any(isinstance(a, jax.core.Tracer) for a in leaves):
             return None, leaves, None
         # What decides the trace, hashable: compared in memory on every call (a few
         # microseconds), written out as the file's key only for a program not loaded yet.

@@ -401,7 +401,14 @@ def test_the_distance_to_a_surface_is_to_its_closest_triangle_point():
     import jax.numpy as jnp
     import trimesh
 
-    from fleshing_jax._fit.surface import closest_weights, covers, pool, rings, to_surface
+    from fleshing_jax._fit.surface import (
+        NEAREST,
+        closest_weights,
+        covers,
+        pool,
+        rings,
+        to_surface,
+    )
 
     rng = np.random.default_rng(0)
     u = rng.uniform(size=(20000, 2))
@@ -427,11 +434,13 @@ def test_the_distance_to_a_surface_is_to_its_closest_triangle_point():
     y = np.concatenate([rng.normal(size=(40, 3)), [[12, 0.05, 0]]])
 
     # Each point's nearest vertices chosen in the program among a pool found on the host: a
-    # pool found on the surface moved a little still holds them (`covers`), one found far
-    # from it does not.
+    # pool found on the surface moved a little still holds them (`covers`, told by the first
+    # columns of the moved surface's own pools, nearest first), one found far from it does not.
     candidates = pool(y, ball.vertices)
-    assert covers(candidates, y, ball.vertices + 0.01)
-    assert not covers(pool(y + 3.0, ball.vertices), y, ball.vertices)
+    moved = pool(y, ball.vertices + 0.01)
+    np.testing.assert_array_equal(moved[:, :NEAREST], pool(y, ball.vertices + 0.01, NEAREST))
+    assert covers(candidates, moved)
+    assert not covers(pool(y + 3.0, ball.vertices), candidates)
 
     def squared(v):  # (the distances and their gradient as one program: eagerly, op by op)
         d = to_surface(jnp.asarray(y), v, faces, ring, jnp.asarray(candidates))

@@ -119,10 +119,12 @@ def pool(points: np.ndarray, vertices: np.ndarray, count: int = POOL) -> np.ndar
     return np.where(near < len(vertices), near, near[:, :1]).astype(np.int32)
 
 
-def covers(candidates: np.ndarray, points: np.ndarray, vertices: np.ndarray) -> bool:
-    """Whether each point's (K, 3) `NEAREST` nearest of `vertices` (V, 3) lie in its row of
-    `candidates` (K, M) (a `pool`): then `nearest_in` chooses them, as the k-d tree would."""
-    near = pool(points, vertices, NEAREST)
+def covers(candidates: np.ndarray, nearest: np.ndarray) -> bool:
+    """Whether each point's `NEAREST` nearest vertices (the first columns of its `pool` row
+    found on the surface now, `nearest` (K, ≥ NEAREST), nearest first) lie in its row of
+    `candidates` (K, M) (its `pool` where the solve started): then `nearest_in` chooses
+    them, as the k-d tree would."""
+    near = nearest[:, :NEAREST]
     return bool(np.all(np.any(candidates[:, :, None] == near[:, None, :], axis=1)))
 
 

@@ -17,6 +17,7 @@ Levenberg–Marquardt, as `fit_spine`), differentiating through `pose_skeleton`.
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Sequence
 
 import equinox as eqx
@@ -198,10 +199,11 @@ def restricted(registration: SkeletonRegistration, ids: np.ndarray, bucketed: bo
     vertices = jax.device_put(np.asarray(registration.vertices)[unique])
     # No surface among chosen vertices: a pose past a range gives no volume back on them
     # (`restore`), which the whole mesh's pose does.
-    surface = (jnp.zeros((0, 3), jnp.int32), jnp.zeros((len(unique), 0), jnp.int32))
-    small = eqx.tree_at(lambda r: (r.registrations, r.indices, r.vertices, r.triangles,
-                                   r.corners), registration,
-                        (tuple(registrations), tuple(indices), vertices, *surface))
+    # (A field replaced, not `eqx.tree_at`: no walk over the registration's leaves.)
+    small = dataclasses.replace(
+        registration, registrations=tuple(registrations), indices=tuple(indices),
+        vertices=vertices, triangles=jnp.zeros((0, 3), jnp.int32),
+        corners=jnp.zeros((len(unique), 0), jnp.int32))
     return small, jnp.asarray(np.searchsorted(unique, ids), jnp.int32)
 
 

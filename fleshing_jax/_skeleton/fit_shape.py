@@ -80,6 +80,8 @@ noise level and the final distances).
 
 from __future__ import annotations
 
+import dataclasses
+
 import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
@@ -345,7 +347,7 @@ def _on_tables(registration: SkeletonRegistration) -> SkeletonRegistration:
     the angles within 1e-7° of the exact solve's); the result is posed exactly."""
     rests = tuple(rest if table is None else table
                   for rest, table in zip(registration.rests, registration.checks))
-    return eqx.tree_at(lambda r: r.rests, registration, rests)
+    return dataclasses.replace(registration, rests=rests)
 
 
 def _moving_limbs(skeleton: Skeleton, posed_limbs) -> list[int]:
@@ -395,7 +397,7 @@ def fit_to_shape(registration: SkeletonRegistration, skeleton: Skeleton, target,
     # The solve's surface where each solve starts (`_solved`'s pools): at rest, the rest's.
     surface = rest[kept] if not held and not np.any(np.asarray(starts)) else None
     for i, sigma in enumerate(STAGES):
-        problem = eqx.tree_at(lambda p: p.sigma, problem, jnp.asarray(sigma * diagonal, dtype))
+        problem = dataclasses.replace(problem, sigma=jnp.asarray(sigma * diagonal, dtype))
         last = i == len(STAGES) - 1
         # Each stage's step budget is a value (`_fit.budget`): the stages share one compiled
         # solve (two, with `throw`: the last stage's own).
@@ -409,8 +411,8 @@ def fit_to_shape(registration: SkeletonRegistration, skeleton: Skeleton, target,
             # another shape, or a scan not aligned, which no limb's start explains (a ball's
             # fit tried 8 starts for nothing) and whose parts are no limb's.
             if _body_level(*_parts(problem, linear, surface, parts)) <= MISPLACED:
-                before = y
-                y, tried = _restarted(problem, solver, y, linear, max_steps, surface, parts)
+                y, tried, posed_y = _restarted(problem, solver, y, linear, max_steps, surface,
+                                               parts)
                 steps += tried
                 # The last stage's points shared out by the parts they lie nearest to here.
                 # (The stages before keep the uniform sample: from the rest pose a limb far
@@ -420,9 +422,9 @@ def fit_to_shape(registration: SkeletonRegistration, skeleton: Skeleton, target,
                 whole = rest.copy()
                 whole[moving] = surface[: len(moving)]
                 owner = owners[region[cKDTree(whole).query(cloud)[1]]]
-                problem = eqx.tree_at(lambda p: (p.cloud, p.weights), problem,
-                                      _padded(cloud[_shares(owner, SOLVE_POINTS, rng)]))
-                surface = surface if y is before else None  # (another start kept: posed anew)
+                shared, weights = _padded(cloud[_shares(owner, SOLVE_POINTS, rng)])
+                problem = dataclasses.replace(problem, cloud=shared, weights=weights)
+                surface = posed_y  # (at y: where another start was kept, its solve's)
     again, tried = _resettled(problem, solver, y, linear, max_steps, surface, region[kept],
                               throw)
     steps += tried
@@ -498,15 +500,19 @@ def _solved(problem: ShapeProblem, solver, y: Array, steps: int, max_steps: int,
 
     if surface is None:  # (no step: the program's posing of y, with the pools it holds)
         surface = solve(problem, y, 0, False)[-1]
-    taken = 0
+    taken, candidates = 0, pool(cloud, surface)
     while True:
-        candidates = pool(cloud, surface)
-        problem = eqx.tree_at(lambda p: p.pool, problem, jnp.asarray(candidates))
+        problem = dataclasses.replace(problem, pool=jnp.asarray(candidates))
         y, result, stats, linear, surface = solve(problem, y, steps - taken)
         taken += int(stats["num_steps"])
-        if (taken >= steps or result != optx.RESULTS.successful
-                or covers(candidates, cloud, surface)):
-            return problem, y, result, {**stats, "num_steps": taken}, linear, surface
+        if taken < steps and result == optx.RESULTS.successful:
+            # (One k-d tree on the moved surface: its pools, whose first columns are its
+            # nearest, tell whether the old ones held them.)
+            moved = pool(cloud, surface)
+            if not covers(candidates, moved):
+                candidates = moved
+                continue
+        return problem, y, result, {**stats, "num_steps": taken}, linear, surface
 
 
 def _loss(linear) -> float:
@@ -536,9 +542,10 @@ def _restarted(problem: ShapeProblem, solver, y: Array, linear, max_steps: int,
     over `ANGLE_SPREAD`), each until a start lowers the loss: with noise every part of the
     target lies at its noise level and none is stuck (spot's legs with 0.5 % noise stopped
     5° and 13° short of their bends from rest, the loss at the truth lower). `(y, steps
-    taken)`; the best start's solve is to be continued. With `floor`: only the limbs
-    `_stuck` at that floor (`_resettled`)."""
-    best, taken = _loss(linear), 0
+    taken, the solve's surface posed at y)` (`surface` itself if no start was kept: the
+    next solve starts from it without posing it again); the best start's solve is to be
+    continued. With `floor`: only the limbs `_stuck` at that floor (`_resettled`)."""
+    best, taken, kept = _loss(linear), 0, surface
     if floor is None:
         spread = _spreads(linear, problem.limbs, y.shape[-1])
         tried = {i for i, k in enumerate(problem.limbs) if spread[k] > ANGLE_SPREAD}
@@ -548,15 +555,16 @@ def _restarted(problem: ShapeProblem, solver, y: Array, linear, max_steps: int,
         tried = set(_stuck(problem, linear, surface, region, floor))
     for i in sorted(tried):
         for start in _starts(np.asarray(y[i, :2])):
-            _, trial, _, stats, out, _ = _solved(problem, solver, y.at[i, :2].set(start),
-                                                 min(max_steps, COARSE_STEPS), max_steps, False)
+            _, trial, _, stats, out, ended = _solved(
+                problem, solver, y.at[i, :2].set(start), min(max_steps, COARSE_STEPS),
+                max_steps, False)
             taken += int(stats["num_steps"])
             if _loss(out) < best * (1 - IMPROVED):
-                y, best = trial, _loss(out)
+                y, best, kept = trial, _loss(out), ended
                 # (Its part read as before: the target points nearest its vertices posed stuck.)
                 if i not in _stuck(problem, out, surface, region, floor):
                     break
-    return y, taken
+    return y, taken, kept
 
 
 def _parts(problem: ShapeProblem, linear, surface: np.ndarray, region: np.ndarray):
@@ -581,11 +589,11 @@ def _resettled(problem: ShapeProblem, solver, y: Array, linear, max_steps: int,
     tried when the body's part is itself unexplained (`MISPLACED`)."""
     if _body_level(*_parts(problem, linear, surface, region)) > MISPLACED:
         return None, 0
-    start, taken = _restarted(problem, solver, y, linear, max_steps, surface, region,
-                              SETTLED_FLOOR)
+    start, taken, posed_start = _restarted(problem, solver, y, linear, max_steps, surface,
+                                           region, SETTLED_FLOOR)
     if start is y:  # (no start lowered the loss)
         return None, taken
-    again = _solved(problem, solver, start, max_steps, max_steps, throw)
+    again = _solved(problem, solver, start, max_steps, max_steps, throw, posed_start)
     taken += int(again[3]["num_steps"])
     return (again if _loss(again[4]) < _loss(linear) * (1 - IMPROVED) else None), taken
 
