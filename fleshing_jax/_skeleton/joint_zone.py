@@ -76,7 +76,11 @@ class JointZone(eqx.Module):
         xp = _host(self, bend)
         x, y, m = (xp.asarray(a) for a in (self.capacities, self.lengths, self.slopes))
         angle = xp.clip(xp.abs(bend), x[0], x[-1])
-        i = xp.clip(xp.searchsorted(x, angle, side="right") - 1, 0, x.shape[0] - 2)
+        # (Traced, by comparing with every capacity, one kernel: XLA's CPU backend ran the
+        # binary search's loop step by step, a few kernels a step, for every posed limb.)
+        found = (np.searchsorted(x, angle, side="right") if xp is np
+                 else jnp.searchsorted(x, angle, side="right", method="compare_all"))
+        i = xp.clip(found - 1, 0, x.shape[0] - 2)
         width = x[i + 1] - x[i]
         safe = xp.where(width > 0, width, 1)
         t = xp.where(width > 0, (angle - x[i]) / safe, 0)

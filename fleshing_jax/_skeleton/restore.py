@@ -112,5 +112,7 @@ def restored_volume(
         safe = jnp.where(slope != 0, slope, 1)
         return lam - jnp.where(slope != 0, (value - goal) / safe, 0), None
 
-    lam, _ = jax.lax.scan(step, jnp.zeros((), x.dtype), None, length=NEWTON_STEPS)
+    # (Unrolled: as a loop, XLA's CPU backend ran each step's few scalar operations as kernels
+    # of their own.)
+    lam, _ = jax.lax.scan(step, jnp.zeros((), x.dtype), None, length=NEWTON_STEPS, unroll=True)
     return vertices + lam * direction
