@@ -381,7 +381,8 @@ def fit_skeleton_pose(
       for a `target`, where a round limb's turn about its own axis does not show).
     - `solver`: any optimistix least-squares solver or minimiser; default
       `LevenbergMarquardt(rtol, atol)` with tolerances from the dtype (1e-10 in float64,
-      1e-5 in float32 and for a `target`, whose nearest neighbours change with the pose).
+      1e-5 in float32 and for a `target`, whose nearest neighbours change with the pose;
+      for a `target` its damping starts at the loss's own curvature, not at 1).
     - `max_steps` (an integer in [1, 100000]), `throw`: passed to `optimistix.least_squares`;
       `rtol`, `atol`: in (0, 1].
 
