@@ -348,8 +348,8 @@ def _split(graph, centers, radii, nodes, root, parent, limbs, depth, forks=False
 
 def _unshared_waist(centers, radii, predecessors, found, k: int, waist):
     """Limb `k`'s `waist` or, where it leads into other limbs too (`_shared_waist`), its next
-    waist further out that does not (a kangaroo's neck: its waist at the shoulders held the
-    small arms' tops; the next one up the neck holds none), or None."""
+    waist further out that does not (a dinosaur's neck, thick enough to be core: its waist at
+    the chest held the small arms' tops, the next one up the neck none), or None."""
     if waist is None or len(waist[0]) == 0 or not _shared_waist(
             centers, radii, predecessors, found, k, waist):
         return waist
@@ -617,7 +617,8 @@ def _waist(centers, radii, chain, core, cut: int, which: int = 0):
     away from there), where the core runs on beyond that sphere; `before` the spheres then
     added before the path (outwards). The
     biped's thighs, 0.6 as thick as its pelvis, were core down to 0.36 (its hips at 0.47):
-    its knees, 1.1 radii from where the legs then left the body, were no joints."""
+    its knees, 1.1 radii from where the legs then left the body, were no joints. `which`: the
+    waist to take among the core's spheres that qualify, outwards (`_unshared_waist`)."""
     outwards = radii[core]
     beyond = np.maximum.accumulate(radii[chain])[::-1][: len(core)]  # outwards, as `core`
     waist = np.flatnonzero((outwards <= WAIST * np.maximum.accumulate(outwards))
