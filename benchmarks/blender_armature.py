@@ -1,7 +1,7 @@
 """Our jointed pose against Blender's armature on the same joint rotations (issues 45/46).
 
     python benchmarks/blender_armature.py --bpy /path/to/venv-with-bpy/bin/python \
-        [--character biped|spot|human|insect|dog|kangaroo] \
+        [--character biped|spot|human|insect|dog|kangaroo|dinosaur] \
         [--figure benchmarks/figures/skeleton-biped-vs-blender.png]
 
 The procedural biped's skeleton (`fj.skeleton`, 200 spheres): one leg posed at its hip 40°,
@@ -157,6 +157,24 @@ def kangaroo_poses(fj, skeleton):
                                                        up=up)}
 
 
+def dinosaur_poses(fj, skeleton):
+    """The dinosaur modelled in Blender (`skin_characters.py`, z up, +x ahead; its own
+    skeleton): its neck raised 30° and its head 20° more (the neck → head chain), its left leg
+    swung 30° forwards at the hip and its next joint 40° backwards, its tail raised 30°."""
+    up, ahead = np.array([0.0, 0.0, 1.0]), np.array([1.0, 0.0, 0.0])
+    chains = _longest_chains(skeleton)
+    tips = {top: np.asarray(skeleton.limbs[c[-1]].spine(skeleton.limbs[c[-1]].spine.length))
+            for top, c in chains.items()}
+    neck, tail = max(tips, key=lambda t: tips[t][0]), min(tips, key=lambda t: tips[t][0])
+    feet = [t for t, p in tips.items() if p[2] < 0.2]
+    leg = chains[max(feet, key=lambda t: tips[t][1])]  # (its left: +y)
+    poses = {tail: fj.LimbPose(30.0, towards=up), leg[0]: fj.LimbPose(30.0, towards=ahead)}
+    poses |= {k: fj.LimbPose(a, towards=up) for k, a in zip(chains[neck], (30.0, 20.0))}
+    if len(leg) > 1:
+        poses[leg[1]] = fj.LimbPose(40.0, towards=-ahead)
+    return lambda registration: poses
+
+
 def skin_mesh(bpy: str, name: str):
     """The character `name` of `skin_characters.py`, modelled by Blender in a subprocess
     (`bpy`)."""
@@ -184,12 +202,12 @@ def ours(out: Path, character: str, bpy: str):
         mesh = fj.data.spot()
         skeleton = fj.skeleton(mesh)
         poses_of = spot_poses(fj, skeleton)
-    elif character in ("human", "insect", "dog", "kangaroo"):
+    elif character in ("human", "insect", "dog", "kangaroo", "dinosaur"):
         mesh = skin_mesh(bpy, character)
         mesh = mesh if mesh.is_watertight else fj.cap_holes(mesh)  # (the skin's branch holes)
         skeleton = fj.skeleton(mesh)
         poses_of = {"human": human_poses, "insect": insect_poses, "dog": dog_poses,
-                    "kangaroo": kangaroo_poses}[character](fj, skeleton)
+                    "kangaroo": kangaroo_poses, "dinosaur": dinosaur_poses}[character](fj, skeleton)
     else:
         mesh = biped()
         skeleton = fj.skeleton(mesh)
@@ -304,7 +322,8 @@ def main():
     parser.add_argument("--bpy", required=True, help="a Python with `bpy` installed")
     parser.add_argument("--figure", type=Path, default=None)
     parser.add_argument("--character", default="biped",
-                        choices=("biped", "spot", "human", "insect", "dog", "kangaroo"))
+                        choices=("biped", "spot", "human", "insect", "dog", "kangaroo",
+                                 "dinosaur"))
     parser.add_argument("--blender-side", nargs=2, help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.blender_side:
