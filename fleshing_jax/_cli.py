@@ -711,8 +711,7 @@ def _pose(args) -> int:
     from ._mesh.stretch import edge_stretch
     from ._mesh.volume import volume
     from ._skeleton.joint_zone import joint_range
-    from ._skeleton.posing import limb_causes, pose_skeleton, register_skeleton
-    from ._skeleton.spill import spilled
+    from ._skeleton.posing import limb_causes, placed_poses, pose_skeleton, register_skeleton
     from ._skeleton.stretch import pose_stretch
 
     check_output_path(args.output, extensions=MESH_WRITABLE)
@@ -753,14 +752,17 @@ def _pose(args) -> int:
     squeezed = _print_largest("principal stretch of the map", principal, skeleton)
     if not valid.all():
         # (With the bends a free child carries on past its parent's range: `spill`.)
-        carried = spilled(registration, skeleton, poses)
+        _, carried, _ = placed_poses(registration, skeleton, poses)
         for limb, causes in limb_causes(registration, skeleton, poses, args.method).items():
             if causes.invalid:
                 print(f" limb {limb}:")
                 pose = carried[limb]  # (a bend the other way: towards the opposite direction)
                 towards = float(pose.direction) + (180.0 if float(pose.bend) < 0 else 0.0)
+                whole = registration.wholes[limb]  # (its children ride on it unless posed)
                 largest = np.floor(100 * float(joint_range(
-                    registration, limb, towards, twist=float(pose.twist)))) / 100
+                    registration, limb, towards, twist=float(pose.twist),
+                    children_posed=whole is not None and bool(set(whole.below) & set(carried)),
+                ))) / 100
                 bend = (f"bend limb {limb}" if limb in poses else
                         f"limb {limb} carries its parent's bend on past the parent's range: "
                         f"it takes")

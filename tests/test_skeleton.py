@@ -222,6 +222,16 @@ def test_curvature_below_the_medial_radius_and_regions_in_reach(case, request):
         assert np.all(distance * curvature[foot] < 1.0), f"limb {i}: a vertex beyond reach"
 
 
+_REGISTERED = {}
+
+
+def _registered(case, mesh, skeleton):
+    """`register_skeleton` of a case, once per worker (its skeleton and mesh: the fixtures')."""
+    if case not in _REGISTERED:
+        _REGISTERED[case] = fj.register_skeleton(mesh, skeleton)
+    return _REGISTERED[case]
+
+
 @pytest.mark.parametrize("case", ["spot", "table_case"])
 def test_every_region_vertex_is_valid_at_rest(case, request):
     """A limb's spine is straight at both ends (its continuations past them, where points move
@@ -230,7 +240,7 @@ def test_every_region_vertex_is_valid_at_rest(case, request):
     all (on spot, a circle continuing a curved start used to flag 3–13 vertices of five
     limbs at rest)."""
     mesh, _, skeleton = request.getfixturevalue(case)
-    registration = fj.register_skeleton(mesh, skeleton)
+    registration = _registered(case, mesh, skeleton)
     for k, limb in enumerate(skeleton.limbs):
         ends = [limb.spine.curvature_vector(s) for s in (0.0, limb.spine.length)]
         np.testing.assert_allclose(np.asarray(ends), 0.0, atol=1e-9)
@@ -456,3 +466,40 @@ def test_an_arm_hanging_beside_the_torso_bends_from_its_armpit():
     for top in tops:
         limb = skeleton.limbs[top]
         assert float(np.asarray(limb.spine(limb.joint))[2]) > 0.58, top
+
+
+def test_a_head_bends_its_unposed_ears_and_horns_with_it(spot):
+    """Spot's head has four children (ears, horns) a fifth of the way along its spine. Posed
+    alone, it is registered with them (`WholeLimb`): its zone runs on past them, its exact
+    range grows, and they ride on its map. Posed with one of them, its zone ends before them."""
+    mesh, _, skeleton = spot
+    head = next(k for k, limb in enumerate(skeleton.limbs) if len(skeleton.children(k)) > 1)
+    registration = _registered("spot", mesh, skeleton)
+    whole = registration.wholes[head]
+    below = sorted(whole.below)
+    assert below == sorted(skeleton.children(head)), below
+    region = np.asarray(skeleton.region)
+    np.testing.assert_array_equal(np.asarray(whole.indices), np.flatnonzero(np.isin(
+        region, [head, *below])))
+    assert np.asarray(whole.registration.valid)[: whole.indices.shape[0]].all()
+    alone = float(fj.joint_range(registration, head, 0.0))
+    with_ears = float(fj.joint_range(registration, head, 0.0, children_posed=True))
+    assert alone > with_ears + 2, (alone, with_ears)  # (37° and 31° on this 60-sphere rig)
+    bend = 0.5 * (alone + with_ears)
+    rest = np.asarray(mesh.vertices)
+    posed = fj.pose_skeleton(registration, skeleton, {head: fj.LimbPose(bend)})
+    moved = np.asarray(posed.vertices)
+    assert np.asarray(posed.valid).all()
+    np.testing.assert_array_equal(moved[region == -1], rest[region == -1])  # the body still
+    ears = np.isin(region, below)
+    assert np.linalg.norm(moved[ears] - rest[ears], axis=1).min() > 0  # carried by the map
+    edges = mesh.edges_unique
+    stretch = (np.linalg.norm(moved[edges[:, 0]] - moved[edges[:, 1]], axis=1)
+               / np.linalg.norm(rest[edges[:, 0]] - rest[edges[:, 1]], axis=1))
+    assert stretch.max() < 2.5, stretch.max()
+    volume = trimesh.Trimesh(moved, mesh.faces, process=False).volume
+    assert abs(volume / mesh.volume - 1) < 1e-3
+    # An ear posed too (by nothing): the head's zone ends before the ears, past its range.
+    both = fj.pose_skeleton(registration, skeleton,
+                            {head: fj.LimbPose(bend), below[0]: fj.LimbPose(0.0)})
+    assert not np.asarray(both.valid)[region == head].all()

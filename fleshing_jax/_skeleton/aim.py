@@ -9,7 +9,7 @@ import numpy as np
 from .._checks import as_float_array
 from .joint_zone import joint_range
 from .limb_pose import LimbPose
-from .posing import SkeletonRegistration, check_limb_index, limb_target
+from .posing import SkeletonRegistration, carrying, check_limb_index, limb_target
 
 _STEPS = 32  # bisection steps on the bend (degrees): 180° / 2³²
 # Degrees: how far past the middle the angle is compared, above the bend's resolution.
@@ -46,6 +46,8 @@ def aim(registration: SkeletonRegistration, skeleton, limb: int, point) -> LimbP
     reaches (saying how near it comes).
     """
     k = check_limb_index(limb, skeleton, "limb")
+    # (Its children, unposed, ride on its bend: `posing.WholeLimb`.)
+    registration = carrying(registration, {k})[0]
     joint_range(registration, k)  # (the registration's limb index checked too)
     target = np.asarray(as_float_array(point, "point", (3,)), float)
     if not np.all(np.isfinite(target)):
@@ -137,6 +139,8 @@ def nod(registration: SkeletonRegistration, skeleton, limb: int, degrees, *, up,
     right, say). Split into a bend and a twist as `turn` is. **Returns** the `LimbPose`;
     `ValueError` for a limb along `up` without `side`, or a `side` along the limb."""
     k = check_limb_index(limb, skeleton, "limb")
+    # (Its children, unposed, ride on its bend: `posing.WholeLimb`.)
+    registration = carrying(registration, {k})[0]
     up, tangent = _unit_up(up), _tangent(registration, k)
     if side is None:
         side = np.cross(tangent, up)
@@ -154,6 +158,8 @@ def turn(registration: SkeletonRegistration, skeleton, limb: int, degrees, *, up
     quadruped's) swings sideways; a head along it (a biped's) turns about its own axis, as a
     person looks aside. **Returns** the `LimbPose`."""
     k = check_limb_index(limb, skeleton, "limb")
+    # (Its children, unposed, ride on its bend: `posing.WholeLimb`.)
+    registration = carrying(registration, {k})[0]
     return _rotation_pose(_tangent(registration, k), _unit_up(up), float(degrees))
 
 

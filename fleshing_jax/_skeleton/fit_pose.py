@@ -184,27 +184,40 @@ def restricted(registration: SkeletonRegistration, ids: np.ndarray, bucketed: bo
     the largest limb's own (a shape fit's whole regions: each posed limb is posed at that
     size, spot's head's 513 rows a bucket of 768)."""
     unique = np.unique(ids)
-    picked = [np.flatnonzero(np.isin(np.asarray(i), unique)) for i in registration.indices]
+    # (Each limb's region, then each `WholeLimb`'s: the same rows chosen, one size for all.)
+    wholes = [w for w in registration.wholes if w is not None]
+    regions = (*zip(registration.registrations, registration.indices),
+               *((w.registration, w.indices) for w in wholes))
+    picked = [np.flatnonzero(np.isin(np.asarray(i), unique)) for _, i in regions]
     size = max(1, *(len(p) for p in picked))
     size = bucket(size) if bucketed else size
-    registrations, indices = [], []
-    for reg, limb_ids, rows in zip(registration.registrations, registration.indices, picked):
-        keep = rows if len(rows) else np.zeros(1, int)
-        keep = np.pad(keep, (0, size - len(keep)), mode="edge")  # padded with the last row
-        fields = tuple(jax.device_put(np.asarray(getattr(reg, f))[keep]) for f in _PER_POINT)
-        registrations.append(
-            eqx.tree_at(lambda r: tuple(getattr(r, f) for f in _PER_POINT), reg, fields))
-        positions = np.searchsorted(unique, np.asarray(limb_ids)[rows])
-        indices.append(jnp.asarray(positions, jnp.int32))
+    parts = [_restricted_part(reg, limb_ids, rows, unique, size)
+             for (reg, limb_ids), rows in zip(regions, picked)]
+    registrations, indices = zip(*parts[: len(registration.indices)])
+    restricted_wholes = iter(parts[len(registration.indices):])
+    wholes = tuple(None if w is None else dataclasses.replace(
+        w, **dict(zip(("registration", "indices"), next(restricted_wholes))))
+        for w in registration.wholes)
     vertices = jax.device_put(np.asarray(registration.vertices)[unique])
     # No surface among chosen vertices: a pose past a range gives no volume back on them
     # (`restore`), which the whole mesh's pose does.
     # (A field replaced, not `eqx.tree_at`: no walk over the registration's leaves.)
     small = dataclasses.replace(
-        registration, registrations=tuple(registrations), indices=tuple(indices),
+        registration, registrations=tuple(registrations), indices=tuple(indices), wholes=wholes,
         vertices=vertices, triangles=jnp.zeros((0, 3), jnp.int32),
         corners=jnp.zeros((len(unique), 0), jnp.int32))
     return small, jnp.asarray(np.searchsorted(unique, ids), jnp.int32)
+
+
+def _restricted_part(reg, limb_ids, rows: np.ndarray, unique: np.ndarray, size: int) -> tuple:
+    """`(Registration, indices)` of a region's chosen `rows` (`restricted`), padded to `size`
+    rows (one row of its own if none), the indices their positions in `unique`."""
+    keep = rows if len(rows) else np.zeros(1, int)
+    keep = np.pad(keep, (0, size - len(keep)), mode="edge")  # padded with the last row
+    fields = tuple(jax.device_put(np.asarray(getattr(reg, f))[keep]) for f in _PER_POINT)
+    reg = eqx.tree_at(lambda r: tuple(getattr(r, f) for f in _PER_POINT), reg, fields)
+    positions = np.searchsorted(unique, np.asarray(limb_ids)[rows])
+    return reg, jnp.asarray(positions, jnp.int32)
 
 
 def dependence(skeleton: Skeleton, limbs: tuple[int, ...], per_limb: int,

@@ -231,7 +231,7 @@ def _margin_rows(keep, offset, curvature, s, frames, axes) -> tuple:
 
 
 def joint_range(registration, limb: int, direction=None, *, twist=0.0,
-                towards=None) -> Array:
+                towards=None, children_posed: bool = False) -> Array:
     """The largest bend (degrees, scalar) limb `limb` takes at its joint exactly.
 
     Without a direction: in every direction, within the map's curvature bound: its region is
@@ -243,8 +243,13 @@ def joint_range(registration, limb: int, direction=None, *, twist=0.0,
     neither blended nor flagged for its curvature (at least the range without a twist;
     360 where no bend leaves it; 0 where the twist alone does).
 
+    A limb with several children (a head with its ears) bends them with it where they are not
+    posed (`posing.WholeLimb`), and its zone may run on past them; `children_posed=True`:
+    the range when one of them is posed too, the zone then ending before their borders.
+
     **Arguments:** `registration`: a `register_skeleton` (`SkeletonRegistration`); `limb`:
-    a limb index of its skeleton; `direction`, `twist`, `towards`: as `fj.LimbPose`'s.
+    a limb index of its skeleton; `direction`, `twist`, `towards`: as `fj.LimbPose`'s;
+    `children_posed`: bool.
     **Raises** `ValueError` for another limb index, or a direction as `fj.LimbPose` does.
     """
     zones = registration.zones
@@ -253,13 +258,15 @@ def joint_range(registration, limb: int, direction=None, *, twist=0.0,
         raise ValueError(
             f"`limb`: {limb!r} is not a limb index of this registration (0 to {len(zones) - 1})."
         )
-    zone = zones[limb]
+    whole = None if children_posed else registration.wholes[limb]
+    zone, joint, stop = ((registration.zones[limb], registration.joints[limb],
+                          registration.stops[limb]) if whole is None
+                         else (whole.zone, whole.joint, whole.stop))
     if direction is None and towards is None and twist == 0:
         return jnp.rad2deg(zone.range)
     from .limb_pose import LimbPose
 
     pose = LimbPose(0.0, 0.0 if direction is None else direction, twist, towards=towards)
-    joint, stop = registration.joints[limb], registration.stops[limb]
     _, phi, psi = pose.radians(registration.rests[limb], joint)
     bends = jnp.linspace(0, 2 * np.pi, _SCANNED, dtype=joint.dtype)
     excess = np.asarray(_excess(zone, bends, phi, psi, joint, stop))

@@ -20,6 +20,9 @@ No crack at a region's borders, by construction of where the bend starts and sto
   is the fleshing. A child's region is first fleshed by its own pose (if any: it is still up to
   its own joint), then moved by that same rigid motion (its parent's end frame), composed with
   those of the parent's ancestors.
+- **Children riding on the map.** A limb with several children (a head with its ears), posed
+  while none of them is, is registered with their regions as one (`WholeLimb`): its bend may
+  then run on past their borders, the fleshing moving them with it (`carrying`).
 
 The body, and every limb that is not posed and has no posed ancestor, are never touched: they
 stay bit for bit.
@@ -27,6 +30,7 @@ stay bit for bit.
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 from functools import partial
 from typing import NamedTuple
@@ -58,6 +62,23 @@ from .skeleton import Skeleton, descendants
 from .spill import spilled
 
 
+class WholeLimb(eqx.Module):
+    """A limb with several children (a head with its ears, horns or antennae) registered with
+    its descendants' regions (`below`, static) on its rest spine: what a pose of the limb
+    that leaves them all unposed bends, as one region (`carrying`). Its children then ride on
+    its map, exact wherever it is, and its zone may run on past their borders to the end of
+    its spine: spot's head, whose ears and horns begin a fifth of the way along it, takes
+    27.5° in any direction instead of 9.2°. `registration`, `indices` (m,), `joint`, `stop`,
+    `zone`: as `SkeletonRegistration`'s fields, for that region."""
+
+    registration: Registration
+    indices: Array
+    joint: Array
+    stop: Array
+    zone: JointZone
+    below: tuple[int, ...] = eqx.field(static=True)
+
+
 class SkeletonRegistration(eqx.Module):
     """What posing a mesh on a skeleton needs, computed once (`register_skeleton`).
 
@@ -73,11 +94,13 @@ class SkeletonRegistration(eqx.Module):
     the region's vertices; `joints`, `stops`: scalars, where each limb's bend may start and
     must be complete (see the module's docstring); `vertices` (n, 3): the rest vertices;
     `margin`: scalar; `zones`: each limb's `JointZone`, where a bend of a given angle is
-    concentrated past the joint (`joint_zone`); `triangles` (T, 3) int32: the mesh's faces
-    fanned into triangles (the surface a shape fit measures distances to); `corners` (n, m)
-    int32: each vertex's corners of them (`restore.corner_table`); `volume`: the rest
-    vertices' (about their centre, in float64, then cast); `skeleton_id`: the
-    skeleton's `fingerprint` (its limbs and regions, its mesh, its spines and joints), so that
+    concentrated past the joint (`joint_zone`); `wholes`: for each limb with several
+    children, its region and its descendants' registered on its rest spine (`WholeLimb`),
+    for the poses that leave those unposed (`carrying`), else `None`; `triangles` (T, 3)
+    int32: the mesh's faces fanned into triangles (the surface a shape fit measures distances
+    to); `corners` (n, m) int32: each vertex's corners of them (`restore.corner_table`);
+    `volume`: the rest vertices' (about their centre, in float64, then cast); `skeleton_id`:
+    the skeleton's `fingerprint` (its limbs and regions, its mesh, its spines and joints), so that
     a pose with another skeleton is refused, saying which part differs.
     """
 
@@ -90,6 +113,7 @@ class SkeletonRegistration(eqx.Module):
     vertices: Array
     margin: Array
     zones: tuple[JointZone, ...]
+    wholes: tuple[WholeLimb | None, ...]
     triangles: Array  # (T, 3) int32: the mesh's faces as triangles (a shape fit's surface)
     corners: Array  # (n, m) int32: each vertex's corners of `triangles` (`restore`)
     volume: Array  # scalar: the rest vertices' volume (`restore`)
@@ -186,55 +210,75 @@ def register_skeleton(mesh, skeleton: Skeleton, *, margin: float | None = None,
     spines = [jax.device_put(cast_floats(jax.tree.map(np.asarray, limb.spine),
                                          points.dtype))._bucketed() for limb in skeleton.limbs]
     _compile_ahead(spines, jax.ShapeDtypeStruct((size, 3), points.dtype), margin)
+    wholes = []
     for k, (limb, spine) in enumerate(zip(skeleton.limbs, spines)):
-        ids = np.flatnonzero(region == k).astype(np.int32)
         tabled = tabulates(spine, points.dtype)  # (its length not computed again)
-        batch = jax.device_put(pad_batch(rows[ids], size))
         prepared, table, length = _rests(spine, tabulable(spine))
-        registrar, certified = _registration(prepared, batch, margin,
-                                             table.table if tabled else None,
-                                             quick=size <= QUICK_BATCH)
-        reg = invalid_past(Registration(batch, *registered_pending(registrar, batch, certified)),
-                           len(ids))
-        arc = np.full(len(vertices), np.nan)
-        arc[ids] = np.asarray(reg.arc_length)[: len(ids)]
-        # The bend starts past the border with the parent (or any region not below this limb).
-        outside = ~np.isin(region, [k, *lineage[k]])
-        border = _border(edges, region == k, outside)
-        joint = max(float(limb.joint), float(np.max(arc[border], initial=-np.inf)))
-        # It is complete before the borders with the children.
-        inner = np.isin(region, lineage[k])
-        stop = min(float(length), float(np.min(arc[_border(edges, region == k, inner)],
-                                               initial=np.inf)))
-        if not joint < stop:
-            raise ValueError(
-                f"`skeleton`: limb {k}'s region meets its child limbs (arc length {stop:.4g}) "
-                f"before it leaves its parent ({joint:.4g}): there is no room to bend it."
-            )
         rest = table if tabled else prepared
-        # (All rows, padded ones invalid: every limb's zone has the same shapes.)
-        at = np.where(np.asarray(reg.valid), np.asarray(reg.arc_length), joint)
-        (_, *frames), axes = _frames_at(rest, on_device(at, points.dtype),
-                                        on_device(joint, points.dtype))
-        zones.append(joint_zone(*(np.asarray(f) for f in (
-            reg.arc_length, reg.offset, reg.curvature, reg.valid)), joint, stop, points.dtype,
-            frames=frames, axes=axes))
+        part = partial(_registered_part, k, rows, edges, region, size, margin, prepared,
+                       table.table if tabled else None, rest, float(limb.joint), float(length))
+        below = [k, *lineage[k]]
+        reg, ids, joint, stop, zone = part([k], below)
         registrations.append(reg)
         rests.append(rest)
         checks.append(None if tabled else table)
-        indices.append(jax.device_put(ids))
-        joints.append(on_device(joint, points.dtype))
-        # (Rounded to the dtype, the stop may fall an ulp past the rest spine's own length,
-        # which a bent spine refuses: its table's length, in float32, rounds its own way.)
-        stops.append(on_device(np.minimum(np.asarray(stop, points.dtype), rest.length)))
+        indices.append(ids)
+        joints.append(joint)
+        stops.append(stop)
+        zones.append(zone)
+        # A limb with several children (a head with its ears or horns) is also registered with
+        # their regions, for the poses that leave them unposed (`carrying`).
+        wholes.append(WholeLimb(*part(below, below), tuple(lineage[k]))
+                      if len(skeleton.children(k)) > 1 else None)
     triangles = _triangles(faces)
     return SkeletonRegistration(tuple(registrations), tuple(rests), tuple(checks),
                                 tuple(indices), tuple(joints),
-                                tuple(stops), points, margin, tuple(zones),
+                                tuple(stops), points, margin, tuple(zones), tuple(wholes),
                                 on_device(triangles, np.int32),
                                 on_device(corner_table(triangles, len(points)), np.int32),
                                 on_device(rest_volume(points, triangles), points.dtype),
                                 fingerprint(skeleton))
+
+
+def _registered_part(k: int, rows: np.ndarray, edges: np.ndarray, region: np.ndarray,
+                     size: int, margin: Array, prepared, table, rest, joint: float,
+                     length: float, moved: list, below: list) -> tuple:
+    """The vertices of the regions of limbs `moved` registered on limb `k`'s rest spine
+    (`prepared`, its `table` values or `None`; `rest`: what its poses read, of `length`),
+    padded to `size` rows or more (a bucket): `(Registration, indices (m,) int32, joint, stop,
+    JointZone)`. The bend starts past their border with every region not in `below` (limb
+    `k` and its descendants; or the limb's own `joint`, if larger) and is complete before
+    their borders with the rest of `below` (see the module's docstring)."""
+    inside = np.isin(region, moved)
+    ids = np.flatnonzero(inside).astype(np.int32)
+    size = max(size, bucket(len(ids)))
+    batch = jax.device_put(pad_batch(rows[ids], size))
+    registrar, certified = _registration(prepared, batch, margin, table,
+                                         quick=size <= QUICK_BATCH)
+    reg = invalid_past(Registration(batch, *registered_pending(registrar, batch, certified)),
+                       len(ids))
+    arc = np.full(len(region), np.nan)
+    arc[ids] = np.asarray(reg.arc_length)[: len(ids)]
+    border = _border(edges, inside, ~np.isin(region, below))
+    joint = max(joint, float(np.max(arc[border], initial=-np.inf)))
+    inner = np.isin(region, below) & ~inside
+    stop = min(length, float(np.min(arc[_border(edges, inside, inner)], initial=np.inf)))
+    if not joint < stop:
+        raise ValueError(
+            f"`skeleton`: limb {k}'s region meets its child limbs (arc length {stop:.4g}) "
+            f"before it leaves its parent ({joint:.4g}): there is no room to bend it."
+        )
+    dtype = batch.dtype
+    # (All rows, padded ones invalid: every limb's zone has the same shapes.)
+    at = np.where(np.asarray(reg.valid), np.asarray(reg.arc_length), joint)
+    (_, *frames), axes = _frames_at(rest, on_device(at, dtype), on_device(joint, dtype))
+    zone = joint_zone(*(np.asarray(f) for f in (
+        reg.arc_length, reg.offset, reg.curvature, reg.valid)), joint, stop, dtype,
+        frames=frames, axes=axes)
+    # (Rounded to the dtype, the stop may fall an ulp past the rest spine's own length,
+    # which a bent spine refuses: its table's length, in float32, rounds its own way.)
+    stop = np.minimum(np.asarray(stop, dtype), rest.length)
+    return (reg, jax.device_put(ids), on_device(joint, dtype), on_device(stop, dtype), zone)
 
 
 def _compile_ahead(spines: list, batch: jax.ShapeDtypeStruct, margin: Array) -> None:
@@ -343,7 +387,9 @@ def pose_skeleton(
       onto itself) is not flagged.
 
     Each posed limb's region is fleshed from its rest spine to the bent one (`det J = 1`); its
-    child limbs follow rigidly its end frame, then bend by their own poses. A `LimbPose` past
+    child limbs follow rigidly its end frame, then bend by their own poses (a limb with
+    several children, none of them posed, bends them with it as one region: a head's ears
+    and horns; its zone may then run on past them). A `LimbPose` past
     its limb's exact range in its direction is carried on, in the same plane, by the limb's
     only child where that child has no pose (a knee by its ankle: each up to 95 % of its exact
     range, then both past theirs). The body and the limbs neither posed nor below a posed limb
@@ -387,6 +433,43 @@ def as_registration(mesh_or_registration, skeleton: Skeleton) -> SkeletonRegistr
             "(fj.register_skeleton)."
         )
     return mesh_or_registration
+
+
+def carrying(registration: SkeletonRegistration, posed: set | dict):
+    """`(registration, absorbed)`: `registration` with each limb of `posed` that has a
+    `WholeLimb` and no descendant in `posed` registered as one region with its descendants
+    (its fields swapped for the `WholeLimb`'s), and `absorbed`, the frozenset of those
+    descendants, whose vertices its pose places: a pose leaves them alone."""
+    swap = {k: whole for k in posed
+            if (whole := registration.wholes[k]) is not None and not set(whole.below) & set(posed)}
+    if not swap:
+        return registration, frozenset()
+
+    def swapped(values, field):
+        return tuple(getattr(swap[k], field) if k in swap else v for k, v in enumerate(values))
+
+    # (A field replaced, not `eqx.tree_at`: no walk over the registration's leaves.)
+    registration = dataclasses.replace(
+        registration, registrations=swapped(registration.registrations, "registration"),
+        indices=swapped(registration.indices, "indices"),
+        joints=swapped(registration.joints, "joint"), stops=swapped(registration.stops, "stop"),
+        zones=swapped(registration.zones, "zone"))
+    return registration, frozenset(b for whole in swap.values() for b in whole.below)
+
+
+def placed_poses(registration: SkeletonRegistration, skeleton: Skeleton, poses: dict):
+    """`(registration, poses, absorbed)`: `poses` with the bends past a joint's range carried
+    on by free only children (`spilled`), the registration and the limbs its posed limbs carry
+    as one region (`carrying`). (A child a bend is carried on to is judged with its
+    descendants' regions where they are not posed: its range then.)"""
+    reach = set(poses)
+    for k in range(len(skeleton.limbs)):  # (topological order: down a chain)
+        children = skeleton.children(k)
+        if k in reach and len(children) == 1:
+            reach.add(children[0])
+    poses = spilled(carrying(registration, reach)[0], skeleton, poses)
+    registration, absorbed = carrying(registration, poses)
+    return registration, poses, absorbed
 
 
 class Rigid(NamedTuple):
@@ -444,7 +527,7 @@ def posed(registration: SkeletonRegistration, skeleton: Skeleton, poses: dict,
     # child is posed in every frame: batched with its parent, so that the program holds one
     # limb's code (a gradient of a knee's angles compiled twice as long with its foot's own).
     given = len(poses)
-    poses = spilled(reg, skeleton, poses)
+    reg, poses, absorbed = placed_poses(reg, skeleton, poses)
     stacked = stacked or (len(poses) > given and not is_concrete(poses))
     moved = posed_limbs(reg, poses, method, check, stacked)
     # Stacked, the limbs' sections are carried as one batch too (`_stacked_sections`).
@@ -455,8 +538,8 @@ def posed(registration: SkeletonRegistration, skeleton: Skeleton, poses: dict,
     for k, limb in enumerate(skeleton.limbs):
         carry = carried.get(limb.parent)
         pose = poses.get(k)
-        if pose is None and (limb.parent not in carried):
-            continue  # neither posed nor below a posed limb: not touched
+        if (pose is None and (limb.parent not in carried)) or k in absorbed:
+            continue  # neither posed nor below a posed limb, or placed by one: not touched
         ids = reg.indices[k]
         n = ids.shape[0]
         images, ok, motion = reg.vertices[ids], jnp.ones(n, bool), None
@@ -933,10 +1016,9 @@ def limb_causes(registration: SkeletonRegistration, skeleton: Skeleton, poses: d
     dict limb index → `Causes`, for the limbs posed with a `LimbPose` or a spine."""
     from .._fleshing.diagnose import diagnose
 
-    poses = spilled(registration, skeleton, check_poses(poses, skeleton))
+    reg, poses, _ = placed_poses(registration, skeleton, check_poses(poses, skeleton))
     causes = {}
     for k, pose in poses.items():
-        reg = registration
         n = reg.indices[k].shape[0]
         target = limb_target(reg, k, pose)
         causes[k] = diagnose(unpad_batch(reg.registrations[k], n), target,

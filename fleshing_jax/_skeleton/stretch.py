@@ -14,9 +14,16 @@ from jaxtyping import Array, Float
 
 from .._fleshing.methods import check_method
 from .._fleshing.verify import registered_stretch
-from .posing import as_registration, check_poses, limb_check, limb_poser, limb_target, posed
+from .posing import (
+    as_registration,
+    check_poses,
+    limb_check,
+    limb_poser,
+    limb_target,
+    placed_poses,
+    posed,
+)
 from .skeleton import Skeleton
-from .spill import spilled
 
 
 def pose_stretch(mesh_or_registration, skeleton: Skeleton, poses: dict, *,
@@ -34,7 +41,7 @@ def pose_stretch(mesh_or_registration, skeleton: Skeleton, poses: dict, *,
     not for the per-frame path.
     """
     registration = as_registration(mesh_or_registration, skeleton)
-    poses = spilled(registration, skeleton, check_poses(poses, skeleton))
+    placed, poses, _ = placed_poses(registration, skeleton, check_poses(poses, skeleton))
     method = check_method(method)
     valid = posed(registration, skeleton, poses, method).valid
     stretch = jnp.ones(valid.shape, registration.vertices.dtype)
@@ -43,9 +50,9 @@ def pose_stretch(mesh_or_registration, skeleton: Skeleton, poses: dict, *,
         # taken from there: it includes the images' projection check).
         # (Prepared as the pose prepares it, checked on the same spine: the stretch reads only
         # its frames, and `pose_skeleton`'s compiled preparation serves it.)
-        ids, limb = registration.indices[k], registration.registrations[k]
-        poser = limb_poser(limb, limb_target(registration, k, pose), method,
-                           checked_on=limb_check(registration, k, pose))
-        limb = registered_stretch(registration.rests[k], limb, poser)
+        ids, limb = placed.indices[k], placed.registrations[k]
+        poser = limb_poser(limb, limb_target(placed, k, pose), method,
+                           checked_on=limb_check(placed, k, pose))
+        limb = registered_stretch(placed.rests[k], limb, poser)
         stretch = stretch.at[ids].set(limb[: ids.shape[0]])
     return jnp.where(valid, stretch, jnp.nan)
