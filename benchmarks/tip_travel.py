@@ -31,6 +31,7 @@ jax.config.update("jax_enable_x64", True)
 
 import fleshing_jax as fj  # noqa: E402
 from fleshing_jax._medial_axis import characters  # noqa: E402
+from fleshing_jax._skeleton.posing import carrying  # noqa: E402
 from fleshing_jax._skeleton.skeleton import descendants  # noqa: E402
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
@@ -82,8 +83,9 @@ def rows(name: str, bpy: str | None = None):
             flagged = max(flagged, int(np.sum(~np.asarray(posed.valid))))
             change = max(change, abs(float(fj.volume(moved, faces)) / volume - 1))
             still &= bool(np.array_equal(moved[~chain], rest[~chain]))
-        zone = float(registration.zones[top].length(np.deg2rad(30.0)))
-        room = float(registration.stops[top] - registration.joints[top])
+        placed = carrying(registration, {top})[0]  # (its children ride on it: `WholeLimb`)
+        zone = float(placed.zones[top].length(np.deg2rad(30.0)))
+        room = float(placed.stops[top] - placed.joints[top])
         lever = 100 * np.linalg.norm(tip - joint) / diagonal
         yield (f"| {name} | {top} | {1 + len(below[top])} | {lever:.1f} "
                f"| {zone:.3f} / {room:.3f} | {100 * min(travel):.1f}–{100 * max(travel):.1f} "

@@ -68,8 +68,12 @@ class WholeLimb(eqx.Module):
     that leaves them all unposed bends, as one region (`carrying`). Its children then ride on
     its map, exact wherever it is, and its zone may run on past their borders to the end of
     its spine: spot's head, whose ears and horns begin a fifth of the way along it, takes
-    27.5° in any direction instead of 9.2°. `registration`, `indices` (m,), `joint`, `stop`,
-    `zone`: as `SkeletonRegistration`'s fields, for that region."""
+    27.5° in any direction instead of 9.0°. Only where they lie within the limb's own reach
+    about its spine (no vertex of theirs farther from it than its own farthest): cheburashka's
+    ears, reaching twice as far as its head, would be stretched into spikes by a bend past
+    the range (blended towards their cross-sections' motion, `restore`), which carried
+    rigidly they are not. `registration`, `indices` (m,), `joint`, `stop`, `zone`: as
+    `SkeletonRegistration`'s fields, for that region."""
 
     registration: Registration
     indices: Array
@@ -95,7 +99,7 @@ class SkeletonRegistration(eqx.Module):
     must be complete (see the module's docstring); `vertices` (n, 3): the rest vertices;
     `margin`: scalar; `zones`: each limb's `JointZone`, where a bend of a given angle is
     concentrated past the joint (`joint_zone`); `wholes`: for each limb with several
-    children, its region and its descendants' registered on its rest spine (`WholeLimb`),
+    children within its reach, its region and its descendants' on its rest spine (`WholeLimb`),
     for the poses that leave those unposed (`carrying`), else `None`; `triangles` (T, 3)
     int32: the mesh's faces fanned into triangles (the surface a shape fit measures distances
     to); `corners` (n, m) int32: each vertex's corners of them (`restore.corner_table`);
@@ -227,9 +231,12 @@ def register_skeleton(mesh, skeleton: Skeleton, *, margin: float | None = None,
         stops.append(stop)
         zones.append(zone)
         # A limb with several children (a head with its ears or horns) is also registered with
-        # their regions, for the poses that leave them unposed (`carrying`).
-        wholes.append(WholeLimb(*part(below, below), tuple(lineage[k]))
-                      if len(skeleton.children(k)) > 1 else None)
+        # their regions, for the poses that leave them unposed (`carrying`), where they lie
+        # within its own reach about its spine (`WholeLimb`).
+        whole = (WholeLimb(*part(below, below), tuple(lineage[k]))
+                 if len(skeleton.children(k)) > 1 else None)
+        wholes.append(whole if whole is not None and _reach(whole.registration, len(
+            whole.indices)) <= _reach(reg, len(ids)) else None)
     triangles = _triangles(faces)
     return SkeletonRegistration(tuple(registrations), tuple(rests), tuple(checks),
                                 tuple(indices), tuple(joints),
@@ -279,6 +286,12 @@ def _registered_part(k: int, rows: np.ndarray, edges: np.ndarray, region: np.nda
     # which a bent spine refuses: its table's length, in float32, rounds its own way.)
     stop = np.minimum(np.asarray(stop, dtype), rest.length)
     return (reg, jax.device_put(ids), on_device(joint, dtype), on_device(stop, dtype), zone)
+
+
+def _reach(registration: Registration, n: int) -> float:
+    """The largest distance from its spine of a registration's first `n` valid points."""
+    offset = np.linalg.norm(np.asarray(registration.offset)[:n], axis=1)
+    return float(np.max(offset[np.asarray(registration.valid)[:n]], initial=0.0))
 
 
 def _compile_ahead(spines: list, batch: jax.ShapeDtypeStruct, margin: Array) -> None:
