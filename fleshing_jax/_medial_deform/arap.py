@@ -48,8 +48,8 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
+from .._batching.quick import Program
 from .._checks import as_float_array, check_number, is_concrete
-from .._exported import persistent
 from .._medial_axis.medial_mesh import MedialMesh
 from .._numerics import safe_divide, safe_sqrt
 from .cells import ArapCells, arap_cells
@@ -312,8 +312,7 @@ def _initial_rotations(cells: ArapCells, prescribed, targets):
     return jax.vmap(matrix_from_quaternion)(field).at[cells.handles].set(at_handles)
 
 
-@persistent
-def solve(cells: ArapCells, targets, prescribed, iterations: int, solver: str, start=None):
+def _arap_solve(cells: ArapCells, targets, prescribed, iterations: int, solver: str, start=None):
     """Runs `iterations` (centre step, rotation step) pairs from the first guess, or from the
     rotations of an earlier pose `start = (centres (n, 3), rotations (n, 3, 3))` (a warm
     start: the previous frame's), each turned by the change of the first guess from the
@@ -353,6 +352,12 @@ def solve(cells: ArapCells, targets, prescribed, iterations: int, solver: str, s
 
     (c, r), energies = jax.lax.scan(step, (c, r), None, length=iterations)
     return c, r, energies
+
+
+# Compiled the optimised way (`solve`: per-frame poses), or quickly for `deform_medial`'s one
+# call on a small mesh (`posed(…, quick=True)`, `_batching.quick`).
+_solve = Program(_arap_solve, kept=True)
+solve = _solve.optimised
 
 
 # --- the public function: checks, cached preprocessing -----------------------------------------
@@ -554,10 +559,12 @@ def arap_medial(
     return posed(medial, *prepared, solver, start)[0]
 
 
-def posed(medial, cells, targets, rotations, iterations, solver, start=None):
+def posed(medial, cells, targets, rotations, iterations, solver, start=None, quick=False):
     """`(pose, energies)` of inputs checked by `_prepare` (the pose checks its values);
-    `start`: rotations to start from (`_check_start`)."""
-    centers, rots, energies = solve(cells, targets, rotations, iterations, solver, start)
+    `start`: rotations to start from (`_check_start`); `quick`: the solve compiled quickly
+    (`_batching.quick`: a single call)."""
+    centers, rots, energies = _solve(cells, targets, rotations, iterations, solver, start,
+                                     quick=quick)
     return MedialPose(medial, centers, rots), energies
 
 

@@ -48,8 +48,8 @@ import numpy as np
 from jaxtyping import Array, ArrayLike, Bool, Float, Int
 from scipy import sparse
 
+from .._batching.quick import Program
 from .._checks import as_real_array, check_number, is_concrete
-from .._exported import persistent
 from .._medial_axis.medial_mesh import MedialMesh
 from .._medial_axis.weld import weld
 from .._mesh.volume import triangulate
@@ -354,20 +354,25 @@ class MedialRig(eqx.Module):
         **Returns:** `(vertices (n, 3), valid (n,))` in the dtype of `posed.centers`; invalid
         vertices at their rest position.
         """
-        check_method(method)
-        if not isinstance(posed, MedialPose):
-            raise TypeError(f"`posed` must be a MedialPose, got {type(posed).__name__}")
-        if posed.centers.shape[0] != self.n_spheres:
-            raise ValueError(f"`posed` must be a pose of the rig's medial mesh "
-                             f"({self.n_spheres} spheres), got {posed.centers.shape[0]}")
-        if is_concrete(posed.medial) and posed.medial.fingerprint() != self.fingerprint():
-            raise ValueError("`posed` must be a pose of the rig's medial mesh; it is a pose of "
-                             "another one (other spheres or topology)")
-        return _pose(self, posed.centers, posed.rotations, method, bool(implicit))
+        return skinned(self, posed, method, implicit)
 
 
-@persistent
-def _pose(rig: MedialRig, centers, rotations, method, implicit):
+def skinned(rig: MedialRig, posed: MedialPose, method: str, implicit: bool, quick: bool = False):
+    """`rig.pose(posed, method, implicit=implicit)`, its program compiled quickly if `quick`
+    (`_batching.quick`: `deform_medial`'s one call on a small mesh)."""
+    check_method(method)
+    if not isinstance(posed, MedialPose):
+        raise TypeError(f"`posed` must be a MedialPose, got {type(posed).__name__}")
+    if posed.centers.shape[0] != rig.n_spheres:
+        raise ValueError(f"`posed` must be a pose of the rig's medial mesh "
+                         f"({rig.n_spheres} spheres), got {posed.centers.shape[0]}")
+    if is_concrete(posed.medial) and posed.medial.fingerprint() != rig.fingerprint():
+        raise ValueError("`posed` must be a pose of the rig's medial mesh; it is a pose of "
+                         "another one (other spheres or topology)")
+    return _pose(rig, posed.centers, posed.rotations, method, bool(implicit), quick=quick)
+
+
+def _skin(rig: MedialRig, centers, rotations, method, implicit):
     dtype = centers.dtype
     rig = cast_floats(rig, dtype)
     rotations = rotations.astype(dtype)
@@ -396,3 +401,6 @@ def _pose(rig: MedialRig, centers, rotations, method, implicit):
     x = x[rig.welded]
     valid = rig.valid & jnp.all(jnp.isfinite(x), axis=-1)
     return jnp.where(valid[:, None], x, rig.rest_vertices), valid
+
+
+_pose = Program(_skin, kept=True)
