@@ -196,7 +196,7 @@ def ours(out: Path, character: str, bpy: str):
     jax.config.update("jax_enable_x64", True)
     import fleshing_jax as fj
     from fleshing_jax._medial_axis.characters import biped
-    from fleshing_jax._skeleton.posing import posed_limbs
+    from fleshing_jax._skeleton.posing import placed_poses, posed_limbs
 
     if character == "spot":
         mesh = fj.data.spot()
@@ -218,9 +218,11 @@ def ours(out: Path, character: str, bpy: str):
     poses = poses_of(registration)
     posed = fj.pose_skeleton(registration, skeleton, poses)
     rotations = np.tile(np.eye(3), (count, 1, 1))
-    for k, (_, _, motion, _) in posed_limbs(registration, poses, "radial", True, False).items():
+    # (As the pose places them: a head's zone running on past its unposed ears, `WholeLimb`.)
+    placed = placed_poses(registration, skeleton, poses)[0]
+    for k, (_, _, motion, _) in posed_limbs(placed, poses, "radial", True, False).items():
         rotations[k] = np.asarray(motion.rotation)
-    joints, stops = registration.joints, registration.stops
+    joints, stops = placed.joints, placed.stops
     limbs = skeleton.limbs
     heads = np.array([np.asarray(limbs[k].spine(joints[k])) for k in range(count)])
     tails = np.array([np.asarray(limbs[k].spine(min(float(stops[k]),
