@@ -154,3 +154,8 @@ def test_cheburashka_is_rigged_at_its_torso_with_its_head_ears_arms_and_feet(see
         limb = skeleton.limbs[k]
         lever = np.linalg.norm(np.asarray(limb.spine(limb.spine.length) - limb.spine(limb.joint)))
         assert lever > 0.12 * diagonal, (k, lever / diagonal)
+    # Its ears reach twice as far from the head's spine (0.42-0.47) as the head (0.21): a bend
+    # past the head's range would stretch them into spikes as one region with it, so they stay
+    # carried rigidly (no `WholeLimb`).
+    registration = fj.register_skeleton(mesh, skeleton)
+    assert registration.wholes[head] is None

@@ -482,6 +482,12 @@ def test_a_head_bends_its_unposed_ears_and_horns_with_it(spot):
     np.testing.assert_array_equal(np.asarray(whole.indices), np.flatnonzero(np.isin(
         region, [head, *below])))
     assert np.asarray(whole.registration.valid)[: whole.indices.shape[0]].all()
+    # Its children within its own reach about its spine (else carried rigidly: cheburashka's
+    # ears, `test_real_meshes`).
+    own = np.asarray(registration.indices[head]).shape[0]
+    reach = [np.linalg.norm(np.asarray(r.offset)[:n], axis=1).max() for r, n in (
+        (registration.registrations[head], own), (whole.registration, whole.indices.shape[0]))]
+    assert reach[1] <= reach[0], reach
     alone = float(fj.joint_range(registration, head, 0.0))
     with_ears = float(fj.joint_range(registration, head, 0.0, children_posed=True))
     assert alone > with_ears + 2, (alone, with_ears)  # (37° and 31° on this 60-sphere rig)
@@ -503,3 +509,4 @@ def test_a_head_bends_its_unposed_ears_and_horns_with_it(spot):
     both = fj.pose_skeleton(registration, skeleton,
                             {head: fj.LimbPose(bend), below[0]: fj.LimbPose(0.0)})
     assert not np.asarray(both.valid)[region == head].all()
+
