@@ -11,6 +11,7 @@ from fleshing_jax._medial_axis.rows import (
     gather_columns,
     norm,
     row_keys,
+    sorted_order,
     sorted_rows,
 )
 
@@ -51,6 +52,19 @@ def test_sorted_rows_and_keys(k):
     np.testing.assert_array_equal(keys, rows @ (n ** np.arange(k - 1, -1, -1)))
     order = np.lexsort(rows.T[::-1])
     assert np.all(np.diff(keys[order]) >= 0)  # the rows' lexicographic order
+
+
+@pytest.mark.parametrize("bound", [7, 5000, 2**60])
+def test_sorted_order_is_a_stable_argsort(bound):
+    # Many ties (bound 7), few (5000), and keys too large for the combined sort (its
+    # fallback): the same permutation as NumPy's stable sort, and the keys in its order.
+    rng = np.random.default_rng(bound % 1000)
+    keys = rng.integers(0, bound, 3000)
+    order = np.argsort(keys, kind="stable")
+    got_keys, got = sorted_order(keys, bound)
+    np.testing.assert_array_equal(got, order)
+    np.testing.assert_array_equal(got_keys, keys[order])
+    assert [len(x) for x in sorted_order(keys[:0], bound)] == [0, 0]
 
 
 def test_quadric_loops_are_numpy_s_bit_for_bit():
@@ -139,3 +153,4 @@ def test_jacobian_rows_are_scipy_s_bit_for_bit():
                       (indptr, expected.indptr)):
         assert got.dtype == want.dtype
         np.testing.assert_array_equal(got.view(np.uint8), want.view(np.uint8))
+

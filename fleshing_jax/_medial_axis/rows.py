@@ -83,3 +83,19 @@ def row_keys(rows, n: int):
     for k in range(1, rows.shape[1]):
         key = key * n + rows[:, k]
     return key
+
+
+def sorted_order(keys, bound: int):
+    """`(keys[order], order)` with `order = np.argsort(keys, kind="stable")`, for integer
+    `keys (m,)` in `[0, bound)`: the same permutation, by one sort of `keys · m + position`
+    (NumPy's vectorised quicksort, whose ties cannot occur: every value distinct). NumPy's
+    stable sort of 64-bit integers is a merge sort, several times slower on keys in no
+    order (spot's 780k Delaunay edges: 60 → 10 ms); where `bound · m` would overflow, it
+    is used still."""
+    m = len(keys)
+    if float(bound) * max(m, 1) >= 2.0**62:
+        order = np.argsort(keys, kind="stable")
+        return keys.take(order), order
+    combined = keys.astype(np.int64) * m + np.arange(m)
+    combined.sort()
+    return np.divmod(combined, m) if m else (combined, combined)

@@ -54,7 +54,7 @@ import numpy as np
 
 from .connect import components, distinct, unique_rows
 from .primitives import _Cones, _Slabs
-from .rows import norm, row_keys, sorted_rows
+from .rows import norm, row_keys, sorted_order, sorted_rows
 
 
 def contact_quadrics(axis, slide: float = 1.0):
@@ -315,22 +315,28 @@ def simplify(centers, radii, edges, faces, quadrics, target: int, *, scale: floa
         small_first = spheres[e[:, 0], 3] <= spheres[e[:, 1], 3]
         drop = np.where(small_first, e[:, 0], e[:, 1])
         keep = np.where(small_first, e[:, 1], e[:, 0])
-        drop, first = np.unique(drop, return_index=True)
+        # (`np.unique(drop, return_index=True)` and `~np.isin(keep, drop)`: the same
+        # arrays, without a stable sort of the drops in no order or a sort for `isin`.)
+        drop, first = sorted_order(drop, n)  # (`head` is not empty)
+        new = np.r_[True, drop[1:] != drop[:-1]]
+        drop, first = drop[new], first[new]
         chosen, keep = head[first], keep[first]
-        ok = ~np.isin(keep, drop)
+        dropped = np.zeros(n, dtype=bool)
+        dropped[drop] = True
+        ok = ~dropped[keep]
         chosen, keep, drop = chosen[ok], keep[ok], drop[ok]
         # Within each piece, the cheapest `spare` drops only.
         order = np.lexsort((cost[chosen], piece[drop]))
         rank = np.arange(len(order)) - np.searchsorted(piece[drop][order], piece[drop][order])
         ok = np.sort(order[rank < spare[piece[drop][order]]])
         chosen, keep, drop = chosen[ok], keep[ok], drop[ok]
-        hub, count = np.unique(keep, return_counts=True)
-        single = np.isin(keep, hub[count == 1])
+        count = np.bincount(keep, minlength=n)  # (each hub's collapses: no sort)
+        single = count[keep] == 1
         spheres[keep[single]] = optimum[chosen[single]]
         np.add.at(A, keep, np.take(A, drop, axis=0))
         np.add.at(b, keep, np.take(b, drop, axis=0))
         np.add.at(c, keep, c[drop])
-        stars = hub[count > 1]
+        stars = np.flatnonzero(count > 1)
         if len(stars):
             spheres[stars] = _star_optimum(spheres[stars], A[stars], b[stars], c[stars])
         # Renumber: dropped spheres become their partners, then the survivors are compacted.

@@ -27,7 +27,7 @@ import numpy as np
 from scipy.spatial import Delaunay
 
 from .connect import distinct, join_pieces, unique_rows, volumes
-from .rows import cross, norm
+from .rows import cross, norm, sorted_order
 from .shells import shells
 from .surface import SurfaceQuery
 
@@ -126,8 +126,8 @@ def initial_medial_axis(query: SurfaceQuery, points, normals, weights, sample_fa
             lo_, hi_ = np.minimum(facet[:, p], facet[:, q]), np.maximum(facet[:, p], facet[:, q])
             hull_keys.append(lo_ * n_points + hi_)
     hull_keys = distinct(np.concatenate(hull_keys))
-    order = np.argsort(key, kind="stable")
-    key, owner = key.take(order), owner.take(order)
+    key, order = sorted_order(key, n_points * n_points)
+    owner = owner.take(order)
     start = np.flatnonzero(np.r_[True, key[1:] != key[:-1]])
     size = np.diff(np.r_[start, len(key)])
     ring_kept = np.minimum.reduceat(keep[owner].astype(np.int8), start).astype(bool)
