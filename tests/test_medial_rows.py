@@ -154,3 +154,37 @@ def test_jacobian_rows_are_scipy_s_bit_for_bit():
         assert got.dtype == want.dtype
         np.testing.assert_array_equal(got.view(np.uint8), want.view(np.uint8))
 
+
+def test_weighted_gram_is_scipy_s_bit_for_bit():
+    # The fit's normal matrix (`normal_matrix.weighted_gram`) against SciPy's products:
+    # rows on one sphere, an edge's two or a face's three (of one to four columns each),
+    # explicit zeros of both signs among the entries and a product that underflows to
+    # zero; a row on two spheres in no edge falls back to SciPy's products.
+    import scipy.sparse as sparse
+
+    from fleshing_jax._medial_axis.normal_matrix import sphere_blocks, weighted_gram
+
+    rng = np.random.default_rng(7)
+    n, m = 30, 600
+    edges = np.array([(i, i + 1) for i in range(n - 1)] + [(i, i + 2) for i in range(n - 2)])
+    rows, cols = [], []
+    for r in range(m):
+        a = int(rng.integers(0, n - 2))
+        for s in [[a], [a, a + 1], [a, a + 1, a + 2]][r % 3]:
+            cols += list(4 * s + rng.choice(4, int(rng.integers(1, 5)), replace=False))
+            rows += [r] * (len(cols) - len(rows))
+    vals = rng.normal(size=len(rows))
+    vals[::11], vals[::13], vals[5] = 0.0, -0.0, 1e-300
+    weight = 1 + rng.random(m) ** 2
+    for far in (False, True):
+        # (Row 0 on one sphere; far: also on one three spheres away, in no edge.)
+        extra = [4 * ((cols[0] // 4 + 3) % n)] if far else []
+        jac = sparse.csr_matrix((np.r_[vals, [2.0] * len(extra)],
+                                 (rows + [0] * len(extra), cols + extra)), shape=(m, 4 * n))
+        want = (jac.T @ sparse.diags(weight) @ jac).tocsc()
+        got = weighted_gram(jac, weight, sphere_blocks(n, edges))
+        want.sort_indices()
+        for x, y in ((got.indptr, want.indptr), (got.indices, want.indices),
+                     (got.data, want.data)):
+            assert x.dtype == y.dtype
+            np.testing.assert_array_equal(x.view(np.uint8), y.view(np.uint8))

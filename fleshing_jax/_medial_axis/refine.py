@@ -69,6 +69,7 @@ import scipy.sparse as sparse
 import scipy.sparse.linalg as sparse_linalg
 
 from .candidates import closest as _closest, prune, search as _search
+from .normal_matrix import sphere_blocks, weighted_gram
 from .pairs import jacobian_rows
 from .primitives import UnionPrimitives
 from .rows import norm
@@ -210,6 +211,7 @@ def refine_spheres(points, targets, centers, radii, edges, faces, *, scale: floa
     # sphere slide along the axis, and without this term the spheres of a capsule's chain slid
     # past each other (see the module's notes).
     rest = np.linalg.norm(params[edges[:, 0], :3] - params[edges[:, 1], :3], axis=1)
+    blocks = sphere_blocks(n, edges)  # the normal matrix's 4 x 4 blocks (`normal_matrix`)
 
     def search(params, margin, attained=None):
         """The candidate pairs of `params`, valid while no sphere moves by over `margin`;
@@ -269,7 +271,7 @@ def refine_spheres(points, targets, centers, radii, edges, faces, *, scale: floa
 
         for _ in range(iterations):
             weight = _weights(residual, len(points), power)
-            hessian = (jac.T @ sparse.diags(weight) @ jac).tocsc()
+            hessian = weighted_gram(jac, weight, blocks)  # (jac.T @ diags(weight) @ jac)
             gradient = jac.T @ (weight * residual)
             diagonal = hessian.diagonal()
             # Spheres that no sample sees keep still (a tiny ridge makes the system regular).
