@@ -188,3 +188,15 @@ def test_weighted_gram_is_scipy_s_bit_for_bit():
                      (got.data, want.data)):
             assert x.dtype == y.dtype
             np.testing.assert_array_equal(x.view(np.uint8), y.view(np.uint8))
+
+
+def test_around_order_is_lexsort():
+    # The Voronoi faces' vertices by angle (`voronoi.around_order`): groups of one to 40,
+    # equal angles, zeros of both signs and NaN, as `np.lexsort((angle, group))`.
+    from fleshing_jax._medial_axis.voronoi import around_order
+
+    rng = np.random.default_rng(3)
+    group = np.repeat(np.arange(300), rng.integers(1, 41, 300))
+    angle = np.round(rng.uniform(-np.pi, np.pi, len(group)), 1)
+    angle[::17], angle[::19], angle[::23] = 0.0, -0.0, np.nan
+    np.testing.assert_array_equal(around_order(group, angle), np.lexsort((angle, group)))

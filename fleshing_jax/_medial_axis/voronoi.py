@@ -23,6 +23,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 from scipy.spatial import Delaunay
 
@@ -62,6 +63,31 @@ def circumcentres(a, b, c, d):
     scale = np.maximum.reduce([norm(x) for x in (u, v, w)]) ** 3
     ok = np.abs(det) > 1e-12 * scale
     return a + num / np.where(ok, det, 1.0)[:, None], ok
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _before(a, b):
+    """Whether `a` sorts before `b` in NumPy's order of floats (NaN last)."""
+    return a < b or (b != b and a == a)
+
+
+@numba.njit(cache=True, error_model="numpy")
+def around_order(group, angle):
+    """`np.lexsort((angle, group))` `(m,)` for `group (m,)` ascending: each group's
+    positions by `angle (m,)` (NaN last), equal angles in their order. An insertion sort
+    within each group (a Voronoi face has a handful of vertices): NumPy's two merge sorts
+    over spot's 270k face vertices took 35 ms."""
+    order = np.arange(len(group))
+    start = 0
+    for k in range(1, len(group) + 1):
+        if k == len(group) or group[k] != group[start]:
+            for i in range(start + 1, k):
+                j = i
+                while j > start and _before(angle[order[j]], angle[order[j - 1]]):
+                    order[j], order[j - 1] = order[j - 1], order[j]
+                    j -= 1
+            start = k
+    return order
 
 
 def initial_medial_axis(query: SurfaceQuery, points, normals, weights, sample_faces
@@ -153,7 +179,7 @@ def initial_medial_axis(query: SurfaceQuery, points, normals, weights, sample_fa
         offset = np.take(centre, owner, axis=0) - np.take((pi + pj) / 2, ring, axis=0)
         angle = np.arctan2(np.einsum("ij,ij->i", offset, np.take(e2, ring, axis=0)),
                            np.einsum("ij,ij->i", offset, np.take(e1, ring, axis=0)))
-        order = np.lexsort((angle, group))
+        order = around_order(group, angle)  # (`group` ascends)
         owner, group = owner[order], group[order]
         first = np.r_[True, group[1:] != group[:-1]]
         rank = np.arange(len(group)) - np.maximum.accumulate(np.where(first, np.arange(len(group)),
