@@ -272,13 +272,13 @@ def tile_pairs(near, start: int, stop: int, tiles, centre, radius, order):
     ascending (as `np.nonzero` and `np.flatnonzero` give them)."""
     x, y, z, reach = tiles
     width = x.shape[1]
+    # Room for every sample of the near tiles, then one pass (not a pass to count the pairs
+    # and a second to write them: the same pairs, each test made once).
     count = 0
     for i in range(start, stop):
         for t in range(near.shape[1]):
-            if near[i, t]:
-                for lane in range(width):
-                    count += _inside(x, y, z, reach, centre, radius, i, t, lane)
-    pts, prim = np.empty(count, np.int64), np.empty(count, np.int64)
+            count += near[i, t]
+    pts, prim = np.empty(count * width, np.int64), np.empty(count * width, np.int64)
     count = 0
     for i in range(start, stop):
         for t in range(near.shape[1]):
@@ -287,7 +287,7 @@ def tile_pairs(near, start: int, stop: int, tiles, centre, radius, order):
                     if _inside(x, y, z, reach, centre, radius, i, t, lane):
                         pts[count], prim[count] = order[t * width + lane], i
                         count += 1
-    return pts, prim
+    return pts[:count], prim[:count]
 
 
 @numba.njit(cache=True, error_model="numpy")
