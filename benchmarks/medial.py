@@ -4,6 +4,7 @@
     python benchmarks/medial.py --quick       # procedural shapes only, no scaling table
     python benchmarks/medial.py --scaling     # only the scaling table
     python benchmarks/medial.py --compare OTHER.ma --mesh MESH.obj   # any tool's .ma, our ruler
+    python benchmarks/medial.py --fresh 5 [--against OLD_CHECKOUT]   # time of a fresh process
 
 Prints Markdown tables:
 
@@ -21,6 +22,11 @@ Prints Markdown tables:
 3. Memory of one `medial_mesh` run alone (`--memory`; the capped bunny and the 41k-vertex
    ellipsoid, 200 spheres): each in a fresh subprocess, the peak resident set (`ru_maxrss`)
    of the call minus the resident set after importing and loading the mesh.
+4. Time of a fresh process (`--fresh N`; spot and the capped bunny, 200 spheres): N
+   processes each, medians of the whole process's wall and CPU time (user + system) and of
+   the call's (its imports of JAX and numba and numba's start included: they happen in the
+   first call); with `--against DIR`, another checkout's code (e.g. a `git worktree` of an
+   older commit) run in turns with this one, so that both see the same load.
 """
 
 from __future__ import annotations
@@ -144,6 +150,46 @@ def memory():
         print(f"| {name} | {vertices} | 200 | {elapsed} | {peak} |", flush=True)
 
 
+_FRESH = """import time, warnings
+warnings.simplefilter("ignore")
+import fleshing_jax as fj, trimesh
+mesh = trimesh.load({path!r}, process=False, force="mesh")
+mesh = fj.cap_holes(mesh) if {cap} else mesh
+cpu, wall = time.process_time(), time.perf_counter()
+fj.medial_mesh(mesh, 200, progress=False)
+print(time.process_time() - cpu, time.perf_counter() - wall)
+"""
+
+
+def fresh(runs: int, against: str | None) -> None:
+    """Table 4: `runs` fresh processes per mesh and code, the codes in turns."""
+    import os
+    import statistics
+
+    root = str(Path(__file__).resolve().parents[1])
+    codes = {"this checkout": root} | ({f"`{against}`": against} if against else {})
+    print("\n| mesh | code | process: wall | process: CPU | call: wall | call: CPU |")
+    print("| --- | --- | ---: | ---: | ---: | ---: |")
+    for name, cap in (("spot", False), ("stanford-bunny", True)):
+        script = _FRESH.format(path=str(DATA / f"{name}.obj"), cap=cap)
+        times = {code: [] for code in codes}
+        for _ in range(runs):
+            for code, path in codes.items():
+                before = resource.getrusage(resource.RUSAGE_CHILDREN)
+                start = time.perf_counter()
+                done = subprocess.run([sys.executable, "-c", script], capture_output=True,
+                                      text=True, check=True, cwd="/",
+                                      env={**os.environ, "PYTHONPATH": path})
+                after = resource.getrusage(resource.RUSAGE_CHILDREN)
+                cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
+                call_cpu, call_wall = map(float, done.stdout.split())
+                times[code].append((time.perf_counter() - start, cpu, call_wall, call_cpu))
+        for code, rows in times.items():
+            medians = [statistics.median(column) for column in zip(*rows)]
+            print(f"| {name} | {code} | " + " | ".join(f"{x:.2f} s" for x in medians) + " |")
+    print(f"\n(medians of {runs} runs; load average {os.getloadavg()[0]:.1f} at the end)")
+
+
 def compare(path: str, mesh_path: str, seed: int, header: bool = True) -> None:
     """One row of the accuracy table for a `.ma` file made by any tool (Q-MAT, Coverage
     Axis, ...) of the mesh at `mesh_path`, measured as ours are: `medial_distance(...,
@@ -182,6 +228,10 @@ if __name__ == "__main__":
     parser.add_argument("--mesh", help="the mesh the --compare file was made from")
     parser.add_argument("--seed", type=int, default=1,
                         help="seed of --compare's surface samples (default 1, as ours)")
+    parser.add_argument("--fresh", type=int, metavar="N",
+                        help="only table 4: N fresh processes per mesh (and code)")
+    parser.add_argument("--against", metavar="DIR",
+                        help="with --fresh: another checkout's code, run in turns with this")
     parser.add_argument("--_probe", help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.compare:
@@ -190,6 +240,8 @@ if __name__ == "__main__":
         compare(args.compare, args.mesh, args.seed)
     elif args._probe:
         _probe(args._probe)
+    elif args.fresh:
+        fresh(args.fresh, args.against)
     elif args.memory:
         memory()
     elif args.scaling:
