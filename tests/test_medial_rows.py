@@ -200,3 +200,25 @@ def test_around_order_is_lexsort():
     angle = np.round(rng.uniform(-np.pi, np.pi, len(group)), 1)
     angle[::17], angle[::19], angle[::23] = 0.0, -0.0, np.nan
     np.testing.assert_array_equal(around_order(group, angle), np.lexsort((angle, group)))
+
+
+def test_renumbered_edges_are_numpy_s():
+    # A round of collapses renumbering its edges (`quadric_loops.renumbered_edges`) against
+    # the NumPy passes it replaces: spheres dropped into others (rows on one sphere left out
+    # of the keys), changed ones, rows in any order.
+    from fleshing_jax._medial_axis.quadric_loops import renumbered_edges
+
+    rng = np.random.default_rng(9)
+    n = 60
+    edges = rng.integers(0, n, (400, 2))
+    alive = rng.random(n) > 0.3
+    target = np.where(alive, np.arange(n), rng.choice(np.flatnonzero(alive), n))
+    changed = np.zeros(n, bool)
+    changed[target[~alive]] = True
+    relabel = (np.cumsum(alive) - 1)[target]
+    m = int(alive.sum())
+    out, touched, live, key = renumbered_edges(edges, relabel, changed, alive, m)
+    np.testing.assert_array_equal(out, sorted_rows(relabel[edges]))
+    np.testing.assert_array_equal(touched, changed[edges].any(axis=1) | ~alive[edges].all(axis=1))
+    np.testing.assert_array_equal(live, np.flatnonzero(out[:, 0] != out[:, 1]))
+    np.testing.assert_array_equal(key, row_keys(out, m)[live])

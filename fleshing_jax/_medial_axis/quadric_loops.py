@@ -147,3 +147,24 @@ def cheapest(A, b, c, best, si, sj, mid):
             chosen[r, u] = source[r, u]
         error[r] = least
     return error, chosen
+
+
+@numba.njit(cache=True, error_model="numpy")
+def renumbered_edges(edges, relabel, changed, alive, m: int):
+    """A round's edges `(e, 2)` renumbered by `relabel (n,)` (each row sorted), whether each
+    touches a `changed` or no longer `alive` sphere `(e,)`, and the positions `(l,)` and keys
+    `(l,)` (`lo · m + hi`, `rows.row_keys`) of the rows on two spheres: `simplify`'s NumPy
+    passes over the edges (gathers, `sorted_rows`, masks) in one loop, the same integers."""
+    out = np.empty((len(edges), 2), np.int64)
+    touched = np.empty(len(edges), np.bool_)
+    live, key = np.empty(len(edges), np.int64), np.empty(len(edges), np.int64)
+    count = 0
+    for r in range(len(edges)):
+        a, b = edges[r, 0], edges[r, 1]
+        touched[r] = changed[a] or changed[b] or not alive[a] or not alive[b]
+        lo, hi = min(relabel[a], relabel[b]), max(relabel[a], relabel[b])
+        out[r, 0], out[r, 1] = lo, hi
+        if lo != hi:
+            live[count], key[count] = r, lo * m + hi
+            count += 1
+    return out, touched, live[:count], key[:count]

@@ -54,7 +54,7 @@ import numpy as np
 
 from .connect import components, distinct, unique_rows
 from .primitives import _Cones, _Slabs
-from .rows import norm, row_keys, sorted_order, sorted_rows
+from .rows import norm, sorted_order, sorted_rows
 
 
 def contact_quadrics(axis, slide: float = 1.0):
@@ -259,6 +259,8 @@ def simplify(centers, radii, edges, faces, quadrics, target: int, *, scale: floa
 
     **Returns:** `(centers, radii, edges, faces)` of the simplified mesh.
     """
+    from .quadric_loops import renumbered_edges  # (numba's import where it is used)
+
     spheres = np.concatenate([centers, radii[:, None]], axis=1)
     A, b, c = (x.copy() for x in quadrics)
     edges, faces = np.asarray(edges, np.int64), np.asarray(faces, np.int64).reshape(-1, 3)
@@ -351,16 +353,14 @@ def simplify(centers, radii, edges, faces, quadrics, target: int, *, scale: floa
         survivors = np.flatnonzero(alive)  # (positions and `np.take`: see `_edge_costs`)
         spheres, A, b, c, piece = (np.take(x, survivors, axis=0)
                                    for x in (spheres, A, b, c, piece))
-        # Column by column, not `.any(axis=1)`, `np.sort(axis=1)` and `@` over rows of two
-        # or three integers: the same values, and these lines took a third of the time.
-        touched = changed[edges[:, 0]] | changed[edges[:, 1]] | ~alive[edges[:, 0]] \
-            | ~alive[edges[:, 1]]
-        edges = sorted_rows(relabel[edges])
-        # Rows kept by their positions, keyed by one integer each (a boolean mask over rows
-        # of integers copies each selection: the same rows, more slowly).
-        live = np.flatnonzero(edges[:, 0] != edges[:, 1])
+        # The edges renumbered and keyed in one compiled loop (`quadric_loops`; as NumPy's
+        # gathers, `sorted_rows` and masks over all edges, a quarter of the collapses), then
+        # each distinct row once at its first position, by key: `np.unique`'s stable sort.
         m = len(spheres)
-        first = live[np.unique(row_keys(edges, m).take(live), return_index=True)[1]]
+        edges, touched, live, key = renumbered_edges(edges, relabel, changed, alive, m)
+        order = np.argsort(key, kind="stable")
+        key = key.take(order)
+        first = live.take(order[np.r_[True, key[1:] != key[:-1]]]) if len(key) else live
         edges, cost, optimum = (np.take(x, first, axis=0) for x in (edges, cost, optimum))
         cost[touched[first]] = np.nan
         if progress is not None:
