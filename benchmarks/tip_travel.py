@@ -56,6 +56,8 @@ def rows(name: str, bpy: str | None = None):
 
         mesh = skin_mesh(bpy, name)
         mesh = mesh if mesh.is_watertight else fj.cap_holes(mesh)  # (the skin's branch holes)
+        if not mesh.is_winding_consistent:  # (the horse's 288 faces: its volume signed right)
+            trimesh.repair.fix_winding(mesh)
     rest, faces = np.asarray(mesh.vertices), np.asarray(mesh.faces)
     skeleton = fj.skeleton(mesh)
     registration = fj.register_skeleton(mesh, skeleton)
