@@ -127,6 +127,28 @@ def test_limbs_posed_as_one_batch_are_posed_as_one_by_one(skeleton, registration
     assert all(moved[region == k].any() for k in TRUTH) and not moved[region == -1].any()
 
 
+def test_a_solve_poses_only_the_rows_its_limbs_bend(skeleton, registration):
+    # A shape fit's solve fleshes only the rows between each limb's joint and its room's end
+    # (`restricted(bent=)`); the others move with the limb's end motion, or are still
+    # (`rigid_rows`): the vertices of `pose_skeleton`, to round-off.
+    from fleshing_jax._skeleton.fit_pose import restricted, rigid_rows
+    from fleshing_jax._skeleton.posing import posed
+
+    ids = np.arange(registration.vertices.shape[0])
+    small, rows, rigid = restricted(registration, ids, bucketed=False, bent=tuple(TRUTH))
+    region = np.asarray(skeleton.region)
+    for k, (past, before) in rigid.items():
+        kept = small.indices[k].shape[0]
+        assert kept + len(past) + len(before) == np.sum(region == k)
+    assert sum(len(p) for p, _ in rigid.values())  # (some limb moves rigidly past its room)
+    out, carried = posed(small, skeleton, TRUTH, "radial", check=False, stacked=True,
+                         motions=True)
+    vertices = rigid_rows(out.vertices, small.vertices, carried, rigid, skeleton)
+    whole = fj.pose_skeleton(registration, skeleton, TRUTH)
+    np.testing.assert_allclose(np.asarray(vertices)[np.asarray(rows)],
+                               np.asarray(whole.vertices), rtol=0, atol=1e-12)
+
+
 def test_bad_input(tube, skeleton, registration, ids):
     targets = np.zeros((len(ids), 3))
 
@@ -615,8 +637,8 @@ def test_a_shape_fit_poses_its_limbs_at_their_own_size(registration):
     from fleshing_jax._skeleton.fit_pose import restricted
 
     ids = np.arange(0, registration.vertices.shape[0], 3)
-    own, rows = restricted(registration, ids, bucketed=False)
-    padded, same_rows = restricted(registration, ids)
+    own, rows, _ = restricted(registration, ids, bucketed=False)
+    padded, same_rows, _ = restricted(registration, ids)
     largest = max(int(np.isin(np.asarray(i), ids).sum()) for i in registration.indices)
     assert bucket(largest) > largest
     for a, b in zip(own.registrations, padded.registrations):

@@ -48,6 +48,7 @@ from .posing import (
     PosedSkeleton,
     SkeletonRegistration,
     as_registration,
+    carrying,
     check_limb_index,
     check_poses,
     pose_skeleton,
@@ -174,22 +175,40 @@ class PoseProblem(eqx.Module):
         return self.residuals(self.vertices(y))
 
 
-def restricted(registration: SkeletonRegistration, ids: np.ndarray, bucketed: bool = True):
-    """`registration` reduced to the vertices `ids` (k,): `(registration, rows (k,))`, `rows`
-    the vertices' positions in its `vertices`.
+def restricted(registration: SkeletonRegistration, ids: np.ndarray, bucketed: bool = True,
+               bent: Sequence[int] = (), posed: Sequence[int] = ()):
+    """`registration` reduced to the vertices `ids` (k,): `(registration, rows (k,), rigid)`,
+    `rows` the vertices' positions in its `vertices`, `rigid` as `rigid_rows`' (with `bent`).
 
     Each limb keeps the rows of its region's chosen vertices (one row of its own if none,
     never used: only its end motion is), padded to one size for all: a bucket's (one
     compiled program for markers of nearby counts, `_batching.buckets`), or with `bucketed=False`
     the largest limb's own (a shape fit's whole regions: each posed limb is posed at that
-    size, spot's head's 513 rows a bucket of 768)."""
+    size, spot's head's 513 rows a bucket of 768). `bent`: the limbs posed by a `LimbPose`,
+    whose rows before their joint or past their room's end are left out (`rigid_rows`), and
+    whose largest sets the size (a larger limb keeps its own); `posed`: the other limbs the
+    fit poses (which `WholeLimb`s its poses use)."""
     unique = np.unique(ids)
-    # (Each limb's region, then each `WholeLimb`'s: the same rows chosen, one size for all.)
+    # (Each limb's region, then each `WholeLimb`'s: the same rows chosen.)
     wholes = [w for w in registration.wholes if w is not None]
     regions = (*zip(registration.registrations, registration.indices),
                *((w.registration, w.indices) for w in wholes))
     picked = [np.flatnonzero(np.isin(np.asarray(i), unique)) for _, i in regions]
-    size = max(1, *(len(p) for p in picked))
+    # A bent limb's rows as its pose uses them: its `WholeLimb`'s where it has one and the fit
+    # poses none of its descendants (`posing.carrying`), else its own.
+    placed = carrying(registration, set(posed) | set(bent))[0]
+    slot = {id(w): len(registration.indices) + i for i, w in enumerate(wholes)}
+    rigid, sized = {}, []
+    for k in bent:
+        whole = registration.wholes[k]
+        j = (slot[id(whole)] if whole is not None
+             and placed.registrations[k] is whole.registration else k)
+        bending, rigid[k] = _bending(placed, k, picked[j], unique)
+        picked[j] = picked[j][bending]
+        sized.append(j)
+    # (With `bent`, at the largest of theirs: the other limbs are carried, unless a bent limb's
+    # bend spills onto its child (`spill`), posed then beside it, not in its batch.)
+    size = max(1, *(len(picked[j]) for j in (sized or range(len(picked)))))
     size = bucket(size) if bucketed else size
     parts = [_restricted_part(reg, limb_ids, rows, unique, size)
              for (reg, limb_ids), rows in zip(regions, picked)]
@@ -206,14 +225,49 @@ def restricted(registration: SkeletonRegistration, ids: np.ndarray, bucketed: bo
         registration, registrations=tuple(registrations), indices=tuple(indices), wholes=wholes,
         vertices=vertices, triangles=jnp.zeros((0, 3), jnp.int32),
         corners=jnp.zeros((len(unique), 0), jnp.int32))
-    return small, jnp.asarray(np.searchsorted(unique, ids), jnp.int32)
+    return small, jnp.asarray(np.searchsorted(unique, ids), jnp.int32), rigid
+
+
+def _bending(registration: SkeletonRegistration, k: int, rows: np.ndarray,
+             unique: np.ndarray) -> tuple[np.ndarray, tuple[Array, Array]]:
+    """Of limb `k`'s registered `rows` (its region's chosen vertices), which its map may move
+    otherwise than rigidly (bool, (len(rows),)), and the positions in `unique` of the others:
+    `(past, before)`, validly registered rows past the limb's room to bend (`stops`: a
+    `LimbPose`'s bend is complete there, and the map moves them with its end frame) and
+    before its joint (where the bent spine is the rest spine: still)."""
+    reg = registration.registrations[k]
+    s = np.asarray(reg.arc_length)[rows]
+    plain = (np.asarray(reg.valid)[rows] & ~np.asarray(reg.discontinuous)[rows]
+             & np.isfinite(s))
+    past = plain & (s > float(registration.stops[k]))
+    before = plain & (s < float(registration.joints[k]))
+    ids = np.asarray(registration.indices[k])[rows]
+    return ~(past | before), tuple(jnp.asarray(np.searchsorted(unique, ids[m]), jnp.int32)
+                                   for m in (past, before))
+
+
+def rigid_rows(vertices: Array, rest: Array, carried: dict, rigid: dict,
+               skeleton: Skeleton) -> Array:
+    """`vertices` (n, 3) posed on a registration `restricted` with `bent` limbs, with each
+    such limb's rows left out placed as its map places them (to round-off): those past its
+    room to bend moved by its end motion, those before its joint by its parent's (or still).
+    `rest` (n, 3): the registration's vertices; `carried`: `posed(..., motions=True)`'s;
+    `rigid`: `restricted`'s. A shape fit's solve poses every vertex of its limbs, and the
+    map's forward derivative at each point was most of a step (spot's head: 188 of its 513
+    vertices bend, the rest move rigidly)."""
+    for k, (past, before) in rigid.items():
+        vertices = vertices.at[past].set(carried[k](rest[past]))
+        outer = carried.get(skeleton.limbs[k].parent)
+        if outer is not None:
+            vertices = vertices.at[before].set(outer(rest[before]))
+    return vertices
 
 
 def _restricted_part(reg, limb_ids, rows: np.ndarray, unique: np.ndarray, size: int) -> tuple:
     """`(Registration, indices)` of a region's chosen `rows` (`restricted`), padded to `size`
     rows (one row of its own if none), the indices their positions in `unique`."""
     keep = rows if len(rows) else np.zeros(1, int)
-    keep = np.pad(keep, (0, size - len(keep)), mode="edge")  # padded with the last row
+    keep = np.pad(keep, (0, max(size, len(keep)) - len(keep)), mode="edge")  # (the last)
     fields = tuple(jax.device_put(np.asarray(getattr(reg, f))[keep]) for f in _PER_POINT)
     reg = eqx.tree_at(lambda r: tuple(getattr(r, f) for f in _PER_POINT), reg, fields)
     positions = np.searchsorted(unique, np.asarray(limb_ids)[rows])
@@ -468,7 +522,7 @@ def fit_skeleton_pose(
         raise ValueError("`fit_twist=False` is for a shape's fit (`target=`): markers show a "
                          "limb's twist.")
     targets = targets.astype(dtype)
-    small, rows = restricted(registration, ids)
+    small, rows, _ = restricted(registration, ids)
     held = {k: v for k, v in init.items() if k not in limbs}
     problem = PoseProblem(small, skeleton, held, rows, targets,
                           *dependence(skeleton, limbs, 3, ids), limbs, method)

@@ -102,6 +102,7 @@ from .fit_pose import (
     parameters_of,
     pose_of,
     restricted,
+    rigid_rows,
     unsettled,
 )
 from .limb_pose import LimbPose
@@ -261,6 +262,7 @@ class ShapeProblem(eqx.Module):
     marker_targets: Array  # (k, 3)
     seeds: Array  # (c, L·p), moves (n, L·p): the parameters' dependence (`fit_pose.dependence`)
     moves: Array
+    rigid: dict  # the rows of the posed limbs that move rigidly (`fit_pose.restricted`)
     limbs: tuple[int, ...] = eqx.field(static=True)
     method: str = eqx.field(static=True)
 
@@ -281,8 +283,12 @@ class ShapeProblem(eqx.Module):
         # The sections' blend past a joint's range (where another start bends a limb) is
         # valued exactly, differentiated as the map's images (`posing._held_blend`): exact
         # within the range, where a fit ends; its first call compiled in less time.
-        return posed(self.registration, self.skeleton, self.poses(y), self.method, False,
-                     stacked=True, blend_tangent=False).vertices
+        # Only the rows the map may move otherwise than rigidly are fleshed; the others are
+        # moved by their limb's end motion, or still (`fit_pose.rigid_rows`).
+        out, carried = posed(self.registration, self.skeleton, self.poses(y), self.method,
+                             False, stacked=True, blend_tangent=False, motions=True)
+        return rigid_rows(out.vertices, self.registration.vertices, carried, self.rigid,
+                          self.skeleton)
 
     def surface(self, vertices: Array) -> Array:
         """The solve's surface's vertices (m + s, 3) (the moving sample's, then the still
@@ -375,7 +381,10 @@ def fit_to_shape(registration: SkeletonRegistration, skeleton: Skeleton, target,
     markers = np.zeros(0, np.int64) if ids is None else ids
     # (Each posed limb at the largest limb's own size, not a bucket's: the solve poses whole
     # regions, and every padded row costs its forward derivative.)
-    small, rows = restricted(registration, np.concatenate([moving, markers]), bucketed=False)
+    bent = [k for k in moving_limbs if isinstance(init.get(k, LimbPose()), LimbPose)
+            and (k in limbs or k in held)]
+    small, rows, rigid = restricted(registration, np.concatenate([moving, markers]),
+                                    bucketed=False, bent=bent, posed=[*limbs, *held])
     small = _on_tables(small)
     marker_targets = (jnp.zeros((0, 3), dtype) if targets is None
                       else jnp.asarray(targets, dtype))
@@ -389,7 +398,7 @@ def fit_to_shape(registration: SkeletonRegistration, skeleton: Skeleton, target,
         jnp.zeros((SOLVE_POINTS, POOL), jnp.int32), jnp.zeros((), dtype), rows[len(moving):],
         marker_targets,
         *dependence(skeleton, limbs, 3 if fit_twist else 2, np.concatenate([moving, markers])),
-        limbs, method)
+        rigid, limbs, method)
     y = starts if fit_twist else starts[:, :2]
     steps = 0
     kept = np.concatenate([moving, still])

@@ -525,14 +525,16 @@ def motion_between(rest: EndFrames, posed: EndFrames) -> Rigid:
 
 def posed(registration: SkeletonRegistration, skeleton: Skeleton, poses: dict,
           method: str, check: bool = True, stacked: bool = False,
-          blend_tangent: bool = True) -> PosedSkeleton:
+          blend_tangent: bool = True, motions: bool = False):
     """`pose_skeleton` on a registration (traceable: `poses` are its only free values).
     `check=False` skips the global projection check of traced poses (a fit's objective:
     smooth, and a much smaller program; `valid` then flags only the local tests).
     `stacked=True` poses the limbs as one batch (`posed_limbs`), and carries their sections
     as one (`_stacked_sections`), for traced poses. `blend_tangent=False` differentiates the
     sections' blend past a joint's range as the map's own images (`_held_blend`; a fit's
-    objective: its values unchanged, its program smaller)."""
+    objective: its values unchanged, its program smaller). `motions=True` returns
+    `(PosedSkeleton, carried)`, `carried` the rigid motion (`Rigid`) that carries each
+    touched limb's children, keyed by limb (a fit's rows that move rigidly: `fit_pose.rigid`)."""
     reg = registration
     vertices = reg.vertices
     valid = jnp.ones(vertices.shape[0], bool)
@@ -573,7 +575,8 @@ def posed(registration: SkeletonRegistration, skeleton: Skeleton, poses: dict,
         finite = jnp.all(jnp.isfinite(images), axis=1)
         vertices = vertices.at[ids].set(jnp.where(finite[:, None], images, reg.vertices[ids]))
         valid = valid.at[ids].set(ok & trust & finite)
-    return PosedSkeleton(_given_back(reg, vertices, blend), valid)
+    out = PosedSkeleton(_given_back(reg, vertices, blend), valid)
+    return (out, carried) if motions else out
 
 
 def _given_back(reg: SkeletonRegistration, vertices: Array, blend: Array) -> Array:
