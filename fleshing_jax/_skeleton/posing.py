@@ -550,33 +550,46 @@ def posed(registration: SkeletonRegistration, skeleton: Skeleton, poses: dict,
     carried: dict[int, Rigid | None] = {}  # what moves each touched limb's children
     trusted: dict[int, Array] = {}  # whether the angles of the limb and its ancestors are sane
     blend = jnp.zeros(vertices.shape[0], vertices.dtype)  # towards the sections (`restore`)
+    # Eagerly, each limb's rows are its registration's padded ones (`_padded_indices`): every
+    # operation below then runs at the bucket's size, compiled once for every limb of it; at
+    # each region's own size each ran, and compiled, once per limb (a biped's 15 limbs posed:
+    # about 250 programs). Traced, each limb's own rows (the frame's program's shapes).
+    eager = is_concrete(poses, reg)
     for k, limb in enumerate(skeleton.limbs):
         carry = carried.get(limb.parent)
         pose = poses.get(k)
         if (pose is None and (limb.parent not in carried)) or k in absorbed:
             continue  # neither posed nor below a posed limb, or placed by one: not touched
-        ids = reg.indices[k]
-        n = ids.shape[0]
-        images, ok, motion = reg.vertices[ids], jnp.ones(n, bool), None
+        ids = _padded_indices(reg, k) if eager else reg.indices[k]
+        rest = reg.vertices.at[ids].get(mode="clip")  # (the padding's rows: any vertex)
+        images, ok, motion = rest, jnp.ones(ids.shape[0], bool), None
         trust = trusted.get(limb.parent, jnp.asarray(True))
         if pose is not None:
             images, ok, motion, table = moved[k]
-            images, ok = images[:n], ok[:n]
+            images, ok = images[: ids.shape[0]], ok[: ids.shape[0]]
             if isinstance(pose, LimbPose):
                 trust = trust & sane_angles(pose)
                 images, ok, towards = sections[k] if k in sections else _sections_carried(
                     reg, k, pose, images, ok, table, blend_tangent)
-                blend = blend.at[ids].set(towards)
+                blend = blend.at[ids].set(towards, mode="drop")
         if carry is not None:
             images = carry(images)
         carried[k], trusted[k] = (carry if motion is None else motion.then(carry)), trust
         # A traced pose flags what it cannot place: a NaN or infinite angle, one past a full
         # turn (refused eagerly by `LimbPose`), and any non-finite image (left at rest).
         finite = jnp.all(jnp.isfinite(images), axis=1)
-        vertices = vertices.at[ids].set(jnp.where(finite[:, None], images, reg.vertices[ids]))
-        valid = valid.at[ids].set(ok & trust & finite)
+        vertices = vertices.at[ids].set(jnp.where(finite[:, None], images, rest), mode="drop")
+        valid = valid.at[ids].set(ok & trust & finite, mode="drop")
     out = PosedSkeleton(_given_back(reg, vertices, blend), valid)
     return (out, carried) if motions else out
+
+
+def _padded_indices(reg: SkeletonRegistration, k: int) -> Array:
+    """Limb `k`'s vertex indices padded to its registration's rows (int32, on the device):
+    the padding is the vertex count, outside the mesh, which scatters drop."""
+    ids = np.asarray(reg.indices[k])
+    rows = reg.registrations[k].points.shape[0]
+    return jax.device_put(np.pad(ids, (0, rows - len(ids)), constant_values=len(reg.vertices)))
 
 
 def _given_back(reg: SkeletonRegistration, vertices: Array, blend: Array) -> Array:
@@ -617,32 +630,31 @@ def _sections_carried(registration, k: int, pose: LimbPose, images, valid, table
 
     `table`: the bent spine's own table where the limb's pose already made it (a traced
     frame: `posed_limbs`), read rather than made again (`_carried_blend`). `tangent=False`:
-    traced, differentiated as `images` alone (`_held_blend`)."""
+    traced, differentiated as `images` alone (`_held_blend`). `images` (rows, 3), `valid`
+    (rows,) and what it returns: eagerly the registration's padded rows (the padding's
+    meaningless), traced the region's own."""
     n = registration.indices[k].shape[0]
     r = registration.registrations[k]
-    s, points = r.arc_length[:n], r.points[:n]
     concrete = is_concrete(pose, registration)
+    rows = r.points.shape[0] if concrete else n  # (eagerly the padded rows: see `posed`)
+    s, points = r.arc_length[:rows], r.points[:rows]
     inputs = _section_inputs(registration, k, pose, None if concrete else n)
     if not (tangent or concrete):  # (the weights' margins undifferentiated too)
         inputs = jax.lax.stop_gradient(inputs)
-    weight = _section_weights(*inputs, n)[:n]
+    weight = _section_weights(*inputs, n)[:rows]
     target = limb_target(registration, k, pose)
     if concrete:
         # Eagerly one program for every angle, within the range too (it then changes only the
         # unregistered vertices): a new angle compiles nothing. It runs on the registration's
         # padded rows (their weight 0: left as they are), so that every limb of a bucket
         # shares it too: at each region's own size, the tube's three limbs compiled three.
-        size = r.points.shape[0]
-        padded = np.zeros(size, weight.dtype)
-        padded[:n] = np.asarray(weight)
-        images = _carried_blend_program(target, r.points, r.arc_length, padded,
-                                        pad_batch(images, size))[:n]
+        images = _carried_blend_program(target, points, s, weight, images)
     else:  # a traced frame skips the sections where nothing is carried
         images = _held_blend(partial(_carried_blend, table=table), tangent, target, points, s,
                              weight, images)
     _, _, joint, stop, _ = inputs
     # (A weight is 0 before the joint.)
-    return images, valid & ~(weight > 0), _restoring(weight, r.valid[:n], s, joint, stop)
+    return images, valid & ~(weight > 0), _restoring(weight, r.valid[:rows], s, joint, stop)
 
 
 def _section_inputs(registration, k: int, pose: LimbPose, rows: int | None = None) -> tuple:
