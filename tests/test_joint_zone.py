@@ -8,6 +8,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 from _posing_shapes import RADIUS
+from conftest import mapped
 
 import fleshing_jax as fj
 from fleshing_jax._skeleton.joint_zone import JOINT_CURVATURE, ZONE_LENGTHS, joint_zone
@@ -201,8 +202,10 @@ def test_aim_points_a_limb_at_a_point(tube, skeleton, registration):
     pose = fj.aim(registration, skeleton, 2, point)
     assert 0 < float(pose.bend) < 90
     bent = limb_target(registration, 2, pose)
-    origin = np.asarray(registration.rests[2](registration.joints[2]))
-    chord = np.asarray(bent(registration.stops[2])) - origin
+    # (Each spine read by one compiled program, `conftest.mapped`: eagerly, the bent spine's
+    # point ran, and compiled, some 80 operations one by one.)
+    origin = np.asarray(mapped(registration.rests[2], registration.joints[2][None]))[0]
+    chord = np.asarray(mapped(bent, registration.stops[2][None]))[0] - origin
     towards = point - origin
     np.testing.assert_allclose(chord / np.linalg.norm(chord),
                                towards / np.linalg.norm(towards), atol=1e-6)
