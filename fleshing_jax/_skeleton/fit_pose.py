@@ -45,6 +45,7 @@ from .._fit.stationarity import gauss_newton_step
 from .._fleshing.methods import check_method
 from .limb_pose import LimbPose
 from .posing import (
+    PER_POINT,
     PosedSkeleton,
     SkeletonRegistration,
     as_registration,
@@ -66,8 +67,6 @@ ADVICE = (
 SETTLED_STEP, SETTLED_DECREASE = 0.05, 1e-2
 SETTLE_ADVICE = ("Give it more steps (`max_steps=`) or tighter tolerances (`rtol=`, `atol=`), "
                  "or fit again from the fitted pose (`init=fit.poses`).")
-# Per-point fields of a `Registration` (its `length` and `ends` are shared).
-_PER_POINT = ("points", "arc_length", "offset", "curvature", "valid", "discontinuous")
 
 
 class SkeletonFit(AbstractFitOutcome):
@@ -268,8 +267,8 @@ def _restricted_part(reg, limb_ids, rows: np.ndarray, unique: np.ndarray, size: 
     rows (one row of its own if none), the indices their positions in `unique`."""
     keep = rows if len(rows) else np.zeros(1, int)
     keep = np.pad(keep, (0, max(size, len(keep)) - len(keep)), mode="edge")  # (the last)
-    fields = tuple(jax.device_put(np.asarray(getattr(reg, f))[keep]) for f in _PER_POINT)
-    reg = eqx.tree_at(lambda r: tuple(getattr(r, f) for f in _PER_POINT), reg, fields)
+    fields = tuple(jax.device_put(np.asarray(getattr(reg, f))[keep]) for f in PER_POINT)
+    reg = eqx.tree_at(lambda r: tuple(getattr(r, f) for f in PER_POINT), reg, fields)
     positions = np.searchsorted(unique, np.asarray(limb_ids)[rows])
     return reg, jnp.asarray(positions, jnp.int32)
 

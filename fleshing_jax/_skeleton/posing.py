@@ -219,10 +219,13 @@ def register_skeleton(mesh, skeleton: Skeleton, *, margin: float | None = None,
         tabled = tabulates(spine, points.dtype)  # (its length not computed again)
         prepared, table, length = _rests(spine, tabulable(spine))
         rest = table if tabled else prepared
-        part = partial(_registered_part, k, rows, edges, region, size, margin, prepared,
-                       table.table if tabled else None, rest, float(limb.joint), float(length))
-        below = [k, *lineage[k]]
-        reg, ids, joint, stop, zone = part([k], below)
+        register = partial(_registered_rows, rows, size=size, margin=margin,
+                           prepared=prepared, table=table.table if tabled else None)
+        placed = partial(_placed_part, k, edges, region, rest, float(limb.joint), float(length),
+                         below=[k, *lineage[k]])
+        own = np.flatnonzero(region == k).astype(np.int32)
+        piece = (own, register(own))
+        reg, ids, joint, stop, zone = placed([piece])
         registrations.append(reg)
         rests.append(rest)
         checks.append(None if tabled else table)
@@ -232,11 +235,15 @@ def register_skeleton(mesh, skeleton: Skeleton, *, margin: float | None = None,
         zones.append(zone)
         # A limb with several children (a head with its ears or horns) is also registered with
         # their regions, for the poses that leave them unposed (`carrying`), where they lie
-        # within its own reach about its spine (`WholeLimb`).
-        whole = (WholeLimb(*part(below, below), tuple(lineage[k]))
-                 if len(skeleton.children(k)) > 1 else None)
-        wholes.append(whole if whole is not None and _reach(whole.registration, len(
-            whole.indices)) <= _reach(reg, len(ids)) else None)
+        # within its own reach about its spine (`WholeLimb`). (Their rows registered apart, at
+        # the limb's own rows' size: the same compiled programs, none for the joined size.)
+        whole = None
+        if len(skeleton.children(k)) > 1:
+            others = np.flatnonzero(np.isin(region, lineage[k])).astype(np.int32)
+            below = (others, register(others))
+            if _reach(below[1], len(others)) <= _reach(reg, len(own)):
+                whole = WholeLimb(*placed([piece, below]), tuple(lineage[k]))
+        wholes.append(whole)
     triangles = _triangles(faces)
     return SkeletonRegistration(tuple(registrations), tuple(rests), tuple(checks),
                                 tuple(indices), tuple(joints),
@@ -247,25 +254,33 @@ def register_skeleton(mesh, skeleton: Skeleton, *, margin: float | None = None,
                                 fingerprint(skeleton))
 
 
-def _registered_part(k: int, rows: np.ndarray, edges: np.ndarray, region: np.ndarray,
-                     size: int, margin: Array, prepared, table, rest, joint: float,
-                     length: float, moved: list, below: list) -> tuple:
-    """The vertices of the regions of limbs `moved` registered on limb `k`'s rest spine
-    (`prepared`, its `table` values or `None`; `rest`: what its poses read, of `length`),
-    padded to `size` rows or more (a bucket): `(Registration, indices (m,) int32, joint, stop,
-    JointZone)`. The bend starts past their border with every region not in `below` (limb
-    `k` and its descendants; or the limb's own `joint`, if larger) and is complete before
-    their borders with the rest of `below` (see the module's docstring)."""
-    inside = np.isin(region, moved)
-    ids = np.flatnonzero(inside).astype(np.int32)
+def _registered_rows(rows: np.ndarray, ids: np.ndarray, *, size: int, margin: Array,
+                     prepared, table) -> Registration:
+    """`rows[ids]` registered on a rest spine (`prepared`, its `table` values or `None`),
+    padded to `size` rows or to their bucket if more, the padding invalid."""
     size = max(size, bucket(len(ids)))
     batch = jax.device_put(pad_batch(rows[ids], size))
     registrar, certified = _registration(prepared, batch, margin, table,
                                          quick=size <= QUICK_BATCH)
-    reg = invalid_past(Registration(batch, *registered_pending(registrar, batch, certified)),
-                       len(ids))
+    return invalid_past(Registration(batch, *registered_pending(registrar, batch, certified)),
+                        len(ids))
+
+
+def _placed_part(k: int, edges: np.ndarray, region: np.ndarray, rest, joint: float,
+                 length: float, pieces: list, below: list) -> tuple:
+    """Vertices registered on limb `k`'s rest spine as `pieces`, `[(indices (m,), their
+    padded Registration)]` (`rest`: what its poses read, of `length`), as one region:
+    `(Registration, indices, joint, stop, JointZone)`, the pieces' rows one after another,
+    padded to their bucket (one piece: its own). The bend starts past their border with every
+    region not in `below` (limb `k` and its descendants; or at the limb's own `joint`, if
+    larger) and is complete before their borders with the rest of `below` (see the module's
+    docstring)."""
+    ids = np.concatenate([i for i, _ in pieces])
+    inside = np.zeros(len(region), bool)
+    inside[ids] = True
     arc = np.full(len(region), np.nan)
-    arc[ids] = np.asarray(reg.arc_length)[: len(ids)]
+    for i, r in pieces:
+        arc[i] = np.asarray(r.arc_length)[: len(i)]
     border = _border(edges, inside, ~np.isin(region, below))
     joint = max(joint, float(np.max(arc[border], initial=-np.inf)))
     inner = np.isin(region, below) & ~inside
@@ -275,10 +290,20 @@ def _registered_part(k: int, rows: np.ndarray, edges: np.ndarray, region: np.nda
             f"`skeleton`: limb {k}'s region meets its child limbs (arc length {stop:.4g}) "
             f"before it leaves its parent ({joint:.4g}): there is no room to bend it."
         )
-    dtype = batch.dtype
-    # (All rows, padded ones invalid: every limb's zone has the same shapes.)
-    at = np.where(np.asarray(reg.valid), np.asarray(reg.arc_length), joint)
-    (_, *frames), axes = _frames_at(rest, on_device(at, dtype), on_device(joint, dtype))
+    dtype = pieces[0][1].points.dtype
+    framed = []
+    for _, r in pieces:  # (all rows, padded ones invalid: each piece's own program)
+        at = np.where(np.asarray(r.valid), np.asarray(r.arc_length), joint)
+        (_, *frames), axes = _frames_at(rest, on_device(at, dtype), on_device(joint, dtype))
+        framed.append([np.asarray(f) for f in frames])
+    counts = [len(i) for i, _ in pieces]
+    size = bucket(sum(counts)) if len(pieces) > 1 else None
+    reg = pieces[0][1] if size is None else invalid_past(eqx.tree_at(
+        lambda r: tuple(getattr(r, f) for f in PER_POINT), pieces[0][1],
+        tuple(jax.device_put(_stacked([getattr(r, f) for _, r in pieces], counts, size))
+              for f in PER_POINT)), sum(counts))
+    frames = framed[0] if size is None else [
+        _stacked([f[c] for f in framed], counts, size) for c in range(len(framed[0]))]
     zone = joint_zone(*(np.asarray(f) for f in (
         reg.arc_length, reg.offset, reg.curvature, reg.valid)), joint, stop, dtype,
         frames=frames, axes=axes)
@@ -286,6 +311,17 @@ def _registered_part(k: int, rows: np.ndarray, edges: np.ndarray, region: np.nda
     # which a bent spine refuses: its table's length, in float32, rounds its own way.)
     stop = np.minimum(np.asarray(stop, dtype), rest.length)
     return (reg, jax.device_put(ids), on_device(joint, dtype), on_device(stop, dtype), zone)
+
+
+# A `Registration`'s per-point fields (its others, the spine's length and end frames, shared).
+PER_POINT = ("points", "arc_length", "offset", "curvature", "valid", "discontinuous")
+
+
+def _stacked(arrays: list, counts: list, size: int) -> np.ndarray:
+    """The first `counts[i]` rows of each of `arrays`, one after another, padded to `size`
+    rows with copies of the last (as `pad_batch` pads)."""
+    rows = np.concatenate([np.asarray(a)[:n] for a, n in zip(arrays, counts)])
+    return np.pad(rows, [(0, size - len(rows))] + [(0, 0)] * (rows.ndim - 1), mode="edge")
 
 
 def _reach(registration: Registration, n: int) -> float:
