@@ -64,6 +64,16 @@ def _block(start, rows, a, b):
 
 
 @numba.njit(cache=True, error_model="numpy")
+def _group_end(indices, p, end):
+    """The end of the run of a row's entries from `p` on that share one sphere (`>> 2`)."""
+    sphere = indices[p] >> 2
+    p += 1
+    while p < end and indices[p] >> 2 == sphere:
+        p += 1
+    return p
+
+
+@numba.njit(cache=True, error_model="numpy")
 def _gram(indptr, indices, data, weight, start, rows):
     """`weighted_gram`'s CSC arrays `(indptr, indices, data)`, or None."""
     n = len(start) - 1
@@ -74,16 +84,10 @@ def _gram(indptr, indices, data, weight, start, rows):
         end = indptr[i + 1]
         p0 = indptr[i]
         while p0 < end:
-            a = indices[p0] >> 2
-            p1 = p0 + 1
-            while p1 < end and indices[p1] >> 2 == a:
-                p1 += 1
+            a, p1 = indices[p0] >> 2, _group_end(indices, p0, end)
             q0 = indptr[i]
             while q0 < end:
-                b = indices[q0] >> 2
-                q1 = q0 + 1
-                while q1 < end and indices[q1] >> 2 == b:
-                    q1 += 1
+                b, q1 = indices[q0] >> 2, _group_end(indices, q0, end)
                 at = _block(start, rows, a, b)
                 if at < 0:
                     return None
