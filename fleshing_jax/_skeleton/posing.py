@@ -484,13 +484,13 @@ def as_registration(mesh_or_registration, skeleton: Skeleton) -> SkeletonRegistr
     return mesh_or_registration
 
 
-def carrying(registration: SkeletonRegistration, posed: set | dict):
-    """`(registration, absorbed)`: `registration` with each limb of `posed` that has a
-    `WholeLimb` and no descendant in `posed` registered as one region with its descendants
+def carrying(registration: SkeletonRegistration, limbs: set | dict):
+    """`(registration, absorbed)`: `registration` with each of `limbs` (the posed ones) that has a
+    `WholeLimb` and no descendant in `limbs` registered as one region with its descendants
     (its fields swapped for the `WholeLimb`'s), and `absorbed`, the frozenset of those
     descendants, whose vertices its pose places: a pose leaves them alone."""
-    swap = {k: whole for k in posed
-            if (whole := registration.wholes[k]) is not None and not set(whole.below) & set(posed)}
+    swap = {k: whole for k in limbs
+            if (whole := registration.wholes[k]) is not None and not set(whole.below) & set(limbs)}
     if not swap:
         return registration, frozenset()
 
