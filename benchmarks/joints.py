@@ -85,14 +85,14 @@ def main():
     shown = {}
     for k, bend, name in joints:
         for direction in (0.0, 180.0):
-            own = float(fj.joint_range(registration, k, direction))
+            own = float(fj.joint_range(registration, k, direction, children_posed=True))
             shown[(name, bend, direction)] = row(
                 f"{name} ({k})", f"{bend:g}° towards {direction:g}°", f"{own:.1f}°",
                 {k: fj.LimbPose(bend, direction)})
     # The knee and the elbow bent in the body's side plane (seen side on in the figure).
     for k, name, towards, way in ((leg[1], "knee", (-1.0, 0.0, 0.0), "back (-x)"),
                                   (arm[1], "elbow", (1.0, 0.0, 0.0), "ahead (+x)")):
-        own = float(fj.joint_range(registration, k, towards=towards))
+        own = float(fj.joint_range(registration, k, towards=towards, children_posed=True))
         shown[(name, 120.0, way)] = row(f"{name} ({k})", f"120° {way}", f"{own:.1f}°",
                                         {k: fj.LimbPose(120.0, towards=towards)})
     # The leg lifted 90° as a marching step: the thigh forwards (+x), the shin back down.

@@ -387,7 +387,8 @@ def human_joints(data: Path):
               ("neck", head[0], ahead, "forwards"), ("neck", head[0], side, "sideways")]
     print("| joint | exact to (°) |\n|---|---:|")
     for joint, limb, towards, words in ranges:
-        angle = float(fj.joint_range(registration, int(limb), towards=towards))
+        angle = float(fj.joint_range(registration, int(limb), towards=towards,
+                                     children_posed=True))
         print(f"| {joint} {words} | {angle:.1f} |")
     poses = {
         "knee 120° backwards": {leg[1]: fj.LimbPose(120.0, towards=-ahead)},

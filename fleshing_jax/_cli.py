@@ -758,11 +758,13 @@ def _pose(args) -> int:
                 print(f" limb {limb}:")
                 pose = carried[limb]  # (a bend the other way: towards the opposite direction)
                 towards = float(pose.direction) + (180.0 if float(pose.bend) < 0 else 0.0)
-                whole = registration.wholes[limb]  # (its children ride on it unless posed)
+                # (Its children ride on its bend, or a free only child carries it on, unless
+                # posed.)
+                whole = registration.wholes[limb]
+                children = whole.below if whole is not None else registration.children[limb]
                 largest = np.floor(100 * float(joint_range(
                     registration, limb, towards, twist=float(pose.twist),
-                    children_posed=whole is not None and bool(set(whole.below) & set(carried)),
-                ))) / 100
+                    children_posed=bool(set(children) & set(poses))))) / 100
                 bend = (f"bend limb {limb}" if limb in poses else
                         f"limb {limb} carries its parent's bend on past the parent's range: "
                         f"it takes")

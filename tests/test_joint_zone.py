@@ -305,3 +305,12 @@ def test_a_bend_past_a_joint_s_range_is_carried_on_by_its_free_child(tube, skele
     # A posed child keeps its own pose: the parent is then inexact past its range.
     both = fj.pose_skeleton(registration, skeleton, {0: fj.LimbPose(angle), 1: fj.LimbPose()})
     assert not np.asarray(both.valid).all()
+    # `fj.joint_range` counts the free child's part: exact up to it, inexact past it; with
+    # the child posed, the limb's own range.
+    carried = float(fj.joint_range(registration, 0, direction, twist=twist))
+    alone = float(fj.joint_range(registration, 0, direction, twist=twist, children_posed=True))
+    assert alone < angle < carried
+    for bend, exact in ((carried - 0.05, True), (carried + 0.05, False)):
+        valid = fj.pose_skeleton(registration, skeleton,
+                                 {0: fj.LimbPose(bend, direction, twist)}).valid
+        assert bool(np.asarray(valid).all()) == exact

@@ -585,6 +585,12 @@ def test_pose_command_names_the_child_carrying_a_bend_on(tube, skeleton, tmp_pat
                  "--limb", "0", "--bend", "175"]) == 3
     printed = capsys.readouterr().out
     assert "limb 0:" in printed and "advice: limb 1 carries its parent's bend on" in printed
+    # Limb 0's advice counts its free child's part (`fj.joint_range`): exact at that bend.
+    largest = float(printed.split("advice: bend limb 0 at most ")[1].split()[0])
+    registration = fj.register_skeleton(tube, skeleton)
+    assert largest > float(fj.joint_range(registration, 0, 0.0, children_posed=True))
+    posed = fj.pose_skeleton(registration, skeleton, {0: fj.LimbPose(largest)})
+    assert np.asarray(posed.valid).all()
 
 
 @pytest.mark.parametrize(

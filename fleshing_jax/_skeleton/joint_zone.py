@@ -244,8 +244,11 @@ def joint_range(registration, limb: int, direction=None, *, twist=0.0,
     360 where no bend leaves it; 0 where the twist alone does).
 
     A limb with several children (a head with its ears) bends them with it where they are not
-    posed (`posing.WholeLimb`), and its zone may run on past them; `children_posed=True`:
-    the range when one of them is posed too, the zone then ending before their borders.
+    posed (`posing.WholeLimb`), and its zone may run on past them; a limb with one child
+    left free has it carry a bend past its own range on (`fj.pose_skeleton`'s `spill`), and
+    its range in a direction counts the child's (and its free only child's in turn): the
+    largest bend with no vertex past the map's exact range. `children_posed=True`: the range
+    when a child is posed too, the limb's zone then ending before their borders, alone.
 
     **Arguments:** `registration`: a `register_skeleton` (`SkeletonRegistration`); `limb`:
     a limb index of its skeleton; `direction`, `twist`, `towards`: as `fj.LimbPose`'s;
@@ -265,24 +268,36 @@ def joint_range(registration, limb: int, direction=None, *, twist=0.0,
     if direction is None and towards is None and twist == 0:
         return jnp.rad2deg(zone.range)
     from .limb_pose import LimbPose
+    from .spill import carried_range
 
     pose = LimbPose(0.0, 0.0 if direction is None else direction, twist, towards=towards)
     _, phi, psi = pose.radians(registration.rests[limb], joint)
+    own = _directed_range(zone, phi, psi, joint, stop)
+    children = registration.children[limb]
+    if whole is None and len(children) == 1 and not children_posed:
+        own = carried_range(registration, limb, own, phi, psi)
+    return jnp.rad2deg(jnp.asarray(own, joint.dtype))
+
+
+def _directed_range(zone: JointZone, direction: Array, twist: Array, joint: Array,
+                    stop: Array) -> float:
+    """The largest bend (radians; 2π where none leaves it) towards `direction` with `twist`
+    (radians) up to which every bend keeps the radial map exact over its zone."""
     bends = jnp.linspace(0, 2 * np.pi, _SCANNED, dtype=joint.dtype)
-    excess = np.asarray(_excess(zone, bends, phi, psi, joint, stop))
+    excess = np.asarray(_excess(zone, bends, direction, twist, joint, stop))
     past = np.flatnonzero(excess > 0)
     if not len(past):
-        return jnp.asarray(360.0, joint.dtype)
+        return 2 * np.pi
     if past[0] == 0:
-        return jnp.asarray(0.0, joint.dtype)
+        return 0.0
     # Between the last exact bend scanned and the first inexact one, by bisection.
     lo, hi = float(bends[past[0] - 1]), float(bends[past[0]])
     for _ in range(_BISECTIONS):
         middle = 0.5 * (lo + hi)
-        inexact = float(_excess(zone, jnp.asarray([middle], joint.dtype), phi, psi, joint,
-                                stop)[0]) > 0
+        inexact = float(_excess(zone, jnp.asarray([middle], joint.dtype), direction, twist,
+                                joint, stop)[0]) > 0
         lo, hi = (lo, middle) if inexact else (middle, hi)
-    return jnp.rad2deg(jnp.asarray(lo, joint.dtype))
+    return lo
 
 
 def _host(*values):

@@ -105,7 +105,8 @@ class SkeletonRegistration(eqx.Module):
     to); `corners` (n, m) int32: each vertex's corners of them (`restore.corner_table`);
     `volume`: the rest vertices' (about their centre, in float64, then cast); `skeleton_id`:
     the skeleton's `fingerprint` (its limbs and regions, its mesh, its spines and joints), so that
-    a pose with another skeleton is refused, saying which part differs.
+    a pose with another skeleton is refused, saying which part differs; `children`: each limb's
+    children (the skeleton's, static: a joint's range counts a free only child's, `spill`).
     """
 
     registrations: tuple[Registration, ...]
@@ -122,6 +123,7 @@ class SkeletonRegistration(eqx.Module):
     corners: Array  # (n, m) int32: each vertex's corners of `triangles` (`restore`)
     volume: Array  # scalar: the rest vertices' volume (`restore`)
     skeleton_id: tuple[int, ...] = eqx.field(static=True)  # `fingerprint` of its skeleton
+    children: tuple[tuple[int, ...], ...] = eqx.field(static=True)
 
 
 class PosedSkeleton(NamedTuple):
@@ -251,7 +253,8 @@ def register_skeleton(mesh, skeleton: Skeleton, *, margin: float | None = None,
                                 on_device(triangles, np.int32),
                                 on_device(corner_table(triangles, len(points)), np.int32),
                                 on_device(rest_volume(points, triangles), points.dtype),
-                                fingerprint(skeleton))
+                                fingerprint(skeleton),
+                                tuple(map(skeleton.children, range(len(skeleton.limbs)))))
 
 
 def _registered_rows(rows: np.ndarray, ids: np.ndarray, *, size: int, margin: Array,

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import equinox as eqx
 import jax.numpy as jnp
+import numpy as np
 
 from .._checks import is_concrete
 from .._spines.bent import rotate
@@ -55,16 +56,7 @@ def _split(registration, k: int, c: int, pose: LimbPose) -> tuple[LimbPose, Limb
     # A negative bend is a positive one the other way.
     direction = jnp.where(bend < 0, direction + jnp.pi, direction)
     angle = jnp.abs(bend)
-    zone, below = registration.zones[k], registration.zones[c]
-    t, first, second = zone.axes
-    towards = rotate(t, -twist, jnp.cos(direction) * first + jnp.sin(direction) * second)
-    tangent, across_i, across_j = below.axes
-    # (Its part across the child's tangent: where none, any direction; refused nowhere.)
-    x, y = jnp.dot(towards, across_i), jnp.dot(towards, across_j)
-    aside = jnp.hypot(x, y) > 0
-    child_direction = jnp.where(aside, jnp.arctan2(y, jnp.where(aside, x, 1.0)), 0.0)
-    own = zone.reach(direction, joint, registration.stops[k])
-    next_ = below.reach(child_direction, registration.joints[c], registration.stops[c])
+    own, next_, child_direction = _reaches(registration, k, c, direction, twist)
     first_share, both = SHARE * own, SHARE * (own + next_)
     # Past both ranges the excess is split as their ranges (reached only where both are
     # finite: an infinite range takes any angle).
@@ -79,3 +71,46 @@ def _split(registration, k: int, c: int, pose: LimbPose) -> tuple[LimbPose, Limb
     child = LimbPose(jnp.rad2deg(angle - kept).astype(dtype),
                      jnp.rad2deg(child_direction).astype(dtype))
     return parent, child
+
+
+def _reaches(registration, k: int, c: int, direction, twist) -> tuple:
+    """`(limb k's reach, its child c's, the child's direction)` (radians) for a bend of limb
+    k towards `direction` with `twist` (radians): the child's the parent's direction at rest,
+    turned back by the parent's twist (which the child's region is carried through), read
+    about the child's own tangent (`JointZone.reach`)."""
+    zone, below = registration.zones[k], registration.zones[c]
+    t, first, second = zone.axes
+    towards = rotate(t, -twist, jnp.cos(direction) * first + jnp.sin(direction) * second)
+    tangent, across_i, across_j = below.axes
+    # (Its part across the child's tangent: where none, any direction; refused nowhere.)
+    x, y = jnp.dot(towards, across_i), jnp.dot(towards, across_j)
+    aside = jnp.hypot(x, y) > 0
+    child_direction = jnp.where(aside, jnp.arctan2(y, jnp.where(aside, x, 1.0)), 0.0)
+    own = zone.reach(direction, registration.joints[k], registration.stops[k])
+    next_ = below.reach(child_direction, registration.joints[c], registration.stops[c])
+    return own, next_, child_direction
+
+
+def carried_range(registration, k: int, own: float, direction, twist) -> float:
+    """Limb k's exact range (radians) towards `direction` with `twist` (radians) when its only
+    child is free and carries the bend on (`spilled`): `own`, its range alone (`joint_range`'s
+    scan), until the share gives the child its part, then the least bend at which either
+    leaves its exact range (the child's own range counting its free only child in turn)."""
+    from .joint_zone import joint_range
+
+    (c,) = registration.children[k]
+    reach, below, child_direction = (float(x) for x in _reaches(
+        registration, k, c, direction, twist))
+    first_share = SHARE * reach
+    if not np.isfinite(reach) or own < first_share:  # (the limb alone up to its range)
+        return own
+    child = np.radians(float(joint_range(registration, c, np.degrees(child_direction))))
+    if not np.isfinite(below):  # (the child takes all past the limb's share)
+        return min(first_share + child, 2 * np.pi)
+    # The limb holds `first_share` until both shares are taken, then the excess is split as
+    # `reach : below`: the limb leaves `own` and the child its range where the split says.
+    both, ratio = SHARE * (reach + below), reach / (reach + below)
+    limb_leaves = both + (own - first_share) / ratio
+    child_leaves = (first_share + child if child < SHARE * below
+                    else both + (child - SHARE * below) / (1 - ratio))
+    return min(limb_leaves, child_leaves, 2 * np.pi)
