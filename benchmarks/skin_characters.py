@@ -16,9 +16,10 @@ faces the skin winds against their neighbours flipped). Prints a Markdown table:
 chains from the body and their lengths, and which of the tips an animator would pose (head,
 hands, feet; muzzle, horns, tail, hooves; head, antennae, feet; ears; snout, ears, paws; jaw,
 hands; beak, wings; eight feet, abdomen; snout, ears, paws, feet, tail; fingertips, forearm)
-lie in a limb of their own, outside the body. `--joints`: issue 46's
-joint targets on the human instead (its exact range per joint and direction, then each
-pose's flagged vertices, volume change and worst edge stretch, float64).
+lie in a limb of their own, outside the body. `--joints`: issue 46's joint targets on the
+human and the cow instead (`--only human cow`; each joint's exact range, alone and with the
+chain below it free, then each pose's flagged vertices, volume change and worst edge
+stretch, float64).
 """
 
 from __future__ import annotations
@@ -366,30 +367,28 @@ def rig_table(data: Path, seeds: int, spheres: int, figures: Path | None, names:
                     figures / f"skin-{name}-{seed}.png", dpi=80)
 
 
-def human_joints(data: Path):
-    """Issue 46's targets on the human: each joint's exact range (`fj.joint_range`) in the
-    directions an animator bends it, then a knee and an elbow at 120°, the arm raised 90°
-    at the shoulder, the leg lifted 90° (hip + knee), the head turned and nodded 45°."""
-    import trimesh
-    from blender_armature import human_chains, measures
+def _chains_by_tip(skeleton, pick: dict) -> dict:
+    """Name → the longest chain from the body whose last limb's spine ends where
+    `pick[name](end point)` holds (z up)."""
+    from blender_armature import _longest_chains
 
-    import fleshing_jax as fj
+    chains = _longest_chains(skeleton)
+    tips = {top: np.asarray(skeleton.limbs[c[-1]].spine(skeleton.limbs[c[-1]].spine.length))
+            for top, c in chains.items()}
+    return {name: chains[next(t for t, p in tips.items() if test(p))]
+            for name, test in pick.items()}
 
-    arrays = np.load(data)
-    mesh = trimesh.Trimesh(arrays["human_vertices"], arrays["human_faces"], process=False)
-    skeleton = fj.skeleton(mesh)
-    registration = fj.register_skeleton(mesh, skeleton)
+
+def _human_targets(fj, skeleton, registration) -> tuple:
+    """The human's (z up, +y ahead, +x its left) joints and the poses of issue 46."""
+    from blender_armature import human_chains
+
     leg, arm, head = human_chains(skeleton)
     ahead, up, side = np.eye(3)[[1, 2, 0]]
     ranges = [("hip", leg[0], ahead, "forwards"), ("hip", leg[0], -ahead, "backwards"),
               ("knee", leg[1], -ahead, "backwards"), ("shoulder", arm[0], up, "up"),
               ("shoulder", arm[0], ahead, "forwards"), ("elbow", arm[1], ahead, "forwards"),
               ("neck", head[0], ahead, "forwards"), ("neck", head[0], side, "sideways")]
-    print("| joint | exact to (°) |\n|---|---:|")
-    for joint, limb, towards, words in ranges:
-        angle = float(fj.joint_range(registration, int(limb), towards=towards,
-                                     children_posed=True))
-        print(f"| {joint} {words} | {angle:.1f} |")
     poses = {
         "knee 120° backwards": {leg[1]: fj.LimbPose(120.0, towards=-ahead)},
         "elbow 120° forwards": {arm[1]: fj.LimbPose(120.0, towards=ahead)},
@@ -402,15 +401,77 @@ def human_joints(data: Path):
                                              up=tuple(up))},
         "head nodded 45°": {head[0]: fj.LimbPose(45.0, towards=ahead)},
     }
-    vertices, faces = np.asarray(mesh.vertices), np.asarray(mesh.faces)
-    print("\n| pose | flagged | dV/V (%) | worst edge stretch | edges > 2.5x |")
-    print("|---|---:|---:|---:|---:|")
-    for name, pose in poses.items():
-        posed = fj.pose_skeleton(registration, skeleton, pose)
-        change, worst, torn, _ = measures(vertices, faces, np.asarray(posed.vertices),
-                                          np.asarray(skeleton.region))
-        print(f"| {name} | {int(np.sum(~np.asarray(posed.valid)))} | {100 * change:+.4f} | "
-              f"{worst:.2f} | {torn} |", flush=True)
+    return ranges, poses
+
+
+def _cow_targets(fj, skeleton, registration) -> tuple:
+    """The cow's (z up, +x ahead, +y its left) joints and the poses of issue 46: a front
+    leg lifted (hip and knee forwards), a knee bent 120° (the front one back, the hind one
+    forwards), the head turned and nodded 45°, the tail raised 60° (at its root, the rest
+    free; at two joints)."""
+    chains = _chains_by_tip(skeleton, {
+        "front": lambda p: p[0] > 0.3 and p[1] > 0 and p[2] < 0.3,
+        "hind": lambda p: p[0] < -0.3 and p[1] > 0 and p[2] < 0.3,
+        "head": lambda p: p[0] > 0.9, "tail": lambda p: p[0] < -0.7 and p[2] > 0.5})
+    front, hind, head, tail = (chains[n] for n in ("front", "hind", "head", "tail"))
+    ahead, side, up = np.eye(3)
+    ranges = [("front hip", front[0], ahead, "forwards"), ("front knee", front[1], -ahead,
+                                                            "backwards"),
+              ("hind hip", hind[0], -ahead, "backwards"), ("hind knee", hind[1], ahead,
+                                                          "forwards"),
+              ("neck", head[0], -up, "down"), ("neck", head[0], side, "sideways"),
+              ("tail root", tail[0], up, "up")]
+    poses = {
+        "front leg lifted 90°: hip 45° + knee 45°": {front[0]: fj.LimbPose(45.0, towards=ahead),
+                                                      front[1]: fj.LimbPose(45.0, towards=ahead)},
+        "front knee 120° backwards": {front[1]: fj.LimbPose(120.0, towards=-ahead)},
+        "hind knee 120° forwards": {hind[1]: fj.LimbPose(120.0, towards=ahead)},
+        "head turned 45°": {head[0]: fj.turn(registration, skeleton, head[0], 45.0,
+                                             up=tuple(up))},
+        "head nodded 45° down": {head[0]: fj.LimbPose(45.0, towards=-up)},
+        "tail raised 60° at its root": {tail[0]: fj.LimbPose(60.0, towards=up)},
+    }
+    if len(tail) > 1:
+        poses["tail raised 30° + 30°"] = {tail[0]: fj.LimbPose(30.0, towards=up),
+                                         tail[1]: fj.LimbPose(30.0, towards=up)}
+    return ranges, poses
+
+
+def joint_targets(data: Path, names: list[str]):
+    """Issue 46's targets on the human and the cow: each joint's exact range
+    (`fj.joint_range`) in the direction an animator bends it, alone and with the chain
+    below it free (its part counted), then the poses (knees and elbows at 120°, a limb
+    raised or lifted 90°, the head turned and nodded 45°, the cow's tail raised 60°)."""
+    import trimesh
+    from blender_armature import measures
+
+    import fleshing_jax as fj
+
+    arrays = np.load(data)
+    for name in names:
+        mesh = trimesh.Trimesh(arrays[f"{name}_vertices"], arrays[f"{name}_faces"],
+                               process=False)
+        mesh = mesh if mesh.is_watertight else fj.cap_holes(mesh)  # (the skin's branch holes)
+        skeleton = fj.skeleton(mesh)
+        registration = fj.register_skeleton(mesh, skeleton)
+        targets = {"human": _human_targets, "cow": _cow_targets}[name]
+        ranges, poses = targets(fj, skeleton, registration)
+        print(f"\n{name}\n\n| joint | exact to (°), alone | with the chain below free |")
+        print("|---|---:|---:|")
+        for joint, limb, towards, words in ranges:
+            alone, free = (float(fj.joint_range(registration, int(limb), towards=towards,
+                                                children_posed=posed))
+                           for posed in (True, False))
+            print(f"| {joint} {words} | {alone:.1f} | {free:.1f} |")
+        vertices, faces = np.asarray(mesh.vertices), np.asarray(mesh.faces)
+        print("\n| pose | flagged | dV/V (%) | worst edge stretch | edges > 2.5x |")
+        print("|---|---:|---:|---:|---:|")
+        for pose_name, pose in poses.items():
+            posed = fj.pose_skeleton(registration, skeleton, pose)
+            change, worst, torn, _ = measures(vertices, faces, np.asarray(posed.vertices),
+                                              np.asarray(skeleton.region))
+            print(f"| {pose_name} | {int(np.sum(~np.asarray(posed.valid)))} | "
+                  f"{100 * change:+.4f} | {worst:.2f} | {torn} |", flush=True)
 
 
 def main():
@@ -434,7 +495,8 @@ def main():
             import jax
 
             jax.config.update("jax_enable_x64", True)
-            return human_joints(data)
+            return joint_targets(data, [n for n in ("human", "cow")
+                                         if not args.only or n in args.only])
         rig_table(data, args.seeds, args.spheres, args.figures, args.only or list(CHARACTERS))
 
 
