@@ -768,9 +768,11 @@ def _pose(args) -> int:
                 bend = (f"bend limb {limb}" if limb in poses else
                         f"limb {limb} carries its parent's bend on past the parent's range: "
                         f"it takes")
+                free = whole is None and not set(children) & set(poses) and len(children) == 1
+                carried_on = f", limb {children[0]} carrying the rest on" if free else ""
                 _print_causes(causes, f"{bend} at most {largest:.2f} degrees (its exact "
-                                      "range at its joint in this direction), or try another "
-                                      "--method")
+                                      f"range at its joint in this direction{carried_on}), or "
+                                      "try another --method")
         if not args.allow_invalid:
             print(f"not written: {int(np.sum(~valid))} vertices are posed inexactly (past "
                   "their joint's range: placed continuously, the volume not kept there); bend "

@@ -587,6 +587,8 @@ def test_pose_command_names_the_child_carrying_a_bend_on(tube, skeleton, tmp_pat
     assert "limb 0:" in printed and "advice: limb 1 carries its parent's bend on" in printed
     # Limb 0's advice counts its free child's part (`fj.joint_range`): exact at that bend.
     largest = float(printed.split("advice: bend limb 0 at most ")[1].split()[0])
+    assert f"{largest:.2f} degrees (its exact range at its joint in this direction, limb 1 " \
+        "carrying the rest on)" in printed
     registration = fj.register_skeleton(tube, skeleton)
     assert largest > float(fj.joint_range(registration, 0, 0.0, children_posed=True))
     posed = fj.pose_skeleton(registration, skeleton, {0: fj.LimbPose(largest)})
