@@ -35,6 +35,7 @@ import numpy as np
 from jaxtyping import Array, Bool, Float, Int
 
 from .._numerics import dot, norm, safe_divide, safe_sqrt, weighted_sum
+from .still import block_size
 
 BLOCK = 1024  # vertices per block of the field's evaluation (see `correct`)
 
@@ -255,8 +256,8 @@ class Correction(eqx.Module):
     edges are among `field_cones ++ edge_cones` (`edge_slots`), the rest iso-values and the
     smooth union's widths, the one-ring as a gather table (`ring`, `ring_weights` summing to
     1 per row) and the rest Laplacian vectors (rest vertex minus its rest one-ring mean;
-    `None` without faces); `blocks` the spheres each block of `block` consecutive vertices
-    reads (`still.block_spheres`), or `None`."""
+    `None` without faces); `blocks` the spheres each group of `block` consecutive vertices
+    reads (`still.block_spheres`; `still.GROUP` vertices), or `None`."""
 
     field_cones: Int[Array, "n kc"]
     edge_cones: Int[Array, "n e"]
@@ -287,10 +288,11 @@ def correct(
     still: Bool[Array, " b"] | None = None,
 ) -> tuple[Array, Array]:
     """Implicit-skinning correction of skinned vertices on the posed envelope
-    `(centers, radii)`. `still`: optional `(b,)` flags of the blocks of `data.blocks` whose
+    `(centers, radii)`. `still`: optional `(b,)` flags of the groups of `data.blocks` whose
     spheres move as one rigid body (`still.still_blocks`): their vertices are left as
-    skinned (the correction would move them by round-off). **Returns:** `(vertices (n, 3),
-    contact (n,))`, `contact` where a vertex was stopped by the gradient test."""
+    skinned (the correction would move them by round-off) and the field is evaluated on the
+    others only, gathered into chunks of `still.block_size(n)` vertices. **Returns:**
+    `(vertices (n, 3), contact (n,))`, `contact` where a vertex was stopped by the gradient test."""
     # The per-primitive tables are small (a few hundred rows), packed into one array each
     # (`pack_rows`) and gathered inside each evaluation, where XLA fuses the gathers with the
     # arithmetic (as fast as gathering the (vertices, candidates) rows once, measured,
@@ -311,8 +313,8 @@ def correct(
     skipping = still is not None and data.blocks is not None
     # The vertices padded to whole blocks (copies of the last one, dropped from the output):
     # `lax.map` then runs one traced block, where a remainder traced and compiled the field a
-    # second time. The rig keeps its points in block order (`still.py`): a block is a slice.
-    block = data.block if skipping else min(BLOCK, n)
+    # second time.
+    block = min(BLOCK, n)
     pad = -n % block
 
     def blocked(a):
@@ -320,29 +322,43 @@ def correct(
             a = jnp.concatenate([a, jnp.broadcast_to(a[-1:], (pad, *a.shape[1:]))])
         return a.reshape((n + pad) // block, block, *a.shape[1:])
 
-    per_vertex = [blocked(a) for a in (data.width, data.field_cones, data.edge_cones,
-                                       data.field_slabs, data.edge_slots)]
+    rows = (data.width, data.field_cones, data.edge_cones, data.field_slabs, data.edge_slots)
     if skipping:
-        iso = blocked(data.iso)
-        fixed = jnp.repeat(still, block)[:n]  # each vertex's block is still
+        # Each vertex of a still group keeps its skinned position; the others are gathered
+        # (in their order: the rig keeps its points in a spatial order, `still.py`) and
+        # evaluated in chunks, as many as they fill.
+        fixed = jnp.repeat(still, data.block)[:n]
+        chunk = min(block_size(n), n)
+        (order,) = jnp.nonzero(~fixed, size=n + (-n % chunk), fill_value=n)
+    else:
+        per_vertex = [blocked(a) for a in rows]
 
     def evaluate(x, g_prev):
-        # In blocks of vertices (a loop, each block vectorised): the (block, candidates)
-        # temporaries XLA materialises between its fused kernels then stay in cache, where
-        # over all vertices at once they go through memory (measured in benchmarks/README.md).
         if not skipping:
+            # In blocks of vertices (a loop, each block vectorised): the (block, candidates)
+            # temporaries XLA materialises between its fused kernels then stay in cache, where
+            # over all vertices at once they go through memory (measured in
+            # benchmarks/README.md).
             f, g = jax.lax.map(lambda a: jax.vmap(one)(*a), (blocked(x), *per_vertex))
-        else:
-            # A still block keeps its vertices: its field is their iso-value, its gradient
-            # the previous one (no Newton step, no turn for the angle test).
-            def one_block(a):
-                skip, f_still, g_still, *rest = a
-                return jax.lax.cond(skip, lambda: (f_still, g_still),
-                                    lambda: jax.vmap(one)(*rest))
+            return f.reshape(-1)[:n], g.reshape(-1, 3)[:n]
 
-            f, g = jax.lax.map(one_block, (still, iso, blocked(g_prev), blocked(x),
-                                           *per_vertex))
-        return f.reshape(-1)[:n], g.reshape(-1, 3)[:n]
+        # A still vertex keeps its place: its field is its iso-value, its gradient the
+        # previous one (no Newton step, no turn for the angle test). A chunk past the last
+        # moving vertex (its indices all the padding `n`) is skipped by its `lax.cond`; a
+        # loop of fixed length (not a `while_loop` of the moving chunks' count), so that
+        # reverse-mode derivatives exist.
+        def chunk_of(at):
+            def field_of():
+                return jax.vmap(one)(*(a.at[at].get(mode="clip") for a in (x, *rows)))
+
+            def skipped():
+                return jnp.zeros(chunk, x.dtype), jnp.zeros((chunk, 3), x.dtype)
+
+            return jax.lax.cond(at[0] < n, field_of, skipped)
+
+        f, g = jax.lax.map(chunk_of, order.reshape(-1, chunk))
+        return (data.iso.at[order].set(f.reshape(-1), mode="drop"),
+                g_prev.at[order].set(g.reshape(-1, 3), mode="drop"))
 
     cos_max = jnp.cos(jnp.deg2rad(contact_angle)).astype(skinned.dtype)
     relaxing = data.ring is not None and relax_iterations > 0

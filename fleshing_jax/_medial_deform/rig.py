@@ -24,10 +24,11 @@ footprint sphere of its nearest primitive (`footprint.py`). Our own choices:
   on top of dual-quaternion skinning); the baselines' comparisons use `implicit=False`. Its
   contact test only sees each vertex's candidate primitives (the nearest at rest), so two
   parts far apart at rest that press together after a pose are not detected.
-- **Still blocks.** On rigs of up to `still.VERTICES` vertices, the correction skips the
-  blocks of vertices whose spheres all move as one rigid body (`still.py`): it would move
-  them by round-off only. The welded points are kept in a spatial order for it (`points`,
-  the binding's arrays; `welded` maps the caller's vertices to them).
+- **Still groups.** On rigs of up to `still.VERTICES` vertices, the correction skips the
+  groups of `still.GROUP` vertices whose spheres all move as one rigid body (`still.py`):
+  it would move them by round-off only; the others are corrected in chunks. The welded
+  points are kept in a spatial order for it (`points`, the binding's arrays; `welded` maps
+  the caller's vertices to them).
 
 Volumes measured (capsule radius 0.5, cylinder 4, 1762 vertices, chain of 17 spheres, `ΔV/V`,
 medial+implicit / medial / LBS / DQS): bent 90° onto an arc of its length −0.05 / −0.09 /
@@ -59,7 +60,14 @@ from .implicit import Correction, correct
 from .pose import MedialPose
 from .quaternions import matrix_from_quaternion
 from .skin import blend_quaternion, dqs_vertex, lbs_vertex, medial_vertex, sphere_motions
-from .still import VERTICES as STILL_VERTICES, block_size, block_spheres, morton_order, still_blocks
+from .still import (
+    GROUP as STILL_GROUP,
+    VERTICES as STILL_VERTICES,
+    block_size,
+    block_spheres,
+    morton_order,
+    still_blocks,
+)
 
 METHODS = ("medial", "lbs", "dqs")
 RING = 8  # neighbours per vertex in the relaxation's one-ring table
@@ -307,10 +315,11 @@ class MedialRig(eqx.Module):
         self.cones, self.medial_faces = i_(b.cones), i_(mfaces)
         size, blocks = block_size(m), None
         if m <= STILL_VERTICES:
-            # The spheres each point reads, for the correction's skip of still blocks.
+            # The spheres each point reads, for the correction's skip of still groups.
             reads = np.concatenate([b.spheres, idx, b.cones[b.field_cones].reshape(m, -1),
                                     b.cones[b.edge_cones].reshape(m, -1),
                                     mfaces[b.field_slabs].reshape(m, -1)], axis=1)
+            size = STILL_GROUP
             blocks = block_spheres(reads, table, size)
         self.correction = Correction(i_(b.field_cones), i_(b.edge_cones), i_(b.field_slabs),
                                      i_(b.edge_slots), f_(b.iso), f_(b.width), i_(table),

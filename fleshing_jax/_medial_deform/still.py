@@ -1,4 +1,4 @@
-"""Where the implicit correction has nothing to do: blocks of vertices whose spheres all move
+"""Where the implicit correction has nothing to do: groups of vertices whose spheres all move
 as one rigid body.
 
 The correction (`implicit.correct`) moves each skinned vertex back to its rest iso-value of
@@ -10,18 +10,23 @@ the Newton step and the relaxation move it by round-off only: the correction can
 
 Our own shortcut (not in Vaillant et al. 2013 or Lan et al. 2017): a pose that turns a head
 and holds the body (spot's cases in `benchmarks/medial_deform.py`) leaves most of the
-surface rigid. The test is per block of vertices (`block_size`) in a spatial (Morton) order, so that
-a block's vertices share most of their spheres: on spot (2,930 vertices, 200 spheres) a
-block of 512 reads 83 spheres on average (155 in the vertices' own order; blocks of 256: 67
-and 123), and with its head turned 30° about the neck and its core held, 3 of its 6 blocks
-are still (none in the vertices' order). Per frame the test compares the spheres' rotations
-and translations, `(blocks, spheres a block reads)` numbers, where the field's evaluation
-costs `(vertices, candidates)` closed forms.
+surface rigid. The test is per group of `GROUP` consecutive vertices in a spatial (Morton)
+order, so that a group's vertices share most of their spheres (on spot, 2,930 vertices and
+200 spheres, a block of 512 reads 83 spheres on average, 155 in the vertices' own order).
+Per frame the test compares the spheres' rotations and translations, `(groups, spheres a
+group reads)` numbers, where the field's evaluation costs `(vertices, candidates)` closed
+forms. The correction then evaluates only the vertices of the groups that are not still,
+gathered into chunks of `block_size` (`implicit.correct`). Spot with its head turned 30°
+about the neck and its core held: groups of 64 leave 31 % of its vertices to correct (2
+chunks of 512), groups of 512 (the skip's first form, a `lax.cond` per block) 52 % (3 of 6
+blocks); groups of 32 / 16: 25 / 21 %, in as many chunks, the test's table wider (53 / 45
+spheres against 65 for 64: measured slower). Its skin: CPU 0.90–0.92 → 0.69–0.82 ms a pose
+(load 8–10); with the body free (2 % of the vertices still at 64, none at 512) unchanged.
 
 The rig keeps its welded points in this order (`rig.py` permutes them at binding), so that a
-block is a slice of every per-point array: the skip costs no gathers into block order at each
-evaluation. Only rigs of at most `VERTICES` vertices skip: on the 107,786-vertex capsule bent
-90° (no block still) the blocks' `lax.cond`s made its skin 46 → 53 ms of CPU (load 10).
+group is a slice of every per-point array. Only rigs of at most `VERTICES` vertices skip: on
+the 107,786-vertex capsule bent 90° (no block still) the blocks' `lax.cond`s made its skin
+46 → 53 ms of CPU (load 10).
 """
 
 from __future__ import annotations
@@ -33,6 +38,7 @@ from jaxtyping import Array, Bool, Float, Int
 SIZE = 256  # the fewest vertices a block (see `block_size`)
 MOST = 1024  # the most (`implicit.BLOCK`: larger blocks' temporaries leave the cache)
 VERTICES = 16_384  # the most vertices a rig skips still blocks for (see below)
+GROUP = 64  # vertices a group of the still test (see the module docstring)
 TOLERANCE = 16  # how far from one rigid motion a still block's spheres may be, in eps
 
 
