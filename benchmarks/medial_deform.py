@@ -247,7 +247,7 @@ def spot_frames():
     ARAP from the first guess (20 iterations) or warm from the previous frame (`start`, 3
     iterations), then the skin; with the rump held and the body between free (ARAP moves
     every sphere), and with the core held as in the volume table (the hind quarters keep
-    still: the correction skips their blocks)."""
+    still: the correction skips their groups of vertices)."""
     spot = fj.data.spot()
     medial = fj.medial_mesh(spot, 200, progress=False)
     rig = fj.MedialRig(spot.vertices, medial, faces=spot.faces)
