@@ -2,6 +2,7 @@
 
     python benchmarks/tip_travel.py [--only spot cheburashka biped jointed_quadruped insect]
     python benchmarks/tip_travel.py --only human dog --bpy /path/to/venv-with-bpy/bin/python
+    (the horse's faces re-wound by trimesh, with networkx: `pip install -e ".[benchmarks]"`)
 
 Each character's default skeleton (`fj.skeleton`, float64, radial); `human`, `cow`, `insect`,
 `horse`, `dog`, `dinosaur`, `bird`, `spider`, `kangaroo` and `hand` are `skin_characters.py`'s,
