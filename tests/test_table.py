@@ -180,6 +180,20 @@ def test_nearest_sample_by_packed_keys(dtype):
     assert np.all(np.asarray(picked) < 17)
 
 
+def test_table_values_are_looked_up_where_first_read():
+    # `fields` returns a table's values as `Lookups`: each computed when first read, once (a
+    # caller's unread values are never traced), indexed and sliced as a list.
+    from fleshing_jax._spines.lookups import Lookups
+
+    computed = []
+    values = Lookups(5, lambda f: computed.append(f) or 10 * f)
+    assert len(values) == 5 and computed == []
+    assert values[3] == 30 and values[1:3] == [10, 20] and values[-1] == 40 and values[3] == 30
+    assert computed == [3, 1, 2, 4] and list(values) == [0, 10, 20, 30, 40]
+    with pytest.raises(IndexError):
+        values[5]
+
+
 def test_fast_evaluator_is_exact_in_float64_and_for_polylines():
     assert not isinstance(fast_evaluator(fj.Arc(3.0, 4.0)), SpineTable)  # float64 (conftest)
     arc32 = fj.Arc(np.float32(3.0), np.float32(4.0))

@@ -97,5 +97,5 @@ class TargetFrames(eqx.Module):
     def coordinates(self, s: Array) -> tuple[list[Array], list[Array], list[Array]]:
         """`(C₁, I₁, J₁)` at arc lengths `s` (n,), each as its three coordinates (each (n,)):
         looked up in the table, one value at a time (tabulated frames only)."""
-        v = jax.vmap(self.table.fields)(s)
+        v = jax.vmap(lambda one: self.table.fields(one)[0:9])(s)
         return v[0:3], v[3:6], v[6:9]

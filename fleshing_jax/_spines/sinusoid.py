@@ -18,6 +18,7 @@ import jax.numpy as jnp
 from jaxtyping import Array
 
 from .._numerics import sincos
+from .lookups import Lookups
 
 
 class Sinusoid(eqx.Module):
@@ -41,12 +42,13 @@ class Sinusoid(eqx.Module):
         c = (opposite - start) / 2
         self.coefficients = jnp.stack([start, side - start - c, c])
 
-    def fields(self, s: Array) -> list[Array]:
-        """The F values at `s`, as F scalars (as `PiecewiseCubic.fields`: callers use each
-        once, so that XLA fuses its evaluation into the kernel that consumes it)."""
+    def fields(self, s: Array) -> Lookups:
+        """The F values at `s`, as F scalars, each computed where it is first read (as
+        `PiecewiseCubic.fields`: callers use each once, so that XLA fuses its evaluation into
+        the kernel that consumes it)."""
         sin, _, versine = turn(jnp.asarray(s, self.radius.dtype), self.radius)
         a, b, c = self.coefficients
-        return [a[f] + sin * b[f] + versine * c[f] for f in range(a.shape[0])]
+        return Lookups(a.shape[0], lambda f: a[f] + sin * b[f] + versine * c[f])
 
 
     def vector(self, s: Array, count: int | None = None) -> Array:

@@ -42,6 +42,7 @@ from jaxtyping import Array
 from .._numerics import dot
 from . import arclength
 from .analytic import Arc
+from .lookups import Lookups
 from .sinusoid import Sinusoid
 from .spine import AbstractSpine
 
@@ -115,8 +116,9 @@ class PiecewiseCubic(eqx.Module):
     def _widths(self) -> tuple[Array, Array, Array]:
         return -self.lo / END_PIECES, self.length / self.inner, (self.hi - self.length) / END_PIECES
 
-    def fields(self, s: Array) -> list[Array]:
-        """The F tabulated values at `s`, as F scalars.
+    def fields(self, s: Array) -> Lookups:
+        """The F tabulated values at `s`, as F scalars, each looked up where it is first read
+        (`Lookups`).
 
         Each is its own lookup (one gather per coefficient): batched,
         XLA fuses a lookup into the kernel that consumes it, where a stacked (F,) vector would
@@ -127,10 +129,12 @@ class PiecewiseCubic(eqx.Module):
         count = self.coefficients.shape[2]
         start = piece * (4 * count)
         flat = self.coefficients.reshape(-1)
-        a0, a1, a2, a3 = (
-            [_read(flat, start + (k * count + f)) for f in range(count)] for k in range(4)
-        )
-        return [b0 + u * (b1 + u * (b2 + u * b3)) for b0, b1, b2, b3 in zip(a0, a1, a2, a3)]
+
+        def value(f):
+            b0, b1, b2, b3 = (_read(flat, start + (k * count + f)) for k in range(4))
+            return b0 + u * (b1 + u * (b2 + u * b3))
+
+        return Lookups(count, value)
 
     def vector(self, s: Array, count: int | None = None) -> Array:
         """The F tabulated values at `s` as one (F,) vector, read in one block: for the paths
