@@ -205,11 +205,10 @@ class Registrar(eqx.Module):
     spine: AbstractSpine | SpineTable  # prepared, or tabulated in single precision
     exact: AbstractSpine  # prepared, gradients stopped: for a closed-form foot, if it has one
     search: _Search
-    # The fast path's certificate; not built where the foot has a closed form (most of the
-    # preparation's compilation: a line's compiles 2.5× faster, an arc's 1.9×).
-    reach: LocalReach | None
     margin: Array
-    region: ValidRegion | None  # None where the margin has a closed form (lines, arcs)
+    # None where the margin has a closed form (lines, arcs); with the fast path's certificate
+    # (`reach`).
+    region: ValidRegion | None
 
     def __init__(self, spine: AbstractSpine, samples: int | None = None, margin=0.0,
                  table: SpineTable | None = None):
@@ -221,9 +220,15 @@ class Registrar(eqx.Module):
         self.exact = jax.lax.stop_gradient(spine)
         self.search = _search(self.spine, samples)
         closed = spine._has_closed_form_foot()
-        self.reach = None if closed else LocalReach(self.spine)
         self.margin = jnp.asarray(margin, spine.length.dtype)
-        self.region = None if closed else ValidRegion(self.spine, self.margin)
+        self.region = None if closed else ValidRegion(self.spine, self.margin, unmargined=True)
+
+    @property
+    def reach(self) -> LocalReach | None:
+        """The fast path's certificate (the spine's `LocalReach` without the margin, made with
+        the valid region's); none where the foot has a closed form (most of the
+        preparation's compilation: a line's compiles 2.5× faster, an arc's 1.9×)."""
+        return None if self.region is None else self.region.unmargined
 
     @property
     def fused(self) -> bool:

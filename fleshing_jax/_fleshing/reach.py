@@ -112,7 +112,8 @@ class LocalReach(eqx.Module):
 
     **Fields:** `lo`, `h`: the first sample and the spacing; `bounds`: (S,) the bound `ρ_i` for
     feet within `h/2` of sample `i` (`inf` on a straight spine). Argument `jets`: the spine's
-    `sampled_jets`, where the caller has them.
+    `sampled_jets`, where the caller has them; `margin`: scalar, or (m,) for bounds (m, S),
+    one row a margin (`local_reaches`).
 
     With a `margin` `δ > 0`, the bounds are lowered so that the whole ball of radius `δ` around
     a point inside them has a unique foot near `s` (`region`): the near condition becomes
@@ -151,28 +152,46 @@ class LocalReach(eqx.Module):
         across = jnp.sqrt(jnp.maximum(length**2 - along**2, 0))
         a = length - h
         c = across + length * kappa_hat[0][:, None] * h + h
-        # With a margin δ (`region`): far points stay farther than `r + 2δ` from X.
-        two = 2 * margin
-        q = jnp.where(a > two, jnp.maximum((a**2 - two**2) / (2 * c + 2 * two), (a - two) / 2), 0)
-        # The smallest q_ij over samples j at least w − h away (m − 1 indices) from i, on
-        # either side (those after i: the rows reversed, column j read as S − 1 − j).
-        index, last = jnp.arange(samples), samples - 1
-        upto, onward = _running_min(q), _running_min(q, reverse=True)
-        inf = jnp.asarray(jnp.inf, q.dtype)
-        bounds = []
-        for m, hat in zip(windows, kappa_hat[1:]):
-            left, right = index - (m - 1), index + (m - 1)  # far: at least w − h away
-            before = jnp.where(left >= 0, upto[index, jnp.maximum(left, 0)], inf)
-            after = jnp.where(right <= last, onward[index, jnp.minimum(right, last)], inf)
-            bounds.append(jnp.minimum(1 / hat - m * h - margin, jnp.minimum(before, after)))
-        # A reduction, so that XLA materialises the bounds (their elementwise last steps would
-        # otherwise be fused into every point's lookup, 2× slower `pose`).
-        self.bounds = jnp.maximum(jnp.max(jnp.stack(bounds, axis=1), axis=1), 0)
+
+        def bounded(margin):
+            # With a margin δ (`region`): far points stay farther than `r + 2δ` from X.
+            two = 2 * margin
+            q = jnp.where(
+                a > two, jnp.maximum((a**2 - two**2) / (2 * c + 2 * two), (a - two) / 2), 0
+            )
+            # The smallest q_ij over samples j at least w − h away (m − 1 indices) from i, on
+            # either side (those after i: the rows reversed, column j read as S − 1 − j).
+            index, last = jnp.arange(samples), samples - 1
+            upto, onward = _running_min(q), _running_min(q, reverse=True)
+            inf = jnp.asarray(jnp.inf, q.dtype)
+            bounds = []
+            for m, hat in zip(windows, kappa_hat[1:]):
+                left, right = index - (m - 1), index + (m - 1)  # far: at least w − h away
+                before = jnp.where(left >= 0, upto[index, jnp.maximum(left, 0)], inf)
+                after = jnp.where(right <= last, onward[index, jnp.minimum(right, last)], inf)
+                bounds.append(jnp.minimum(1 / hat - m * h - margin, jnp.minimum(before, after)))
+            # A reduction, so that XLA materialises the bounds (their elementwise last steps
+            # would otherwise be fused into every point's lookup, 2× slower `pose`).
+            return jnp.maximum(jnp.max(jnp.stack(bounds, axis=1), axis=1), 0)
+
+        # (Several margins: what is free of the margin above computed once, the rest batched.)
+        self.bounds = jax.vmap(bounded)(margin) if margin.ndim else bounded(margin)
 
     def __call__(self, s: Array) -> Array:
         """The bound for a foot at `s` (scalar): that of the nearest sample."""
         nearest = jnp.clip(jnp.round((s - self.lo) / self.h), 0, self.bounds.shape[0] - 1)
         return self.bounds.at[nearest.astype(jnp.int32)].get(mode="clip")
+
+
+def local_reaches(
+    spine: AbstractSpine, margins: Array, samples: int = REACH_SAMPLES, jets=None
+) -> list[LocalReach]:
+    """A `LocalReach` of `spine` for each of `margins` (m,), in one computation: the spine's
+    samples, the curvature bounds and the S² distances between samples once, the rest for
+    each margin (a registration's fast path and its valid region, `projection.Registrar`:
+    traced and compiled once, not twice). The bounds are each margin's own `LocalReach`'s."""
+    together = LocalReach(spine, samples, margins, jets)
+    return [eqx.tree_at(lambda reach: reach.bounds, together, b) for b in together.bounds]
 
 
 def reach_lower_bound(spine: AbstractSpine, samples: int = REACH_SAMPLES) -> Array:

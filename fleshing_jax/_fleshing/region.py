@@ -56,7 +56,7 @@ from .._batching.compact import update_where
 from .._numerics import dot, norm
 from .._spines.spine import AbstractSpine
 from .blocks import SampleBlocks
-from .reach import REACH_SAMPLES, LocalReach, sampled_jets, search_range
+from .reach import REACH_SAMPLES, LocalReach, local_reaches, sampled_jets, search_range
 
 RUN = 16  # samples a run of the pruned test (`blocks`)
 SURE_CHUNK = 256  # points a trip of `clear_where`'s pruned test
@@ -74,6 +74,7 @@ class ValidRegion(eqx.Module):
     spine: AbstractSpine
     margin: Array
     reach: LocalReach
+    unmargined: LocalReach | None
     lo: Array
     h: Array
     positions: Array
@@ -85,18 +86,25 @@ class ValidRegion(eqx.Module):
     stiffness: Array
 
     def __init__(self, spine: AbstractSpine, margin: Array, samples: int = REACH_SAMPLES,
-                 certificate: int | None = None):
+                 certificate: int | None = None, unmargined: bool = False):
         """`certificate`: the samples of the direction-free certificate (`reach`; default
         `samples`, built on the same jets). Any count gives a sound certificate: it only
         decides which points skip the pruned and sampled tests (a posed limb's is smaller:
-        `_skeleton.posing.CERTIFICATE_SAMPLES`)."""
+        `_skeleton.posing.CERTIFICATE_SAMPLES`). `unmargined`: also the spine's `LocalReach`
+        without the margin (`self.unmargined`, else `None`; a registration's fast path,
+        `projection.Registrar`), computed with the certificate (`reach.local_reaches`)."""
         spine = jax.lax.stop_gradient(spine._prepare())
         self.spine = spine
         self.margin = jax.lax.stop_gradient(jnp.asarray(margin, spine.length.dtype))
         jets = sampled_jets(spine, samples)  # (the reach bounds' samples too: evaluated once)
         own = certificate is None or certificate == samples
-        self.reach = LocalReach(spine, samples if own else certificate, self.margin,
-                                jets if own else None)
+        if unmargined and own:
+            margins = jnp.stack([jnp.zeros_like(self.margin), self.margin])
+            self.unmargined, self.reach = local_reaches(spine, margins, samples, jets)
+        else:
+            self.unmargined = LocalReach(spine, samples) if unmargined else None
+            self.reach = LocalReach(spine, samples if own else certificate, self.margin,
+                                    jets if own else None)
         lo, hi = search_range(spine)
         self.lo, self.h = lo, (hi - lo) / (samples - 1)
         positions, _, k = jets
