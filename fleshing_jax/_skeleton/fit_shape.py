@@ -119,7 +119,16 @@ STILL_POINTS = 2048
 SOLVE_POINTS = 1500
 # The continuation's stages: the Cauchy scale σ as a fraction of the target's diagonal.
 STAGES = (0.1, 0.03, 0.01)
-COARSE_STEPS = 16  # the stages before the last only bring the pose near
+# The stages before the last only bring the pose near: at σ = 10 % of the diagonal their loss
+# is flat near its minimum and the solve crept until its budget (16 steps, near the truth by
+# the fourth), where the next stage's sharper loss converges in a few. Spot
+# (`benchmarks/fit_pose.py`), steps at 16 / 4 (with `RESTART_STEPS` 16 / 8): clean 21 / 13,
+# one side 41 / 21, 0.5 % noise 142 / 66, the ball 96 / 72; the tube's clean / one side /
+# noisy fits (`tests/test_fit_pose.py`) 26 / 15, 24 / 14, 67 / 49; every verdict the same.
+COARSE_STEPS = 4
+# Each other start's budget (`_restarted`): a start kept is continued by the next solve, and
+# those not kept went on for nothing (spot seen from one side: 29 steps with 16, 21 with 8).
+RESTART_STEPS = 8
 # The solver's default tolerances: the neighbours change with the pose, so the loss is only
 # piecewise smooth and its last steps creep (spot's last stage: 64 steps to 1e-6, 46 to 1e-5,
 # every angle within 0.01° of the truth either way).
@@ -542,12 +551,12 @@ def _starts(b: np.ndarray) -> list[np.ndarray]:
 def _restarted(problem: ShapeProblem, solver, y: Array, linear, max_steps: int,
                surface: np.ndarray, region: np.ndarray, floor: float | None = None):
     """`y` improved limb by limb from other starts (`_starts`, the other limbs held where they
-    are, each tried for `COARSE_STEPS` steps at `problem`'s scale): a short, thick limb's bend
+    are, each tried for `RESTART_STEPS` steps at `problem`'s scale): a short, thick limb's bend
     has local minima where its bending zone grows with the angle (spot's hind leg bent 30°
     stopped at 15° from the rest pose, where the target's distance to the posed surface has a
     minimum of its own). Only the limbs whose part of the target stays unexplained
     (`_stuck`), each until a start leaves its part explained (the other starts of spot's legs
-    cost 16 steps each), and those whose bend the target determines loosely (their spread
+    cost 8 steps each), and those whose bend the target determines loosely (their spread
     over `ANGLE_SPREAD`), each until a start lowers the loss: with noise every part of the
     target lies at its noise level and none is stuck (spot's legs with 0.5 % noise stopped
     5° and 13° short of their bends from rest, the loss at the truth lower). `(y, steps
@@ -565,7 +574,7 @@ def _restarted(problem: ShapeProblem, solver, y: Array, linear, max_steps: int,
     for i in sorted(tried):
         for start in _starts(np.asarray(y[i, :2])):
             _, trial, _, stats, out, ended = _solved(
-                problem, solver, y.at[i, :2].set(start), min(max_steps, COARSE_STEPS),
+                problem, solver, y.at[i, :2].set(start), min(max_steps, RESTART_STEPS),
                 max_steps, False)
             taken += int(stats["num_steps"])
             if _loss(out) < best * (1 - IMPROVED):
