@@ -14,6 +14,7 @@ time.
 import re
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 import optimistix as optx
 import pytest
@@ -645,3 +646,21 @@ def test_a_shape_fit_poses_its_limbs_at_their_own_size(registration):
         assert a.points.shape[0] == largest and b.points.shape[0] == bucket(largest)
         np.testing.assert_array_equal(np.asarray(a.points), np.asarray(b.points)[:largest])
     np.testing.assert_array_equal(np.asarray(rows), np.asarray(same_rows))
+
+
+def test_a_shape_fit_run_past_a_full_turn_is_held_at_half_a_turn():
+    # The shape fit's solve has no bound: a target that is not the character posed (a ball
+    # beside the tube, with XLA's default flags) sent a limb's bend to 1,609 degrees, and the
+    # result's `LimbPose` refused it. Such a limb is held at half a turn and named.
+    from fleshing_jax._skeleton.fit_shape import _within_half_a_turn
+
+    y = jnp.asarray([[0.3, 0.4, 0.1], [-20.0, 21.0, 0.2], [0.1, 0.0, -7.0]])
+    held, wound = _within_half_a_turn(y)
+    assert held.dtype == y.dtype and [i for i, _ in wound] == [1, 2]
+    np.testing.assert_allclose(wound[0][1], np.degrees(29.0))
+    np.testing.assert_array_equal(held[0], y[0])  # within a turn: as it was
+    np.testing.assert_allclose(np.linalg.norm(held[1, :2]), np.pi)
+    np.testing.assert_allclose(held[1, :2] / np.pi, y[1, :2] / 29.0)  # its direction kept
+    np.testing.assert_allclose(held[2], [0.1, 0.0, -np.pi])
+    same, none = _within_half_a_turn(y[:1, :2])  # held twists: (L, 2)
+    assert none == [] and same is not None and np.array_equal(same, y[:1, :2])

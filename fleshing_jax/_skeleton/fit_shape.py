@@ -448,6 +448,7 @@ def fit_to_shape(registration: SkeletonRegistration, skeleton: Skeleton, target,
     steps += tried
     if again is not None:
         problem, y, result, stats, linear, surface = again
+    y, wound = _within_half_a_turn(y)
     poses = dict(sorted(problem.poses(y).items()))
     # The result posed exactly (the solve's posing reads the rest spines' tables).
     whole = pose_skeleton(registration, skeleton, poses, method=method)
@@ -481,6 +482,11 @@ def fit_to_shape(registration: SkeletonRegistration, skeleton: Skeleton, target,
         message = _unseen(owner, limbs)
     if successful and not message:
         message = unsettled(step, decrease) or _undetermined(spread)
+    if wound:
+        message = " ".join([f"limb {limbs[i]}'s fitted bend or twist ran to {a:.0f} degrees "
+                            "(held at half a turn):" for i, a in wound]
+                           + [message or "the target is not this character posed, or far "
+                              "from where the fit started (try `init=`)."])
     return SkeletonFit(
         poses=poses,
         rms=jnp.sqrt(jnp.asarray(loss, dtype)),
@@ -531,6 +537,26 @@ def _solved(problem: ShapeProblem, solver, y: Array, steps: int, max_steps: int,
                 candidates = moved
                 continue
         return problem, y, result, {**stats, "num_steps": taken}, linear, surface
+
+
+def _within_half_a_turn(y: Array) -> tuple[Array, list]:
+    """`y` (L, 2 or 3: bend vector, twist; radians) with each limb's bend and twist held at
+    half a turn, and `(limb row, degrees)` of those that ran past a full turn. The solve has
+    no bound: a target that is not the character (a ball) can send a limb round and round,
+    and a pose past a full turn is refused (`LimbPose`); the fit is then not converged."""
+    values = np.array(y, dtype=float)
+    bend = np.linalg.norm(values[:, :2], axis=1)
+    twist = np.abs(values[:, 2]) if values.shape[1] == 3 else np.zeros(len(values))
+    wound = [(i, float(np.degrees(max(bend[i], twist[i])))) for i in range(len(values))
+             if max(bend[i], twist[i]) > 2 * np.pi]
+    if not wound:
+        return y, []
+    rows = np.array([i for i, _ in wound])
+    scale = np.minimum(1.0, np.pi / np.maximum(bend[rows], 1e-300))
+    values[rows, :2] *= scale[:, None]
+    if values.shape[1] == 3:
+        values[rows, 2] = np.clip(values[rows, 2], -np.pi, np.pi)
+    return jnp.asarray(values, y.dtype), wound
 
 
 def _loss(linear) -> float:
