@@ -175,6 +175,28 @@ def dinosaur_poses(fj, skeleton):
     return lambda registration: poses
 
 
+def cow_poses(fj, skeleton):
+    """The cow modelled in Blender (`skin_characters.py`, z up, +x ahead, +y its left; its own
+    skeleton): its left front leg lifted 45° forwards at the hip and 45° more at the knee,
+    its right hind leg 30° backwards at the hip, its head turned 45° about up, its tail
+    raised 60° at its root (the rest of the tail free)."""
+    up, ahead = np.array([0.0, 0.0, 1.0]), np.array([1.0, 0.0, 0.0])
+    chains = _longest_chains(skeleton)
+    tips = {top: np.asarray(skeleton.limbs[c[-1]].spine(skeleton.limbs[c[-1]].spine.length))
+            for top, c in chains.items()}
+    feet = {t: p for t, p in tips.items() if p[2] < 0.3}
+    front = chains[max(feet, key=lambda t: feet[t][0] + feet[t][1])]  # (ahead, left)
+    hind = chains[min(feet, key=lambda t: feet[t][0] + feet[t][1])]  # (behind, right)
+    head = max(tips, key=lambda t: tips[t][0])
+    tail = min((t for t, p in tips.items() if p[2] > 0.5), key=lambda t: tips[t][0])
+    poses = {front[0]: fj.LimbPose(45.0, towards=ahead), hind[0]: fj.LimbPose(30.0, towards=-ahead),
+             tail: fj.LimbPose(60.0, towards=up)}
+    if len(front) > 1:
+        poses[front[1]] = fj.LimbPose(45.0, towards=ahead)
+    return lambda registration: poses | {head: fj.turn(registration, skeleton, head, 45.0,
+                                                       up=up)}
+
+
 def skin_mesh(bpy: str, name: str):
     """The character `name` of `skin_characters.py`, modelled by Blender in a subprocess
     (`bpy`)."""
@@ -202,12 +224,13 @@ def ours(out: Path, character: str, bpy: str):
         mesh = fj.data.spot()
         skeleton = fj.skeleton(mesh)
         poses_of = spot_poses(fj, skeleton)
-    elif character in ("human", "insect", "dog", "kangaroo", "dinosaur"):
+    elif character in ("human", "insect", "dog", "kangaroo", "dinosaur", "cow"):
         mesh = skin_mesh(bpy, character)
         mesh = mesh if mesh.is_watertight else fj.cap_holes(mesh)  # (the skin's branch holes)
         skeleton = fj.skeleton(mesh)
         poses_of = {"human": human_poses, "insect": insect_poses, "dog": dog_poses,
-                    "kangaroo": kangaroo_poses, "dinosaur": dinosaur_poses}[character](fj, skeleton)
+                    "kangaroo": kangaroo_poses, "dinosaur": dinosaur_poses,
+                    "cow": cow_poses}[character](fj, skeleton)
     else:
         mesh = biped()
         skeleton = fj.skeleton(mesh)
@@ -325,7 +348,7 @@ def main():
     parser.add_argument("--figure", type=Path, default=None)
     parser.add_argument("--character", default="biped",
                         choices=("biped", "spot", "human", "insect", "dog", "kangaroo",
-                                 "dinosaur"))
+                                 "dinosaur", "cow"))
     parser.add_argument("--blender-side", nargs=2, help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.blender_side:
