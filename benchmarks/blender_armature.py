@@ -42,6 +42,22 @@ def _longest_chains(skeleton) -> dict:
     return chains
 
 
+def chain_tips(skeleton) -> tuple[dict, dict]:
+    """`(chains, tips)`: each chain's top limb → its longest chain (`_longest_chains`), and →
+    where that chain's last spine ends (3,)."""
+    chains = _longest_chains(skeleton)
+    return chains, {top: np.asarray(skeleton.limbs[c[-1]].spine(skeleton.limbs[c[-1]].spine.length))
+                    for top, c in chains.items()}
+
+
+def _front_and_hind(chains: dict, tips: dict, below: float) -> tuple:
+    """A quadruped's (z up, +x ahead, +y its left) left front and right hind leg chains: of
+    the chains ending below height `below`, the farthest ahead and left, and behind and right."""
+    feet = {t: p for t, p in tips.items() if p[2] < below}
+    return (chains[max(feet, key=lambda t: feet[t][0] + feet[t][1])],
+            chains[min(feet, key=lambda t: feet[t][0] + feet[t][1])])
+
+
 def biped_poses(fj, skeleton):
     """The biped (`characters.biped`, its own skeleton): a leg at hip 40°, knee 70°, ankle
     20°, an arm at shoulder, elbow and wrist alike, the head 30°."""
@@ -76,9 +92,7 @@ def spot_poses(fj, skeleton):
 
 def human_chains(skeleton) -> tuple:
     """The human's (z up, +x its left) left leg, left arm and head chains, by their tips."""
-    chains = _longest_chains(skeleton)
-    tips = {top: np.asarray(skeleton.limbs[c[-1]].spine(skeleton.limbs[c[-1]].spine.length))
-            for top, c in chains.items()}
+    chains, tips = chain_tips(skeleton)
     leg = chains[next(t for t, p in tips.items() if p[2] < 0.3 and p[0] > 0)]
     arm = chains[next(t for t, p in tips.items() if p[0] > 0.5)]
     return leg, arm, chains[max(tips, key=lambda t: tips[t][2])]
@@ -103,9 +117,7 @@ def insect_poses(fj, skeleton):
     hind leg swung 30° backwards at the hip (each leg a chain from the hip: thigh, shin,
     foot), its head (with both antennae) turned 20° about up."""
     up, back = np.array([0.0, 0.0, 1.0]), np.array([-1.0, 0.0, 0.0])
-    chains = _longest_chains(skeleton)
-    tips = {top: np.asarray(skeleton.limbs[c[-1]].spine(skeleton.limbs[c[-1]].spine.length))
-            for top, c in chains.items()}
+    chains, tips = chain_tips(skeleton)
     feet = [t for t, p in tips.items() if p[2] < 0.2 and p[1] > 0.3]
     front = chains[max(feet, key=lambda t: tips[t][0])]
     hind = chains[min(feet, key=lambda t: tips[t][0])]
@@ -122,12 +134,8 @@ def dog_poses(fj, skeleton):
     backwards (a step), its right hind leg 30° backwards at the hip, its head (with both ears)
     turned 30° about up, its tail raised 40°."""
     up, ahead = np.array([0.0, 0.0, 1.0]), np.array([1.0, 0.0, 0.0])
-    chains = _longest_chains(skeleton)
-    tips = {top: np.asarray(skeleton.limbs[c[-1]].spine(skeleton.limbs[c[-1]].spine.length))
-            for top, c in chains.items()}
-    feet = {t: p for t, p in tips.items() if p[2] < 0.2}
-    front = chains[max(feet, key=lambda t: feet[t][0] + feet[t][1])]  # (ahead, left)
-    hind = chains[min(feet, key=lambda t: feet[t][0] + feet[t][1])]  # (behind, right)
+    chains, tips = chain_tips(skeleton)
+    front, hind = _front_and_hind(chains, tips, 0.2)
     high = [t for t, p in tips.items() if p[2] > 0.7]
     head, tail = max(high, key=lambda t: tips[t][0]), min(high, key=lambda t: tips[t][0])
     poses = {front[0]: fj.LimbPose(40.0, towards=ahead), hind[0]: fj.LimbPose(30.0, towards=-ahead),
@@ -143,9 +151,7 @@ def kangaroo_poses(fj, skeleton):
     skeleton): its tail raised 30°, a hind leg swung 30° forwards at the hip, an arm raised
     40° forwards, its head (with its ears) turned 30° about up."""
     up, ahead = np.array([0.0, 0.0, 1.0]), np.array([1.0, 0.0, 0.0])
-    chains = _longest_chains(skeleton)
-    tips = {top: np.asarray(skeleton.limbs[c[-1]].spine(skeleton.limbs[c[-1]].spine.length))
-            for top, c in chains.items()}
+    chains, tips = chain_tips(skeleton)
     tail = min(tips, key=lambda t: tips[t][0])
     head = max(tips, key=lambda t: tips[t][2])
     feet = [t for t, p in tips.items() if p[2] < 0.2 and t != tail]
@@ -162,9 +168,7 @@ def dinosaur_poses(fj, skeleton):
     skeleton): its neck raised 30° and its head 20° more (the neck → head chain), its left leg
     swung 30° forwards at the hip and its next joint 40° backwards, its tail raised 30°."""
     up, ahead = np.array([0.0, 0.0, 1.0]), np.array([1.0, 0.0, 0.0])
-    chains = _longest_chains(skeleton)
-    tips = {top: np.asarray(skeleton.limbs[c[-1]].spine(skeleton.limbs[c[-1]].spine.length))
-            for top, c in chains.items()}
+    chains, tips = chain_tips(skeleton)
     neck, tail = max(tips, key=lambda t: tips[t][0]), min(tips, key=lambda t: tips[t][0])
     feet = [t for t, p in tips.items() if p[2] < 0.2]
     leg = chains[max(feet, key=lambda t: tips[t][1])]  # (its left: +y)
@@ -181,12 +185,8 @@ def cow_poses(fj, skeleton):
     its right hind leg 30° backwards at the hip, its head turned 45° about up, its tail
     raised 60° at its root (the rest of the tail free)."""
     up, ahead = np.array([0.0, 0.0, 1.0]), np.array([1.0, 0.0, 0.0])
-    chains = _longest_chains(skeleton)
-    tips = {top: np.asarray(skeleton.limbs[c[-1]].spine(skeleton.limbs[c[-1]].spine.length))
-            for top, c in chains.items()}
-    feet = {t: p for t, p in tips.items() if p[2] < 0.3}
-    front = chains[max(feet, key=lambda t: feet[t][0] + feet[t][1])]  # (ahead, left)
-    hind = chains[min(feet, key=lambda t: feet[t][0] + feet[t][1])]  # (behind, right)
+    chains, tips = chain_tips(skeleton)
+    front, hind = _front_and_hind(chains, tips, 0.3)
     head = max(tips, key=lambda t: tips[t][0])
     tail = min((t for t, p in tips.items() if p[2] > 0.5), key=lambda t: tips[t][0])
     poses = {front[0]: fj.LimbPose(45.0, towards=ahead), hind[0]: fj.LimbPose(30.0, towards=-ahead),

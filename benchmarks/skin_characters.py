@@ -370,11 +370,9 @@ def rig_table(data: Path, seeds: int, spheres: int, figures: Path | None, names:
 def _chains_by_tip(skeleton, pick: dict) -> dict:
     """Name → the longest chain from the body whose last limb's spine ends where
     `pick[name](end point)` holds (z up)."""
-    from blender_armature import _longest_chains
+    from blender_armature import chain_tips
 
-    chains = _longest_chains(skeleton)
-    tips = {top: np.asarray(skeleton.limbs[c[-1]].spine(skeleton.limbs[c[-1]].spine.length))
-            for top, c in chains.items()}
+    chains, tips = chain_tips(skeleton)
     return {name: chains[next(t for t, p in tips.items() if test(p))]
             for name, test in pick.items()}
 
