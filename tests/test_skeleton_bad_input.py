@@ -170,6 +170,18 @@ def test_bodies_are_shells_not_inside_others():
     assert volumes(_joined(hollow, _sphere(0.2, 0.0))) == [ball(1.0), ball(0.2)]
 
 
+def test_riders_are_the_shells_that_cross_a_larger_one():
+    from fleshing_jax._medial_axis.shells import riders
+
+    head = _sphere(1.0, 0.0)
+    eyes = _joined(head, _sphere(0.2, [1.0, 0, 0]), _sphere(0.2, [0, 1.0, 0]))
+    assert riders(*eyes).tolist() == [1, 2]
+    # A cavity, a ball inside it and a ball apart cross nothing; the larger shell stays.
+    assert riders(*_joined(_sphere(0.2, [1.0, 0, 0]), head)).tolist() == [0]
+    hollow = _joined(head, _sphere(0.5, 0.0, inward=True), _sphere(0.2, 0.0))
+    assert riders(*_joined(hollow, _sphere(0.3, [3.0, 0, 0]))).tolist() == []
+
+
 def test_a_loose_piece_of_a_coarse_envelope_is_no_second_character():
     from fleshing_jax._medial_axis.surface import closed_mesh_arrays
     from fleshing_jax._skeleton.build import _one_body

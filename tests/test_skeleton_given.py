@@ -52,6 +52,43 @@ def test_each_chain_is_its_limbs_cut_at_its_points(given):
         assert 0 < float(limb.joint) < float(limb.spine.length)
 
 
+def test_joints_on_a_mirror_plane_or_a_tube_s_axis_are_inside():
+    # Rays along the model's axes ran through the tube's seams of edges from its axis (and
+    # a mirrored model's from its mirror plane): every point on the axis was outside.
+    from fleshing_jax._skeleton.given import outside_mesh
+
+    angle = np.linspace(0, 2 * np.pi, 16, endpoint=False)
+    tube = fj.extrusion(0.3 * np.stack([np.cos(angle), np.sin(angle)], 1), 6.0, 60)
+    vertices, faces = np.asarray(tube.vertices), np.asarray(tube.faces)
+    axis = np.stack([np.linspace(0.1, 5.9, 30), np.zeros(30), np.zeros(30)], 1)
+    assert outside_mesh(axis, vertices, faces).size == 0
+    assert outside_mesh(axis + [0, 0.31, 0], vertices, faces).size == 30
+
+
+def test_parts_pushed_through_the_body_ride_on_the_nearest_limb(given):
+    # An eye pushed through the head: medial meshes refuse the two crossing shells; a
+    # skeleton sets the eye apart and gives each of its vertices the region of the nearest
+    # vertex of the rest, whose regions are those found without it.
+    import trimesh
+    from scipy.spatial import cKDTree
+
+    mesh, alone = given
+    vertices = np.asarray(mesh.vertices)
+    side = vertices[np.asarray(alone.region) == 5]
+    ball = trimesh.creation.icosphere(2, 0.03)
+    eye = (np.concatenate([vertices, ball.vertices + side[np.argmax(side[:, 1])]]),
+           np.concatenate([mesh.faces, ball.faces + len(vertices)]))
+    with pytest.raises(ValueError, match="shells 0 and 1 .* cross each other"):
+        fj.medial_mesh(eye, 8)
+    with pytest.warns(UserWarning, match=r"shells \[1\] .* cross a larger one: 320 faces"):
+        ridden = fj.skeleton(eye, chains=CHAINS)
+    n = len(vertices)
+    assert np.array_equal(np.asarray(ridden.region)[:n], np.asarray(alone.region))
+    nearest = cKDTree(vertices).query(eye[0][n:])[1]
+    assert np.array_equal(np.asarray(ridden.region)[n:], np.asarray(alone.region)[nearest])
+    assert set(np.asarray(ridden.region)[n:].tolist()) == {5}
+
+
 def test_a_chain_posed_at_its_hip_and_knee_keeps_the_rest_still(legs):
     mesh, skeleton = legs
     _check_leg_posed(mesh, skeleton, {0: fj.LimbPose(30.0), 1: fj.LimbPose(45.0)}, [0, 1])

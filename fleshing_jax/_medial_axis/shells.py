@@ -85,31 +85,66 @@ def nesting(vertices, faces, count: int, label) -> np.ndarray:
 
     **Raises:** `ValueError` naming two shells that cross each other.
     """
-    corners = [vertices[faces[:, k]] for k in range(3)]
-    members = [np.flatnonzero(label == s) for s in range(count)]
-    points = [np.unique(faces[m]) for m in members]
-    lo = np.array([vertices[p].min(axis=0) for p in points])
-    hi = np.array([vertices[p].max(axis=0) for p in points])
+    inside = _Inside(vertices, faces, count, label)
     depth = np.zeros(count, np.int64)
     for s in range(count):
         for t in range(count):
-            if s == t or (lo[s] > hi[t]).any() or (hi[s] < lo[t]).any():
-                continue
-            p = vertices[points[s]]
-            near = ((p >= lo[t]) & (p <= hi[t])).all(axis=1)
-            inside = np.zeros(len(p), bool)
-            if near.any():
-                tri = [x[members[t]] for x in corners]
-                inside[near] = np.abs(winding(p[near], *tri)) > 0.5
-            if inside.all():
+            within = inside(s, t)
+            if within.all():
                 depth[s] += 1
-            elif inside.any():
+            elif within.any():
                 raise ValueError(f"mesh shells {min(s, t)} and {max(s, t)} (face-connected "
-                                 f"components) cross each other: {inside.sum()} of the "
-                                 f"{len(p)} vertices of shell {s} lie inside shell {t}. A "
+                                 f"components) cross each other: {within.sum()} of the "
+                                 f"{len(within)} vertices of shell {s} lie inside shell {t}. A "
                                  "self-intersecting mesh bounds no single volume: merge them "
                                  "into one closed surface first (e.g. a mesh boolean union)")
     return depth
+
+
+def riders(vertices, faces) -> np.ndarray:
+    """The shells that cross a larger one (`(k,)` shell labels of `shells`): a character's
+    eyes, teeth or hat modelled as closed parts pushed through its head. Largest first, a
+    shell is kept unless it crosses a kept one; a shell inside another without crossing it
+    (a cavity, a body in a cavity) is kept."""
+    count, label = shells(faces)
+    if count == 1:
+        return np.zeros(0, np.int64)
+    _, volume = _volumes(vertices, faces, count, label)
+    inside = _Inside(vertices, faces, count, label)
+    kept, crossing = [], []
+    for s in np.argsort(-np.abs(volume), kind="stable"):
+        cross = False
+        for t in kept:
+            a, b = inside(s, t), inside(t, s)
+            cross = (a.any() and not a.all()) or (b.any() and not b.all())
+            if cross:
+                break
+        (crossing if cross else kept).append(int(s))
+    return np.sort(np.array(crossing, np.int64))
+
+
+class _Inside:
+    """`inside(s, t)`: which vertices of shell `s` lie inside shell `t` (`(m,)` bool; none
+    when their bounding boxes are apart or `s == t`)."""
+
+    def __init__(self, vertices, faces, count: int, label):
+        self.vertices = vertices
+        self.corners = [vertices[faces[:, k]] for k in range(3)]
+        self.members = [np.flatnonzero(label == s) for s in range(count)]
+        self.points = [np.unique(faces[m]) for m in self.members]
+        self.lo = np.array([vertices[p].min(axis=0) for p in self.points])
+        self.hi = np.array([vertices[p].max(axis=0) for p in self.points])
+
+    def __call__(self, s: int, t: int) -> np.ndarray:
+        p = self.vertices[self.points[s]]
+        inside = np.zeros(len(p), bool)
+        if s == t or (self.lo[s] > self.hi[t]).any() or (self.hi[s] < self.lo[t]).any():
+            return inside
+        near = ((p >= self.lo[t]) & (p <= self.hi[t])).all(axis=1)
+        if near.any():
+            tri = [x[self.members[t]] for x in self.corners]
+            inside[near] = np.abs(winding(p[near], *tri)) > 0.5
+        return inside
 
 
 def bodies(vertices, faces) -> list[tuple[np.ndarray, float]]:

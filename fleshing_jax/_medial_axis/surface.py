@@ -17,7 +17,7 @@ import numpy as np
 import trimesh
 from scipy.spatial import cKDTree
 
-from .shells import orient_shells
+from .shells import orient_shells, riders, shells
 from .weld import weld_faces
 
 MAXIMUM_COORDINATE = 1e100  # volumes are cubes of coordinates: 1e103 overflows float64
@@ -88,12 +88,15 @@ def _consistent(faces, edge, forward) -> tuple[np.ndarray, int]:
     return faces, int(np.count_nonzero(turned))
 
 
-def closed_mesh_arrays(mesh) -> tuple[np.ndarray, np.ndarray]:
+def closed_mesh_arrays(mesh, *, ride: bool = False) -> tuple[np.ndarray, np.ndarray]:
     """Checks that `mesh` is a closed triangle mesh bounding a volume; returns its arrays.
 
     **Arguments:**
 
     - `mesh`: a `trimesh.Trimesh` or a pair `(vertices (V, 3), faces (F, 3) int)`.
+    - `ride`: drop the shells that cross a larger one (eyes pushed through a head:
+      `shells.riders`), with a warning giving their count, rather than refuse the mesh: the
+      caller gives their vertices the nearest kept vertex's part (`fj.skeleton`).
 
     **Returns:** `(vertices (V, 3) float64, faces (F, 3) int64)`, faces oriented outwards:
     vertices in no face dropped (with a warning giving their count), faces wound against their
@@ -145,10 +148,7 @@ def closed_mesh_arrays(mesh) -> tuple[np.ndarray, np.ndarray]:
         # An unused vertex is no part of the surface, but it would stretch the bounding box
         # that scales everything (a far one took the centres out of the shape, radii × 5).
         warnings.warn(f"mesh has {(~used).sum()} vertices in no face: dropped", stacklevel=3)
-        faces = (np.cumsum(used) - 1)[faces]
-        vertices = vertices[used]
-        if len(vertices) < 4:
-            raise ValueError(f"mesh faces must use at least 4 vertices, got {len(vertices)}")
+        vertices, faces = _used(vertices, faces)
     half, inverse, counts = _edges(faces)
     copies = 0
     if (counts == 1).any():
@@ -178,6 +178,12 @@ def closed_mesh_arrays(mesh) -> tuple[np.ndarray, np.ndarray]:
         faces, turned = _consistent(faces, inverse.reshape(-1), forward)
         warnings.warn(f"mesh had {turned} faces wound against their neighbours: flipped",
                       stacklevel=3)
+    if ride and len(crossing := riders(vertices, faces)):
+        ridden = np.isin(shells(faces)[1], crossing)
+        warnings.warn(f"mesh shells {crossing.tolist()} (face-connected components) cross a "
+                      f"larger one: {ridden.sum()} faces set apart, their vertices riding on "
+                      "the nearest part of the rest", stacklevel=3)
+        vertices, faces = _used(vertices, faces[~ridden])
     faces, flipped = orient_shells(vertices, faces)
     if flipped:
         warnings.warn(f"mesh shells (face-connected components) {flipped} were inside out "
@@ -193,6 +199,17 @@ def closed_mesh_arrays(mesh) -> tuple[np.ndarray, np.ndarray]:
                          f"diagonal of {diagonal:.3g}): a flat sheet has no medial axis")
     if volume < 0:  # inside out: flip so that normals point outwards
         faces = faces[:, ::-1].copy()
+    return vertices, faces
+
+
+def _used(vertices, faces) -> tuple[np.ndarray, np.ndarray]:
+    """`(vertices, faces)` without the vertices in no face, the faces renumbered."""
+    used = np.zeros(len(vertices), bool)
+    used[faces.reshape(-1)] = True
+    faces = (np.cumsum(used) - 1)[faces]
+    vertices = vertices[used]
+    if len(vertices) < 4:
+        raise ValueError(f"mesh faces must use at least 4 vertices, got {len(vertices)}")
     return vertices, faces
 
 
@@ -268,8 +285,24 @@ def ray_inside(points, a, b, c) -> np.ndarray:
     overlapping parts are outside by parity). Each ray tests only the triangles whose
     bounding box it meets: about 0.07 ms a point on 8.5k faces (the generalised winding
     number, `shells.winding`, over every face: 1.6 ms)."""
+    # Rays along a generic frame's axes: along the model's own, they run in its mirror plane
+    # or down a tube's axis, through its seam's edges and vertices (on a 16-sided tube every
+    # ray from the axis did: a joint placed there was outside).
+    points, a, b, c = (np.asarray(x, np.float64) @ _RAYS for x in (points, a, b, c))
     votes = sum(_crossings(points, a, b, c, axis) % 2 for axis in range(3))
     return votes >= 2
+
+
+def _generic_frame() -> np.ndarray:
+    """A rotation `(3, 3)` whose columns lie along no simple direction of a model's axes."""
+    axis = np.array([1.0, 2.0**0.5, 3.0**0.5])
+    axis /= np.linalg.norm(axis)
+    k = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
+    angle = 0.6180339887
+    return np.eye(3) + np.sin(angle) * k + (1 - np.cos(angle)) * (k @ k)
+
+
+_RAYS = _generic_frame()
 
 
 def _crossings(points, a, b, c, axis: int) -> np.ndarray:

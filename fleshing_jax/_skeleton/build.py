@@ -93,7 +93,10 @@ def skeleton(mesh, *, medial: MedialMesh | None = None, spheres: int = 200,
 
     - `mesh`: a closed `trimesh.Trimesh` or `(vertices (n, 3), faces (f, 3))`; an unwelded
       mesh (texture seams) is welded for the medial mesh and its copies of a vertex share
-      a region.
+      a region. Closed parts pushed through a larger one (eyes through a head, teeth, a
+      hat: shells that cross it) are set apart with a warning: the limbs are found on the
+      rest, and each of their vertices rides in the region of the nearest vertex of the
+      rest (a pose moves it by that limb's map, as the space around it).
     - `medial`: the mesh's `MedialMesh` (default: `fj.medial_mesh(mesh, spheres, seed=seed,
       refine=0)`, computed: the spines are fitted to the spheres anyway).
     - `spheres`: integer ≥ 2, the medial mesh's sphere count when it is computed.
@@ -131,7 +134,7 @@ def skeleton(mesh, *, medial: MedialMesh | None = None, spheres: int = 200,
     spheres = check_number(spheres, "spheres", 2, 1e6, integer=True)
     seed = check_number(seed, "seed", 0, 2**63 - 1, integer=True)
     given = mesh.vertices if hasattr(mesh, "vertices") else None
-    vertices, faces = closed_mesh_arrays(mesh)
+    vertices, faces = closed_mesh_arrays(mesh, ride=True)
     adjacency = mesh_adjacency(vertices, faces)
     margin = 0.5 * longest_edge(vertices, faces)  # `register_skeleton`'s default
     if chains is not None and bones is not None:
