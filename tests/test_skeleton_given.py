@@ -55,14 +55,48 @@ def test_each_chain_is_its_limbs_cut_at_its_points(given):
 def test_joints_on_a_mirror_plane_or_a_tube_s_axis_are_inside():
     # Rays along the model's axes ran through the tube's seams of edges from its axis (and
     # a mirrored model's from its mirror plane): every point on the axis was outside.
-    from fleshing_jax._skeleton.given import outside_mesh
+    from fleshing_jax._skeleton.inside import moved_inside
 
     angle = np.linspace(0, 2 * np.pi, 16, endpoint=False)
     tube = fj.extrusion(0.3 * np.stack([np.cos(angle), np.sin(angle)], 1), 6.0, 60)
     vertices, faces = np.asarray(tube.vertices), np.asarray(tube.faces)
     axis = np.stack([np.linspace(0.1, 5.9, 30), np.zeros(30), np.zeros(30)], 1)
-    assert outside_mesh(axis, vertices, faces).size == 0
-    assert outside_mesh(axis + [0, 0.31, 0], vertices, faces).size == 30
+    assert np.all(moved_inside(axis, vertices, faces)[1] == 0)
+    assert np.all(moved_inside(axis + [0, 0.31, 0], vertices, faces)[1] > 0)
+
+
+def test_joints_just_past_the_surface_are_moved_to_the_middle_of_the_shape(given):
+    # An armature's tip at the sole or a joint where a subdivided skin shrank away from its
+    # cage lies just outside: moved to the centre of the largest ball inside touching its
+    # closest surface point; far outside, refused.
+    from fleshing_jax._skeleton.inside import moved_inside
+
+    angle = np.linspace(0, 2 * np.pi, 16, endpoint=False)
+    tube = fj.extrusion(0.3 * np.stack([np.cos(angle), np.sin(angle)], 1), 6.0, 60)
+    past = np.array([(6.01, 0.0, 0.0), (3.0, 0.32, 0.01), (3.0, 0.0, 0.0)])
+    moved, outside, diameter = moved_inside(past, np.asarray(tube.vertices), tube.faces)
+    # Near the middle of the 16-sided tube (inscribed radius 0.294), the point inside kept.
+    assert np.linalg.norm(moved[:2, 1:], axis=1) == pytest.approx([0, 0], abs=0.1)
+    assert moved[0, 0] == pytest.approx(5.7, abs=0.1) and moved[1, 0] == 3.0
+    assert np.array_equal(moved[2], past[2])
+    np.testing.assert_allclose(outside, [0.01, 0.02, 0], atol=0.01)
+    assert np.all(diameter[:2] > 0.4) and diameter[2] == np.inf
+    # Tips: one 0.01 within the end moved as one 0.01 past it, one on the axis kept.
+    tips, _, _ = moved_inside([(5.99, 0, 0), (3.0, 0, 0)], np.asarray(tube.vertices),
+                              tube.faces, tips=[True, True])
+    np.testing.assert_allclose(tips, [moved[0], (3.0, 0, 0)], atol=1e-6)
+    mesh, _ = given
+    vertices = np.asarray(mesh.vertices)
+    foot = (np.linalg.norm(vertices[:, :2] - (0.75, 0.08), axis=1) < 0.06) & (
+        vertices[:, 2] < -0.03)
+    # The tip 0.01 below the foot's sole (z = -0.1), then 0.02 above it: a tip's distance to
+    # the surface is its radius, and that left the leg no region.
+    for z in (-0.11, -0.08):
+        sole = [list(CHAINS[0][:2]) + [(0.75, 0.08, z)]]
+        with pytest.warns(UserWarning, match=r"1 points .* moved to the middle .*chains\[0\]\[2\]"):
+            skeleton = fj.skeleton(mesh, chains=sole)
+        region = np.asarray(skeleton.region)
+        assert len(skeleton.limbs) == 2 and foot.any() and np.all(region[foot] == 1)
 
 
 def test_parts_pushed_through_the_body_ride_on_the_nearest_limb(given):

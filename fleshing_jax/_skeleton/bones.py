@@ -25,7 +25,8 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from .._checks import check_finite_points
-from .given import add_limb, chain_limb, outside_mesh
+from .given import add_limb, chain_limb
+from .inside import placed_inside
 from .skeleton import Limb
 
 # A bone continues its parent's chain when its head lies within this fraction of the mesh's
@@ -147,14 +148,20 @@ def check_bones(bones, vertices, faces):
     if len(short):
         raise ValueError(f"`bones`: {labels[int(short[0])]} has zero length (its head is its "
                          "tail).")  # fmt: skip
-    for end, points in (("head", heads), ("tail", tails)):
-        outside = outside_mesh(points, vertices, faces)
-        if len(outside):
-            b = int(outside[0])
-            raise ValueError(
-                f"`bones`: {labels[b]}'s {end} {points[b].tolist()} lies outside the mesh: "
-                "every bone must lie inside the shape (a tip a little inside its end)."
-            )
+    # A tail no bone continues from is a chain's tip.
+    continued = np.zeros(n, bool)
+    for b in range(n):
+        if parents[b] >= 0 and np.linalg.norm(heads[b] - tails[parents[b]]) <= (
+                CONNECTED * diagonal):
+            continued[parents[b]] = True
+    ends = placed_inside(np.concatenate([heads, tails]),
+                         [f"{label}'s {end}" for end in ("head", "tail") for label in labels],
+                         vertices, faces, "bones", np.r_[np.zeros(n, bool), ~continued])
+    heads, tails = ends[:n], ends[n:]
+    short = np.flatnonzero(np.linalg.norm(tails - heads, axis=1) <= 1e-9 * diagonal)
+    if len(short):
+        raise ValueError(f"`bones`: {labels[int(short[0])]} lies past the surface: moved "
+                         "inside, its head is its tail.")  # fmt: skip
     return heads, tails, parents, labels
 
 

@@ -8,7 +8,9 @@ from about a radius before `p(i)` through `p(i+1) … pn` to the surface beyond 
 region is cut out of limb i − 1's at `p(i)`, the first one's out of the region holding
 `p0` when the earlier chains are cut (the body; the head for an ear's chain listed after
 the head's). The local radius at each point is its distance to the surface (the spine's
-curvature bound and its region's reach, as the medial radius is for a found limb).
+curvature bound and its region's reach, as the medial radius is for a found limb): a point
+just outside, or a tip just within the surface, is first moved to the middle of the shape
+there (`inside.placed_inside`).
 """
 
 from __future__ import annotations
@@ -17,21 +19,16 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from .._checks import check_finite_points
-from .._medial_axis.surface import ray_inside
+from .inside import placed_inside
 from .limb_fit import fit_limb
 from .limbs import LimbPath
 from .skeleton import Limb
 
 
-def outside_mesh(points: np.ndarray, vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    """The indices of the `points` ((k, 3)) that lie outside the closed mesh."""
-    a, b, c = (vertices[faces[:, k]] for k in range(3))
-    return np.flatnonzero(~ray_inside(points, a, b, c))
-
-
 def check_chains(chains, vertices: np.ndarray, faces: np.ndarray) -> list[np.ndarray]:
-    """`chains` as a list of (k, 3) float64 arrays, k ≥ 2, every point inside the mesh and no
-    two consecutive points equal; else `TypeError`/`ValueError` naming the chain and point."""
+    """`chains` as a list of (k, 3) float64 arrays, k ≥ 2, every point inside the mesh (one
+    just past it moved inside: `inside.placed_inside`) and no two consecutive points equal;
+    else `TypeError`/`ValueError` naming the chain and point."""
     if isinstance(chains, str | bytes) or not hasattr(chains, "__len__") or len(chains) == 0:
         raise TypeError(
             "`chains` must be a non-empty list of chains, each a list of points [p0, p1, …] "
@@ -50,12 +47,13 @@ def check_chains(chains, vertices: np.ndarray, faces: np.ndarray) -> list[np.nda
         if np.any(steps <= 1e-9 * diagonal):
             j = int(np.argmax(steps <= 1e-9 * diagonal))
             raise ValueError(f"`chains[{i}]`: points {j} and {j + 1} are the same point.")
-        outside = outside_mesh(points, vertices, faces)
-        if len(outside):
-            raise ValueError(
-                f"`chains[{i}][{int(outside[0])}]` = {points[outside[0]].tolist()} lies outside "
-                "the mesh: place each joint inside the shape, the tip a little inside its end."
-            )
+        points = placed_inside(points, [f"`chains[{i}][{j}]`" for j in range(len(points))],
+                               vertices, faces, "chains", np.arange(len(points)) == len(points) - 1)
+        steps = np.linalg.norm(np.diff(points, axis=0), axis=1)
+        if np.any(steps <= 1e-9 * diagonal):
+            j = int(np.argmax(steps <= 1e-9 * diagonal))
+            raise ValueError(f"`chains[{i}]`: points {j} and {j + 1} lie past the surface: "
+                             "moved inside, they are the same point.")
         checked.append(points)
     return checked
 
