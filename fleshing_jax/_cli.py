@@ -236,6 +236,8 @@ def _parser() -> argparse.ArgumentParser:
     skeleton.add_argument("--seed", type=int, default=0, help="seed of the surface samples")
     skeleton.add_argument("--png", metavar="FILE", help="also draw the skeleton on IN to this "
                           "PNG file: limb regions coloured, spines, joints, limb numbers")
+    skeleton.add_argument("--cap-holes", action="store_true", help="close IN's holes first (the "
+                          "skeleton is then the capped mesh's: pose it with --cap-holes too)")
     pose = _command(
         commands, "pose",
         "pose a closed mesh limb by limb on its skeleton (each limb bent, the rest still)",
@@ -260,6 +262,8 @@ def _parser() -> argparse.ArgumentParser:
         group.add_argument(f"--{name}", type=float, metavar="DEG", action=_LimbGroup,
                            help=f"{what}, in degrees")
     pose.add_argument("--poses", metavar="P.json", help="the limbs' poses in a file (below)")
+    pose.add_argument("--cap-holes", action="store_true", help="close IN's holes first, pose "
+                      "the closed mesh and write IN's own faces (the caps dropped)")
     pose.add_argument("--method", choices=METHODS[:3], default="radial",
                       help="fleshing method (default: radial)")
     _max_stretch_argument(pose, "pose")
@@ -620,12 +624,12 @@ def _skeleton(args) -> int:
         raise ValueError(f"--spheres must be an integer >= 2, got {args.spheres}")
     if args.seed < 0:
         raise ValueError(f"--seed must be an integer >= 0, got {args.seed}")
-    mesh = _load_input(args.input, False)
+    mesh = _load_input(args.input, args.cap_holes)
     started = time.perf_counter()
     try:
         found = skeleton(mesh, spheres=args.spheres, seed=args.seed)
     except (ValueError, TypeError) as error:
-        raise ValueError(f"{args.input}: {error}") from None
+        raise ValueError(f"{args.input}: {_with_cap_advice(error)}") from None
     elapsed = time.perf_counter() - started
     region = np.asarray(found.region)
     print(f"{'limb':>4} {'parent':>6} {'length':>10} {'joint':>10} {'vertices':>8}  end point")
@@ -643,6 +647,12 @@ def _skeleton(args) -> int:
         save_png(mesh, found, args.png)  # Agg, atomically
         print(f"wrote {args.png}")
     return 0
+
+
+def _with_cap_advice(error: Exception) -> str:
+    """The library's message, with the option that closes holes where it says to close them."""
+    text = str(error)
+    return text + " (here: pass --cap-holes)" if "fj.cap_holes" in text else text
 
 
 POSES_LIMIT = 1 << 20  # bytes of a poses file
@@ -708,6 +718,7 @@ def _pose(args) -> int:
     import trimesh
 
     from ._mesh.files import MESH_WRITABLE, check_output_path, write_mesh_atomic
+    from ._mesh.holes import cap_holes
     from ._mesh.stretch import edge_stretch
     from ._mesh.volume import volume
     from ._skeleton.joint_zone import joint_range
@@ -720,9 +731,11 @@ def _pose(args) -> int:
         raise ValueError("give the limbs' poses with --limb/--at groups or with --poses (one)")
     if args.poses is not None:
         groups = _read_poses(args.poses)
-    mesh = _load_input(args.input, False)
-    if not (isinstance(mesh, trimesh.Trimesh) and len(mesh.faces)):
+    given = _load_input(args.input, False)
+    if not (isinstance(given, trimesh.Trimesh) and len(given.faces)):
         raise ValueError(f"{args.input}: posing needs a triangle mesh")
+    # Capped, the input's vertices come first: posed, they are written with its own faces.
+    mesh = cap_holes(given) if args.cap_holes else given
     started = time.perf_counter()
     if args.skeleton is not None:
         from ._skeleton.files import load_skeleton
@@ -731,8 +744,16 @@ def _pose(args) -> int:
     else:
         from ._skeleton.build import skeleton as find_skeleton
 
-        skeleton = find_skeleton(mesh, spheres=args.spheres)
+        try:
+            skeleton = find_skeleton(mesh, spheres=args.spheres)
+        except (ValueError, TypeError) as error:
+            raise ValueError(f"{args.input}: {_with_cap_advice(error)}") from None
         print(f"skeleton (medial axis): {len(skeleton.limbs)} limbs")
+    rest = np.asarray(skeleton.vertices)
+    if len(rest) > len(mesh.vertices) and np.allclose(  # (to the file's rounding)
+            rest[: len(mesh.vertices)], mesh.vertices, rtol=0, atol=1e-6 * mesh.scale):
+        raise ValueError(f"{args.skeleton}: the skeleton is {args.input}'s with its holes "
+                         "closed (`skeleton --cap-holes`): pass --cap-holes")
     poses = _limb_poses(groups, skeleton, args.poses or "--limb/--at")
     registration = register_skeleton(mesh, skeleton)
     posed = pose_skeleton(registration, skeleton, poses, method=args.method)
@@ -782,6 +803,8 @@ def _pose(args) -> int:
                                 principal[squeezed]),
                                ("an edge changes length", stretch[worst]))):
         return 3
+    if bent.vertices.shape != given.vertices.shape:  # (capped: the caps dropped)
+        bent = trimesh.Trimesh(bent.vertices[: len(given.vertices)], given.faces, process=False)
     write_mesh_atomic(bent, args.output)
     print(f"wrote {args.output} ({args.method}, {time.perf_counter() - started:.1f} s)")
     return 0

@@ -572,6 +572,39 @@ def test_pose_command(tube, skeleton, tmp_path, capsys):
     assert np.asarray(fj.edge_stretch(tube, fj.load_mesh(folded).vertices)).max() < 8
 
 
+def test_pose_and_skeleton_commands_close_holes_when_asked(tube, skeleton, tmp_path, capsys):
+    # The tube open at x = 0: `skeleton` says to pass --cap-holes; `pose --cap-holes` poses
+    # the capped mesh (one vertex added, on limb 2) and writes the input's own faces.
+    import trimesh
+
+    from fleshing_jax._cli import main
+
+    # (Its cap's centre dropped: capped again, a vertex at the same place ends the list, and
+    # the posing programs are the tube's.)
+    vertices, faces = np.asarray(tube.vertices), np.asarray(tube.faces)
+    cap = np.all(vertices[faces][..., 0] == 0, axis=1)
+    centre = np.setdiff1d(faces[cap], faces[~cap])
+    keep = np.delete(np.arange(len(vertices)), centre)
+    opened = trimesh.Trimesh(vertices[keep], np.searchsorted(keep, faces[~cap]), process=False)
+    path, saved, out = tmp_path / "open.obj", tmp_path / "capped.json", tmp_path / "out.obj"
+    opened.export(path)
+    assert main(["skeleton", str(path), str(tmp_path / "sk.json")]) == 2
+    assert "not closed" in (err := capsys.readouterr().err) and "pass --cap-holes" in err
+    capped = fj.cap_holes(opened)
+    region = np.r_[np.asarray(skeleton.region)[keep], 2]
+    fj.save_skeleton(fj.Skeleton(skeleton.limbs, region, capped.vertices), saved)
+    arguments = ["pose", str(path), str(out), "--skeleton", str(saved), "--limb", "0",
+                 "--bend", "40", "--direction", "90"]
+    assert main(arguments) == 2
+    assert "pass --cap-holes" in capsys.readouterr().err
+    assert main([*arguments, "--cap-holes"]) == 0
+    posed = trimesh.load(out, process=False)
+    expected = fj.pose_skeleton(fj.register_skeleton(tube, skeleton), skeleton,
+                                {0: fj.LimbPose(40.0, 90.0)}).vertices
+    assert np.array_equal(posed.faces, opened.faces)
+    np.testing.assert_allclose(posed.vertices, np.asarray(expected)[keep], atol=1e-6)
+
+
 @pytest.mark.slow  # (the command's diagnosis and stretch of a second limb: 16 s, cold)
 def test_pose_command_names_the_child_carrying_a_bend_on(tube, skeleton, tmp_path, capsys):
     from fleshing_jax._cli import main
