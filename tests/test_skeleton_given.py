@@ -261,14 +261,20 @@ def test_bad_bones_are_refused_by_name(given):
          r"bone 2 \('b2'\) has zero length"),
         ((heads, np.r_[tails[:1], [(0.75, 0.08, -0.5)], tails[2:]], parents), ValueError,
          r"bone 1's tail .* outside the mesh"),
-        (flank, ValueError, "bone 0 gets no part of the surface"),
-        # The knee's bone from just below the hip: no room to bend the thigh.
-        ((heads[:2] + [(0, 0, 0), (0, 0, 0.2)], tails[:2] + [(0, 0, 0.2), (0, 0, 0)],
-          parents[:2]), ValueError, "region begins before its parent bone 0"),
+        (flank, ValueError, "bone 0 gets no part of the surface .* nor does any other"),
     ]  # fmt: skip
     for bones, error, message in cases:
         with pytest.raises(error, match=message):
             fj.skeleton(mesh, bones=bones)
+    # The knee's bone from just below the hip: no room to bend the thigh, which joins the
+    # body (an armature's pelvis bone alike); the shin a limb from the body.
+    short = (heads[:2] + [(0, 0, 0), (0, 0, 0.2)], tails[:2] + [(0, 0, 0.2), (0, 0, 0)],
+             parents[:2])
+    with pytest.warns(UserWarning, match=r"1 bones lie inside the body \(bone 0\)"):
+        shin = fj.skeleton(mesh, bones=short)
+    assert [limb.parent for limb in shin.limbs] == [-1]
+    foot = np.linalg.norm(np.asarray(mesh.vertices) - tails[1], axis=1) < 0.06
+    assert foot.any() and np.all(np.asarray(shin.region)[foot] == 0)
     with pytest.raises(ValueError, match="`chains` and `bones` exclude"):
         fj.skeleton(mesh, chains=CHAINS, bones=(heads, tails, parents))
 

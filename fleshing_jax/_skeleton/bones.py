@@ -9,11 +9,11 @@ body when none does). The chains are then cut as `fj.skeleton(mesh, chains=…)`
 through the later joints of its chain to the surface, its region cut out of its parent's at
 its head.
 
-The body is what no bone takes. A torso is the body, not a tube: a rig's spine bones in it
-get no region (on the procedural biped, a bone up the torso's middle reaches 1.5 radii of
-0.08, not the sides at 0.14, and its region ends at the neck), so the arms, legs and neck
-of an armature hang from the body (parent −1, or under a root bone whose region does not
-hold their heads). A bone's last tail is best a radius inside its end (a head bone through
+The body is what no bone takes. A torso is the body, not a tube: a rig's pelvis, spine and
+neck bones in it are no limbs (those that get no part of the surface here; those whose
+limbs leave a child no room to bend them, `build._bones_in_the_body`), so the arms, legs
+and neck of an armature hang from the body (parent −1, or under a root bone whose region
+does not hold their heads). A bone's last tail is best a radius inside its end (a head bone through
 the head's middle): the local radius is the tail's distance to the surface.
 """
 
@@ -35,11 +35,15 @@ from .skeleton import Limb
 CONNECTED = 1e-6
 
 
-def bone_limbs(bones, vertices, faces, adjacency, margin):
-    """`(limbs, region, names)` of the armature `bones` (see the module's docstring): limb `k`
-    bone `order[k]`, parents before children (the bones' own order when they list every
-    parent before its children, as Blender does), `names[k]` how errors name it."""
-    heads, tails, parents, labels = check_bones(bones, vertices, faces)
+def bone_limbs(checked, vertices, adjacency, margin, body=frozenset()):
+    """`(limbs, region, names, kept, inside)` of the armature `checked` (`check_bones`'s
+    `(heads, tails, parents, labels)`; see the module's docstring): limb `k` bone `kept[k]`,
+    parents before children (the bones' own order when they list every parent before its
+    children, as Blender does), `names[k]` how errors name it; the bones in `body` and those
+    that get no part of the surface to move (`inside`: a clavicle from the chest's middle)
+    are no limbs, their children hanging from their parents (a chain of joints starting
+    again after one)."""
+    heads, tails, parents, labels = checked
     order = _order(parents)
     diagonal = float(np.linalg.norm(np.ptp(vertices, axis=0)))
     # Each bone's chain of joints (its first bone's head, then each bone's tail) and its
@@ -51,6 +55,7 @@ def bone_limbs(bones, vertices, faces, adjacency, margin):
         p = int(parents[b])
         if (
             p >= 0
+            and p not in body
             and not continued[p]
             and (np.linalg.norm(heads[b] - tails[p]) <= CONNECTED * diagonal)
         ):
@@ -62,20 +67,25 @@ def bone_limbs(bones, vertices, faces, adjacency, margin):
             chain_of[b] = ([b], 0)
     tree = cKDTree(vertices)
     region = np.full(len(vertices), -1)
-    index = {}  # bone → limb
+    index = {}  # bone → limb (a bone in the body: its parent's limb, or −1)
     limbs: list[Limb] = []
+    kept, inside = [], []
     for b in order:
         chain, i = chain_of[b]
         points = np.concatenate([heads[chain[0]][None], tails[chain]])
         parent = index[int(parents[b])] if parents[b] >= 0 else -1
-        if i == 0:
+        if i == 0 or chain[i - 1] in inside:
             parent = _holding(heads[b], b, parents, index, region, tree)
-        limb = chain_limb(points, i, parent, tree, region, vertices, adjacency, margin)
-        index[b] = add_limb(limbs, region, limb, (
-            f"`bones`: {labels[b]} gets no part of the surface to move (no vertex past its "
-            "head within reach of its spine, or less than a radius to bend): move its head "
-            "towards its parent, or merge it into its parent."))
-    return limbs, region, [labels[b] for b in order]
+        limb = None if b in body else chain_limb(points, i, parent, tree, region, vertices,
+                                                 adjacency, margin)
+        if limb is None:
+            index[b] = parent
+            if b not in body:
+                inside.append(b)
+            continue
+        index[b] = add_limb(limbs, region, limb, "")
+        kept.append(b)
+    return limbs, region, [labels[b] for b in kept], kept, inside
 
 
 def _holding(head, b, parents, index, region, tree) -> int:

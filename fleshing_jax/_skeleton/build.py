@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import itertools
+import warnings
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -13,7 +14,7 @@ from .._medial_axis.medial_mesh import MedialMesh
 from .._medial_axis.shells import bodies
 from .._medial_axis.unit import UnitFrame
 from .._mesh.deform import longest_edge
-from .bones import bone_limbs
+from .bones import bone_limbs, check_bones
 from .chains import split_chains
 from .fit import nearest_spheres, sphere_gaps, spine_from_unit
 from .given import given_limbs
@@ -111,12 +112,14 @@ def skeleton(mesh, *, medial: MedialMesh | None = None, spheres: int = 200,
     - `bones`: the limbs of an armature instead, as Blender exports it: `(heads (m, 3),
       tails (m, 3), parents (m,))` (parents: each bone's parent's index, −1 for a root
       bone), optionally with the bones' names as a fourth entry (for the errors). Each bone
-      is a limb (limb `k` bone `k` when every parent comes before its children, as Blender
-      lists them). A bone whose head is its parent's tail continues its parent's chain of
-      joints, and the chains are cut as `chains` are (`_skeleton.bones`); a bone starting
-      elsewhere (a clavicle on the chest) starts a chain of its own, hanging from the limb
-      of its nearest ancestor (its parent first) whose region holds its head: the body for
-      a root bone, and for a thigh under a root bone that points up into the torso.
+      is a limb (limb `k` the `k`-th bone when every parent comes before its children, as
+      Blender lists them), but the bones inside the body (a rig's pelvis, spine and neck
+      bones; a warning names them: `_bones_in_the_body`). A bone whose head is its
+      parent's tail continues its parent's chain of joints, and the chains are cut as
+      `chains` are (`_skeleton.bones`); a bone starting elsewhere (a clavicle on the
+      chest) starts a chain of its own, hanging from the limb of its nearest ancestor (its
+      parent first) whose region holds its head: the body for a root bone, and for a thigh
+      under a root bone that points up into the torso.
       The body is what no bone takes: a torso is the body, not a tube to bend.
 
     **Returns:** an `fj.Skeleton` whose `vertices` are the mesh's (n, 3), in its order.
@@ -125,9 +128,10 @@ def skeleton(mesh, *, medial: MedialMesh | None = None, spheres: int = 200,
     triangle mesh (see `fj.medial_mesh`), `spheres` < 2, a `medial` that is not a
     `MedialMesh` or does not belong to `mesh`; a `mesh` of several separate bodies (two
     characters side by side: find each one's skeleton) when the limbs are found; `chains`
-    with a point outside the mesh, a limb that gets no surface, or a child cut before its
-    parent leaves room to bend; `bones` of zero length, outside the mesh, with parents out of
-    range or in a cycle, or that get no surface to move (each error names the bone).
+    with a point far outside the mesh, a limb that gets no surface, or a child cut before
+    its parent leaves room to bend; `bones` of zero length, far outside the mesh, with
+    parents out of range or in a cycle, or none that gets any surface to move (each error
+    names the bone).
     """
     from .._medial_axis.surface import closed_mesh_arrays
 
@@ -147,7 +151,8 @@ def skeleton(mesh, *, medial: MedialMesh | None = None, spheres: int = 200,
             limbs, region = given_limbs(chains, vertices, faces, adjacency, margin)
             names = [f"limb {k}" for k in range(len(limbs))]
         else:
-            limbs, region, names = bone_limbs(bones, vertices, faces, adjacency, margin)
+            limbs, region, names = _bones_in_the_body(check_bones(bones, vertices, faces),
+                                                      vertices, adjacency, margin)
         conflict = _conflict(limbs, region, vertices, adjacency)
         if conflict is not None:
             parent, child = names[conflict[0]], names[conflict[1]]
@@ -164,6 +169,48 @@ def skeleton(mesh, *, medial: MedialMesh | None = None, spheres: int = 200,
         # Welded or with unused vertices dropped: each given vertex takes its copy's region.
         region = region[cKDTree(vertices).query(given)[1]]
     return Skeleton(tuple(limbs), region.astype(np.int32), given)
+
+
+def _bones_in_the_body(checked, vertices, adjacency, margin):
+    """`(limbs, region, names)` of an armature's bones (`bones.check_bones`'s `checked`)
+    without the bones inside the body, with a warning naming them: a rig's pelvis, spine,
+    neck and clavicle bones start in the torso's middle, where no limb leaves. Those that
+    get no part of the surface are no limbs (`bones.bone_limbs`); then, while a limb's child
+    begins before the limb leaves its parent (no room to bend it: a neck bone from the
+    chest's middle takes the chest above it), the deepest of the limb and its ancestors at
+    their joints joins the body's bones and the limbs are found again (a pelvis bone's
+    region reaching down the thigh: the thigh's chain then starts where the leg leaves).
+    (Chains a user places are refused instead.)"""
+    body, tree = set(), cKDTree(vertices)
+    while True:
+        limbs, region, names, kept, inside = bone_limbs(checked, vertices, adjacency, margin,
+                                                        frozenset(body))
+        conflict = _conflict(limbs, region, vertices, adjacency)
+        if conflict is None:
+            break
+        line, k = [], conflict[0]
+        while k >= 0:
+            line.append(k)
+            k = limbs[k].parent
+        depth = [tree.query(np.asarray(limbs[i].spine(float(limbs[i].joint))))[0] for i in line]
+        body.add(kept[line[int(np.argmax(depth))]])
+    labels = checked[3]
+    if not limbs:
+        raise ValueError(
+            f"`bones`: {labels[sorted(body | set(inside))[0]]} gets no part of the surface to "
+            "move (no vertex past its head within reach of its spine, or less than a radius "
+            "to bend), nor does any other bone: start each limb's first bone where the limb "
+            "leaves the body."
+        )
+    if body or inside:
+        named = [labels[b] for b in sorted(body | set(inside))]
+        warnings.warn(
+            f"`bones`: {len(named)} bones lie inside the body ({', '.join(named[:6])}"
+            f"{', …' if len(named) > 6 else ''}): no limbs, their children hanging from their "
+            "parents; limb k is the k-th of the other bones",
+            stacklevel=3,  # (the caller of fj.skeleton)
+        )
+    return limbs, region, names
 
 
 def _one_body(vertices, faces) -> None:
