@@ -36,13 +36,13 @@ CONNECTED = 1e-6
 
 
 def bone_limbs(checked, vertices, adjacency, margin, body=frozenset()):
-    """`(limbs, region, names, kept, inside)` of the armature `checked` (`check_bones`'s
+    """`(limbs, region, names, kept, before)` of the armature `checked` (`check_bones`'s
     `(heads, tails, parents, labels)`; see the module's docstring): limb `k` bone `kept[k]`,
     parents before children (the bones' own order when they list every parent before its
     children, as Blender does), `names[k]` how errors name it; the bones in `body` and those
-    that get no part of the surface to move (`inside`: a clavicle from the chest's middle)
-    are no limbs, their children hanging from their parents (a chain of joints starting
-    again after one)."""
+    that get no part of the surface to move (a clavicle from the chest's middle) are no
+    limbs, their children hanging from their parents (a chain of joints starting again after
+    one); `before`: for each of the latter that continues a chain, the bone before it."""
     heads, tails, parents, labels = checked
     order = _order(parents)
     diagonal = float(np.linalg.norm(np.ptp(vertices, axis=0)))
@@ -85,7 +85,9 @@ def bone_limbs(checked, vertices, adjacency, margin, body=frozenset()):
             continue
         index[b] = add_limb(limbs, region, limb, "")
         kept.append(b)
-    return limbs, region, [labels[b] for b in kept], kept, inside
+    # (For each bone inside the body that continues a chain, the bone before it.)
+    before = {b: chain_of[b][0][chain_of[b][1] - 1] for b in inside if chain_of[b][1] > 0}
+    return limbs, region, [labels[b] for b in kept], kept, before
 
 
 def _holding(head, b, parents, index, region, tree) -> int:

@@ -174,36 +174,54 @@ def skeleton(mesh, *, medial: MedialMesh | None = None, spheres: int = 200,
 def _bones_in_the_body(checked, vertices, adjacency, margin):
     """`(limbs, region, names)` of an armature's bones (`bones.check_bones`'s `checked`)
     without the bones inside the body, with a warning naming them: a rig's pelvis, spine,
-    neck and clavicle bones start in the torso's middle, where no limb leaves. Those that
-    get no part of the surface are no limbs (`bones.bone_limbs`); then, while a limb's child
-    begins before the limb leaves its parent (no room to bend it: a neck bone from the
-    chest's middle takes the chest above it), the deepest of the limb and its ancestors at
-    their joints joins the body's bones and the limbs are found again (a pelvis bone's
-    region reaching down the thigh: the thigh's chain then starts where the leg leaves).
-    (Chains a user places are refused instead.)"""
-    body, tree = set(), cKDTree(vertices)
+    neck and clavicle bones start in the torso's middle, where no limb leaves.
+
+    A bone that gets no part of the surface is no limb (`bones.bone_limbs`: a clavicle).
+    Where one continues a chain from a limb (a tail bone after a bone from the rump's
+    middle, whose region took the rump's back and left the tail in the body), or a limb's
+    child begins before the limb leaves its parent (no room to bend it: a neck bone from the
+    chest's middle takes the chest above it), the bone deepest in the body of it and its
+    ancestors with limbs (the distance to the surface at its head; where a child has no
+    room, at its limb's joint: the spine bone's is in the chest's middle, the neck bone's
+    where its region leaves the chest) joins the body's bones and the limbs are found
+    again. (Chains a user places are refused instead.)"""
+    heads, parents, labels = checked[0], checked[2], checked[3]
+    tree = cKDTree(vertices)
+
+    def depth(b, limbs, kept, joint: bool) -> float:
+        """How deep in the body bone `b` starts: at its limb's joint, or at its head."""
+        at = limbs[kept.index(b)].spine(float(limbs[kept.index(b)].joint)) if joint else heads[b]
+        return float(tree.query(np.asarray(at))[0])
+
+    body = set()
     while True:
-        limbs, region, names, kept, inside = bone_limbs(checked, vertices, adjacency, margin,
+        limbs, region, names, kept, before = bone_limbs(checked, vertices, adjacency, margin,
                                                         frozenset(body))
         conflict = _conflict(limbs, region, vertices, adjacency)
-        if conflict is None:
+        starts = ([kept[conflict[0]]] if conflict is not None
+                  else [b for b, c in before.items() if c in kept])
+        chosen = None
+        for start in starts:
+            line, a = [start], int(parents[start])
+            while a >= 0:
+                line += [a] if a in kept else []
+                a = int(parents[a])
+            deepest = max(line, key=lambda b: depth(b, limbs, kept, conflict is not None))
+            if deepest in kept:  # (else the bone itself: it stays no limb)
+                chosen = deepest
+                break
+        if chosen is None:
             break
-        line, k = [], conflict[0]
-        while k >= 0:
-            line.append(k)
-            k = limbs[k].parent
-        depth = [tree.query(np.asarray(limbs[i].spine(float(limbs[i].joint))))[0] for i in line]
-        body.add(kept[line[int(np.argmax(depth))]])
-    labels = checked[3]
+        body.add(chosen)
+    inside = sorted(set(range(len(heads))) - set(kept))
     if not limbs:
         raise ValueError(
-            f"`bones`: {labels[sorted(body | set(inside))[0]]} gets no part of the surface to "
-            "move (no vertex past its head within reach of its spine, or less than a radius "
-            "to bend), nor does any other bone: start each limb's first bone where the limb "
-            "leaves the body."
+            f"`bones`: {labels[inside[0]]} gets no part of the surface to move (no vertex past "
+            "its head within reach of its spine, or less than a radius to bend), nor does any "
+            "other bone: start each limb's first bone where the limb leaves the body."
         )
-    if body or inside:
-        named = [labels[b] for b in sorted(body | set(inside))]
+    if inside:
+        named = [labels[b] for b in inside]
         warnings.warn(
             f"`bones`: {len(named)} bones lie inside the body ({', '.join(named[:6])}"
             f"{', …' if len(named) > 6 else ''}): no limbs, their children hanging from their "
