@@ -243,6 +243,20 @@ def test_a_bone_starting_inside_its_parent_hangs_from_it():
         assert registration.vertices.dtype == dtype
 
 
+def test_a_bone_from_the_body_s_middle_lies_inside_it(given):
+    # A rig's bone from the body's middle to the tail's base (as from a rump), then the tail
+    # bone: the first took the body's back and left the tail bone nothing; the deeper of the
+    # two (the first) now lies inside the body, and the tail bone is the tail's limb.
+    mesh, skeleton = given
+    heads = np.array([(0.3, 0.0, 0.45), CHAINS[2][0]])
+    tails = np.array([CHAINS[2][0], CHAINS[2][1]])
+    with pytest.warns(UserWarning, match=r"1 bones lie inside the body \(bone 0\)"):
+        tail = fj.skeleton(mesh, bones=(heads, tails, np.array([-1, 0])))
+    vertices, region = np.asarray(mesh.vertices), np.asarray(tail.region)
+    assert [limb.parent for limb in tail.limbs] == [-1]
+    assert np.array_equal(region == 0, np.asarray(skeleton.region) == 4)  # the chains' tail
+
+
 def test_bad_bones_are_refused_by_name(given):
     mesh, _ = given
     heads, tails, parents = _bones(CHAINS)
