@@ -252,9 +252,35 @@ def test_a_bone_from_the_body_s_middle_lies_inside_it(given):
     tails = np.array([CHAINS[2][0], CHAINS[2][1]])
     with pytest.warns(UserWarning, match=r"1 bones lie inside the body \(bone 0\)"):
         tail = fj.skeleton(mesh, bones=(heads, tails, np.array([-1, 0])))
-    vertices, region = np.asarray(mesh.vertices), np.asarray(tail.region)
+    region = np.asarray(tail.region)
     assert [limb.parent for limb in tail.limbs] == [-1]
     assert np.array_equal(region == 0, np.asarray(skeleton.region) == 4)  # the chains' tail
+
+
+def test_the_deeper_of_a_bone_left_nothing_and_the_limb_before_it_joins_the_body(monkeypatch):
+    # A Blender cow's bone from the rump's middle took the rump's back and a little of the
+    # tail; the tail bone after it got nothing. The deeper of the two at its head (the rump
+    # bone) joins the body and the limbs are found again: the tail bone is then a limb.
+    import trimesh
+
+    from fleshing_jax._skeleton import build
+
+    ball = trimesh.creation.icosphere(2, 1.0)
+    heads, tails = np.array([(0.0, 0, 0), (0.9, 0, 0)]), np.array([(0.9, 0, 0), (0.98, 0, 0)])
+    found = []
+
+    def bone_limbs(checked, vertices, adjacency, margin, body=frozenset()):
+        found.append(set(body))
+        if 0 in body:  # (limbs, region, names, kept, before)
+            return ["tail"], None, ["bone 1"], [1], {}
+        return ["rump"], None, ["bone 0"], [0], {1: 0}
+
+    monkeypatch.setattr(build, "bone_limbs", bone_limbs)
+    monkeypatch.setattr(build, "_conflict", lambda *args: None)
+    checked = (heads, tails, np.array([-1, 0]), ["bone 0", "bone 1"])
+    with pytest.warns(UserWarning, match=r"1 bones lie inside the body \(bone 0\)"):
+        limbs, _, names = build._bones_in_the_body(checked, np.asarray(ball.vertices), None, 0)
+    assert limbs == ["tail"] and names == ["bone 1"] and found == [set(), {0}]
 
 
 def test_bad_bones_are_refused_by_name(given):
