@@ -14,7 +14,7 @@ import pytest
 from conftest import cloud, mapped
 
 import fleshing_jax as fj
-from fleshing_jax._fit import start
+from fleshing_jax._fit import coarse, start
 from fleshing_jax._fit.correspondences import Correspondence
 from fleshing_jax._fit.problem import make_parameters, straight_line
 from fleshing_jax._spines.bspline import _de_boor
@@ -523,6 +523,30 @@ def test_the_arc_start_smooths_a_wiggly_start_onto_its_circle():
     assert np.abs(moved[1:] - np.asarray(rest.control_points)[1:]).max() > 1.0
     assert start.arc(parameters, parameters.initial(None)) is None  # the straight rest
     assert start.arc(parameters, None) is None
+
+
+@needs_bspline
+def test_a_finely_subdivided_spine_is_solved_first_on_coarser_frames():
+    # `coarse.coarser`: a curved `init` with fine frames (the insect's rest spine: 192
+    # subdivisions a span) is solved first with 24, on the same control points, knots and
+    # fixed entries (the same `y`); nothing coarser for 24 or fewer, nor for an `Arc`.
+    k = 10
+    s = np.linspace(0.0, 1.0, k)
+    points = np.c_[np.cos(3 * s), np.sin(3 * s), 0.1 * s]
+    fine = BSpline(points, degree=5, subdivisions=192)
+    fixed = np.zeros(k, bool)
+    fixed[0] = True
+    parameters = make_parameters(fine, None, fixed)
+    rough = coarse.coarser(parameters)
+    assert rough.base.subdivisions == coarse.COARSE_SUBDIVISIONS
+    assert (rough.base.degree, rough.base.spans) == (fine.degree, fine.spans)
+    y = parameters.initial(None)
+    for a, b in zip(rough.initial(None)[0], y[0]):
+        np.testing.assert_array_equal(a, b)
+    np.testing.assert_array_equal(rough.spine(y).control_points, fine.control_points)
+    assert coarse.coarser(make_parameters(BSpline(points, degree=5, subdivisions=24), None,
+                                          None)) is None
+    assert coarse.coarser(make_parameters(fj.Arc(3.0, 1.0), None, None)) is None
 
 
 @needs_bspline

@@ -21,7 +21,7 @@ from jaxtyping import Array, ArrayLike
 
 from .._batching.buckets import bucket, pad_batch, unpad_batch
 from .._fleshing.projection import Registration
-from . import start, verdict
+from . import coarse, start, verdict
 from .budget import limited
 from .continuation import AUTO_STAGES, staged_targets
 from .problem import (
@@ -245,6 +245,9 @@ def fit_spine(
         explained = EXPLAINED * tolerance * verdict.diagonal(problem.data())
         solver = default_solver("least_squares", dtype, rtol, atol, explained)
 
+    coarser = coarse.coarser(setup.parameters)
+    rough = problem if coarser is None else dataclasses.replace(problem, parameters=coarser)
+
     def staged(stages: int, y, follow: bool = False) -> FitResult:
         # Each stage only moves the start: its solve alone, every point posed by the map's
         # formula (`followed_images`: no cliffs on the way). The target itself is solved so
@@ -256,15 +259,25 @@ def fit_spine(
         # of the rest and the bend) is no bend: its solve creeps (spot's tail bent 60°: still
         # 4.1e-3 of the diagonal, 0.05 % a step, after 32 steps) until `max_steps`. A short
         # budget, in the program of the full one (`limited`: a value, not a static limit).
-        for k, goal in enumerate(goals, 1):
-            staged_problem = dataclasses.replace(problem, target=jnp.asarray(goal),
-                                                 invalid="follow")
-            steps = min(STAGE_STEPS, int(max_steps)) if k < len(goals) else int(max_steps)
+        # A curved `init` with fine frames: every solve but the last on coarser ones (`coarse`),
+        # the target as asked too, whose answer the last solve then starts near.
+        solves = [
+            (
+                dataclasses.replace(rough, target=jnp.asarray(goal), invalid="follow"),
+                min(STAGE_STEPS, int(max_steps)) if k < len(goals) else int(max_steps),
+            )
+            for k, goal in enumerate(goals, 1)
+        ]
+        if rough is not problem:
+            solves.append((rough, int(max_steps)))
+        for staged_problem, steps in solves:
             budget, limit = limited(solver, max_steps, steps)
-            spine, twist_k = solve(staged_problem, budget, y, limit, False)[:2]
+            spine, twist_k, _, _, _, stats = solve(staged_problem, budget, y, limit, False)
             y = setup.parameters.of(spine, twist_k if fit_twist else None)
+        # (The coarse solve of the target as asked counts among the fit's steps.)
+        before = int(stats["num_steps"]) if rough is not problem else 0
         result = fit(problem, solver, y, max_steps, throw, tolerance, ADVICE)
-        return dataclasses.replace(result, stages=stages)
+        return dataclasses.replace(result, stages=stages, num_steps=result.num_steps + before)
 
     if continuation == "auto":
         shaped = start.initial(setup.parameters, setup.registration, source_spine,

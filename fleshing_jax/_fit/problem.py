@@ -366,7 +366,8 @@ class FitResult(AbstractFitOutcome):
       fitting function for exactly which points count), with the full projection check.
     - `valid`: (N,) bool, which source points map validly onto the fitted spine.
     - `result`: the `optimistix.RESULTS` of the solve; `converged` tells whether it succeeded.
-    - `num_steps`: number of solver steps taken.
+    - `num_steps`: number of solver steps taken on the target (a `fit_spine` of a finely
+      subdivided `init`: its solve on coarser frames first too, `_fit.coarse`).
     - `loss`: the final value of the objective (sum of squared residuals, regularisers included).
     - `stats`: the solver's statistics dictionary.
     - `stalled`: "" or, for a solve that optimistix reports as successful although its
