@@ -198,7 +198,9 @@ def fit_spine(
     - The fitted spine keeps the static configuration of `init`: a straight B-spline guess
       gets the coarse arc-length/frame resolution of a straight curve, which limits the rms
       it can reach on a strongly bent target (about 1e-7 here); pass
-      `BSpline(..., subdivisions=...)` sized for the expected bend.
+      `BSpline(..., subdivisions=...)` sized for the expected bend. A finer `init` (a curved
+      rest spine: the insect's body gets 192 subdivisions a span) is solved first at 24
+      (`_fit.coarse`: its steps several times cheaper), then finished at its own.
     - `"exclude"` lets the solver lower the loss by making points invalid; with a poor guess it
       can drift there. `"penalize"` (the default) cannot.
     - Parameters are unconstrained: an `Arc`'s radius could in principle cross zero. Fix what
