@@ -192,6 +192,22 @@ def test_table_values_are_looked_up_where_first_read():
         values[5]
 
 
+def test_a_grid_mapped_once_is_mapped_as_by_nested_maps():
+    # `grid_vmap` (one `vmap` over a table's flattened pieces × nodes, for its tracing time)
+    # computes what nested `vmap`s compute, element by element, for pytrees of any point shape.
+    from fleshing_jax._batching.grid import grid_vmap
+
+    def point(s, x):
+        return {"a": jnp.where(s > 0, jnp.sin(s) * x, x / 3), "b": s * s + 1}
+
+    s = jnp.linspace(-1, 1, 12, dtype=jnp.float32).reshape(3, 4)
+    x = jnp.arange(24, dtype=jnp.float32).reshape(3, 4, 2)
+    once, nested = grid_vmap(point, s, x), jax.vmap(jax.vmap(point))(s, x)
+    assert once["a"].shape == (3, 4, 2) and once["b"].shape == (3, 4)
+    for a, b in zip(jax.tree.leaves(once), jax.tree.leaves(nested), strict=True):
+        np.testing.assert_array_equal(a, b)
+
+
 def test_fast_evaluator_is_exact_in_float64_and_for_polylines():
     assert not isinstance(fast_evaluator(fj.Arc(3.0, 4.0)), SpineTable)  # float64 (conftest)
     arc32 = fj.Arc(np.float32(3.0), np.float32(4.0))

@@ -22,6 +22,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array
 
+from .._batching.grid import grid_vmap
 from .spine import AbstractSpine, torsion_of
 from .table import PiecewiseCubic, SpineTable
 
@@ -65,7 +66,7 @@ class NodeSamples(eqx.Module):
         self.half = (flat - starts) / 2
         x = jnp.asarray(NODE_POINTS, flat.dtype)
         self.points = (starts + self.half)[:, None] + self.half[:, None] * x
-        self.tangents = jax.vmap(jax.vmap(lambda s: table.jet(s)[1]))(self.points)
+        self.tangents = grid_vmap(lambda s: table.jet(s)[1], self.points)
 
 
 class LookedUpSpine(AbstractSpine):

@@ -39,6 +39,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array
 
+from .._batching.grid import grid_vmap
 from .._numerics import dot
 from . import arclength
 from .analytic import Arc
@@ -93,7 +94,7 @@ class PiecewiseCubic(eqx.Module):
         e0, e1 = spine.extension()
         self.length, self.lo, self.hi = spine.length, -e0, spine.length + e1
         self.inner = max(MIN_PIECES, spine.default_samples()) if inner is None else inner
-        self.coefficients = _fit(jax.vmap(jax.vmap(function))(self.nodes()))
+        self.coefficients = _fit(grid_vmap(function, self.nodes()))
 
     def nodes(self) -> Array:
         """(P, 4): the arc lengths where each piece interpolates, increasing (the Chebyshev
