@@ -17,6 +17,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array
 
+from .._batching.grid import grid_vmap
 from .._numerics import dot, held_trig
 from .._spines.frames import twist_normals
 from .._spines.sinusoid import Sinusoid
@@ -66,8 +67,11 @@ class TargetFrames(eqx.Module):
             # making (a bent limb's rotations) into every read of them, a tenth of a float32
             # frame of spot's leg. (The twist's sine and cosine held: `held_trig`.)
             trig = held_trig(twist)[0]
-            frames = jax.vmap(jax.vmap(lambda jet, normals: jnp.concatenate(
-                frame_of(jet, normals, twist, trig))))(*at_nodes)
+
+            def frame(jet, normals):
+                return jnp.concatenate(frame_of(jet, normals, twist, trig))
+
+            frames = grid_vmap(frame, *at_nodes)
             self.table = self.spine.cubics.refit(frames)
         elif tabulate:
             prepared = self.spine  # (not `self` in a lambda: the module is not frozen yet)

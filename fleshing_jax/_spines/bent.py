@@ -32,6 +32,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike
 
+from .._batching.grid import grid_vmap
 from .._checks import as_float_array, is_concrete
 from .._numerics import dot, held_trig
 from .looked_up import GAUSS_POINTS, GAUSS_WEIGHTS, NODE_WEIGHTS, LookedUpSpine
@@ -313,7 +314,7 @@ class PreparedBent(AbstractSpine):
 
         # (Q − 1) T₀ at the quadrature points, one coordinate at a time, each point's sines and
         # cosines computed once for the three (`held_trig`).
-        r = jax.vmap(jax.vmap(lambda s: self._angles(s)[0]))(at.points)  # (P·4, NODE_GAUSS)
+        r = grid_vmap(lambda s: self._angles(s)[0], at.points)  # (P·4, NODE_GAUSS)
         tangents = [at.tangents[..., c] for c in range(3)]
         twist, bend = self._trig(r)
         turned = _rotate_coordinates(self.bend_axis, bend, _rotate_coordinates(

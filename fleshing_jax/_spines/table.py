@@ -229,7 +229,7 @@ class SpineTable(eqx.Module):
         if normals is None:
             samples = jnp.concatenate(jets, axis=-1)
         else:
-            samples = jax.vmap(jax.vmap(table_values))(jets, normals)
+            samples = grid_vmap(table_values, jets, normals)
         return eqx.tree_at(lambda table: table.cubics, self, self.cubics.refit(samples))
 
     @property
