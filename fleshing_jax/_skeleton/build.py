@@ -113,8 +113,8 @@ def skeleton(mesh, *, medial: MedialMesh | None = None, spheres: int = 200,
       tails (m, 3), parents (m,))` (parents: each bone's parent's index, −1 for a root
       bone), optionally with the bones' names as a fourth entry (for the errors). Each bone
       is a limb (limb `k` the `k`-th bone when every parent comes before its children, as
-      Blender lists them), but the bones inside the body (a rig's pelvis, spine and neck
-      bones; a warning names them: `_bones_in_the_body`). A bone whose head is its
+      Blender lists them), except the bones inside the body (a rig's pelvis, spine and
+      neck bones: no limbs; a warning names them, `_bones_in_the_body`). A bone whose head is its
       parent's tail continues its parent's chain of joints, and the chains are cut as
       `chains` are (`_skeleton.bones`); a bone starting elsewhere (a clavicle on the
       chest) starts a chain of its own, hanging from the limb of its nearest ancestor (its
