@@ -45,7 +45,7 @@ def bone_limbs(checked, vertices, adjacency, margin, body=frozenset()):
     one); `before`: for each of the latter that continues a chain, the bone before it."""
     heads, tails, parents, labels = checked
     order = _order(parents)
-    diagonal = float(np.linalg.norm(np.ptp(vertices, axis=0)))
+    connected = _connected(heads, tails, parents, vertices)
     # Each bone's chain of joints (its first bone's head, then each bone's tail) and its
     # place in it: a bone continues its parent's chain when its head is the parent's tail
     # and no earlier sibling continues it already.
@@ -53,12 +53,7 @@ def bone_limbs(checked, vertices, adjacency, margin, body=frozenset()):
     chain_of: dict[int, tuple[list[int], int]] = {}
     for b in order:
         p = int(parents[b])
-        if (
-            p >= 0
-            and p not in body
-            and not continued[p]
-            and (np.linalg.norm(heads[b] - tails[p]) <= CONNECTED * diagonal)
-        ):
+        if connected[b] and p not in body and not continued[p]:
             continued[p] = True
             chain, _ = chain_of[p]
             chain.append(b)
@@ -88,6 +83,14 @@ def bone_limbs(checked, vertices, adjacency, margin, body=frozenset()):
     # (For each bone inside the body that continues a chain, the bone before it.)
     before = {b: chain_of[b][0][chain_of[b][1] - 1] for b in inside if chain_of[b][1] > 0}
     return limbs, region, [labels[b] for b in kept], kept, before
+
+
+def _connected(heads, tails, parents, vertices) -> np.ndarray:
+    """`(m,)` bool: each bone's head is its parent's tail (within `CONNECTED` of the
+    diagonal of `vertices`), as Blender writes a connected bone's."""
+    diagonal = float(np.linalg.norm(np.ptp(vertices, axis=0)))
+    gap = np.linalg.norm(heads - tails[np.maximum(parents, 0)], axis=1)
+    return (parents >= 0) & (gap <= CONNECTED * diagonal)
 
 
 def _holding(head, b, parents, index, region, tree) -> int:
@@ -155,25 +158,22 @@ def check_bones(bones, vertices, faces):
     if cycle:
         raise ValueError("`bones`: the parents form a cycle: "
                          + " → ".join(labels[b] for b in cycle) + ".")  # fmt: skip
-    diagonal = float(np.linalg.norm(np.ptp(vertices, axis=0)))
-    short = np.flatnonzero(np.linalg.norm(tails - heads, axis=1) <= 1e-9 * diagonal)
-    if len(short):
-        raise ValueError(f"`bones`: {labels[int(short[0])]} has zero length (its head is its "
-                         "tail).")  # fmt: skip
     # A tail no bone continues from is a chain's tip.
     continued = np.zeros(n, bool)
-    for b in range(n):
-        if parents[b] >= 0 and np.linalg.norm(heads[b] - tails[parents[b]]) <= (
-                CONNECTED * diagonal):
-            continued[parents[b]] = True
+    continued[parents[_connected(heads, tails, parents, vertices)]] = True
     ends = placed_inside(np.concatenate([heads, tails]),
                          [f"{label}'s {end}" for end in ("head", "tail") for label in labels],
                          vertices, faces, "bones", np.r_[np.zeros(n, bool), ~continued])
-    heads, tails = ends[:n], ends[n:]
-    short = np.flatnonzero(np.linalg.norm(tails - heads, axis=1) <= 1e-9 * diagonal)
+    diagonal = float(np.linalg.norm(np.ptp(vertices, axis=0)))
+    # (Checked after the move too: both ends past the surface may meet at one point.)
+    short = np.flatnonzero(np.linalg.norm(ends[n:] - ends[:n], axis=1) <= 1e-9 * diagonal)
     if len(short):
-        raise ValueError(f"`bones`: {labels[int(short[0])]} lies past the surface: moved "
-                         "inside, its head is its tail.")  # fmt: skip
+        b = int(short[0])
+        moved = "" if np.linalg.norm(tails[b] - heads[b]) <= 1e-9 * diagonal else (
+            ", moved inside from past the surface")
+        raise ValueError(f"`bones`: {labels[b]} has zero length (its head is its tail"
+                         f"{moved}).")  # fmt: skip
+    heads, tails = ends[:n], ends[n:]
     return heads, tails, parents, labels
 
 
