@@ -51,10 +51,18 @@ JSON; --save-spine FILE writes it, to reuse with --from."""
 
 
 POSES_FORMAT = """\
-poses files (JSON): a list of limbs, each named by its index or a point, e.g.
+poses files (JSON): a list of limbs, each named by its index (or its name) or a point, e.g.
   [{"limb": 7, "bend": 30, "direction": 90},
    {"at": [0.1, 0.9, -0.3], "bend": 20, "twist": 10}]
 angles in degrees; "direction" and "twist" default to 0."""
+
+
+def _limb_key(text: str) -> int | str:
+    """`--limb`'s value: a limb index, or a limb's name (`Limb.name`)."""
+    try:
+        return int(text)
+    except ValueError:
+        return text
 
 
 class _LimbGroup(argparse.Action):
@@ -253,7 +261,8 @@ def _parser() -> argparse.ArgumentParser:
     pose.add_argument("--spheres", type=int, default=200, metavar="N",
                       help="without --skeleton: spheres of the medial mesh (200)")
     group = pose.add_argument_group("limbs (repeat the group for each limb)")
-    group.add_argument("--limb", type=int, metavar="K", action=_LimbGroup, help="limb index")
+    group.add_argument("--limb", type=_limb_key, metavar="K", action=_LimbGroup,
+                       help="limb index, or the limb's name (a skeleton from an armature's bones)")
     group.add_argument("--at", type=_point, metavar="X,Y,Z", action=_LimbGroup,
                        help="the limb holding the vertex nearest to this point")
     for name, what in (("bend", "the bend from the joint"), ("direction", "the direction of the "
@@ -698,12 +707,16 @@ def _limb_poses(groups: list[dict], skeleton, source: str) -> dict:
             if limb < 0:
                 raise ValueError(f"{source}: the point {at} lies on the body, not on a limb")
         else:
-            limb = g["limb"]
-            if isinstance(limb, bool) or not isinstance(limb, int) or not (
+            limb, names = g["limb"], skeleton.names
+            if isinstance(limb, str) and limb and limb in names:
+                limb = names.index(limb)
+            elif isinstance(limb, bool) or not isinstance(limb, int) or not (
                 0 <= limb < len(skeleton.limbs)
             ):
+                named = [name for name in names if name]
                 raise ValueError(f"{source}: no limb {limb!r}; the skeleton has limbs 0 to "
-                                 f"{len(skeleton.limbs) - 1}")
+                                 f"{len(skeleton.limbs) - 1}"
+                                 + (f", named {', '.join(named)}" if named else ""))
         if limb in poses:
             raise ValueError(f"{source}: limb {limb} is posed twice")
         angles = [g.get(name, 0.0) for name in ("bend", "direction", "twist")]

@@ -633,6 +633,7 @@ def test_pose_command_names_the_child_carrying_a_bend_on(tube, skeleton, tmp_pat
     [
         (["--bend", "30"], "must follow --limb"),
         (["--limb", "9", "--bend", "30"], "no limb 9"),
+        (["--limb", "knee", "--bend", "30"], "no limb 'knee'"),
         (["--limb", "0"], "has no --bend"),
         (["--limb", "0", "--bend", "10", "--bend", "20"], "given twice"),
         (["--at", "3,0,0", "--bend", "10"], "on the body"),
@@ -650,6 +651,19 @@ def test_pose_command_refuses_bad_poses(tube, skeleton, tmp_path, capsys, option
     out = tmp_path / "out.obj"
     assert main(["pose", str(mesh), str(out), "--skeleton", str(saved), *options]) == 2
     assert message in capsys.readouterr().err and not out.exists()
+
+
+def test_pose_command_takes_a_limb_s_name(skeleton):
+    from fleshing_jax._cli import _limb_key, _limb_poses
+
+    named = fj.Skeleton([fj.Limb(limb.spine, limb.joint, limb.parent, f"bone{k}")
+                         for k, limb in enumerate(skeleton.limbs)],
+                        skeleton.region, skeleton.vertices)  # fmt: skip
+    groups = [{"limb": _limb_key("bone2"), "bend": 30}, {"limb": _limb_key("0"), "bend": 10}]
+    assert sorted(_limb_poses(groups, named, "poses")) == [0, 2]
+    with pytest.raises(ValueError, match="no limb 'bone9'; the skeleton has limbs 0 to 2, "
+                                         "named bone0, bone1, bone2"):
+        _limb_poses([{"limb": "bone9", "bend": 30}], named, "poses")
 
 
 def test_pose_command_reads_a_negative_point_and_refuses_no_pose(tube, skeleton, tmp_path,

@@ -241,6 +241,40 @@ def test_a_bone_starting_inside_its_parent_hangs_from_it():
     for dtype in (np.float32, np.float64):
         registration = fj.register_skeleton(mesh, skeleton, dtype=dtype)
         assert registration.vertices.dtype == dtype
+        # Each limb named as its bone ("bone b" without names): a limb index's stand-in.
+        assert float(fj.joint_range(registration, "bone 3")) == float(
+            fj.joint_range(registration, 3))
+    with pytest.raises(ValueError, match=r"`limb`: no limb of this registration is named 'x'"):
+        fj.joint_range(registration, "x")
+
+
+def test_an_armature_s_limbs_are_named_as_its_bones(given, tmp_path):
+    from fleshing_jax._skeleton.posing import check_poses
+
+    mesh, _ = given
+    heads, tails, parents = _bones(CHAINS)
+    names = ["hip", "knee", "rump", "hock", "tail", "neck"]
+    skeleton = fj.skeleton(mesh, bones=(heads, tails, parents, names))
+    assert skeleton.names == tuple(names) and skeleton.index("hock") == 3
+    assert skeleton.children("hip") == (1,)
+    pose = fj.LimbPose(30.0)
+    assert list(check_poses({"hock": pose, 0: pose}, skeleton)) == [0, 3]
+    for poses, message in [({"hoof": pose}, r"no limb of this skeleton is named 'hoof' "
+                            r"\(named: hip, knee"),
+                           ({"hock": pose, 3: pose}, "limb 3 is posed twice")]:
+        with pytest.raises(ValueError, match=message):
+            check_poses(poses, skeleton)
+    # Split, merged, saved and loaded: the names go with their limbs.
+    split = skeleton.split(0, at=float(skeleton.limbs[0].joint) + 0.15)
+    assert split.names == ("hip", "hip.1", *names[1:]) and split.merge(1).names == skeleton.names
+    fj.save_skeleton(split, tmp_path / "named.json")
+    assert fj.load_skeleton(tmp_path / "named.json").names == split.names
+    limbs = skeleton.limbs
+    with pytest.raises(ValueError, match="two limbs are named 'hip'"):
+        fj.Skeleton((limbs[0], fj.Limb(limbs[1].spine, limbs[1].joint, 0, "hip")),
+                    np.zeros(len(mesh.vertices), int), mesh.vertices)
+    with pytest.raises(ValueError, match=r"`bones\[3\]` \(the names\) must be distinct"):
+        fj.skeleton(mesh, bones=(heads, tails, parents, ["hip"] * len(heads)))
 
 
 def test_a_bone_from_the_body_s_middle_lies_inside_it(given):

@@ -36,14 +36,15 @@ CONNECTED = 1e-6
 
 
 def bone_limbs(checked, vertices, adjacency, margin, body=frozenset()):
-    """`(limbs, region, names, kept, before)` of the armature `checked` (`check_bones`'s
-    `(heads, tails, parents, labels)`; see the module's docstring): limb `k` bone `kept[k]`,
-    parents before children (the bones' own order when they list every parent before its
-    children, as Blender does), `names[k]` how errors name it; the bones in `body` and those
+    """`(limbs, region, labels, kept, before)` of the armature `checked` (`check_bones`'s
+    `(heads, tails, parents, labels, names)`; see the module's docstring): limb `k` bone
+    `kept[k]`, named as the bone (`Limb.name`), parents before children (the bones' own order
+    when they list every parent before its children, as Blender does), `labels[k]` how
+    errors name it; the bones in `body` and those
     that get no part of the surface to move (a clavicle from the chest's middle) are no
     limbs, their children hanging from their parents (a chain of joints starting again after
     one); `before`: for each of the latter that continues a chain, the bone before it."""
-    heads, tails, parents, labels = checked
+    heads, tails, parents, labels, names = checked
     order = _order(parents)
     connected = _connected(heads, tails, parents, vertices)
     # Each bone's chain of joints (its first bone's head, then each bone's tail) and its
@@ -78,7 +79,8 @@ def bone_limbs(checked, vertices, adjacency, margin, body=frozenset()):
             if b not in body:
                 inside.append(b)
             continue
-        index[b] = add_limb(limbs, region, limb, "")
+        named = Limb(limb[0].spine, limb[0].joint, limb[0].parent, names[b])
+        index[b] = add_limb(limbs, region, (named, limb[1]), "")
         kept.append(b)
     # (For each bone inside the body that continues a chain, the bone before it.)
     before = {b: chain_of[b][0][chain_of[b][1] - 1] for b in inside if chain_of[b][1] > 0}
@@ -108,8 +110,9 @@ def _holding(head, b, parents, index, region, tree) -> int:
 
 
 def check_bones(bones, vertices, faces):
-    """`(heads (n, 3), tails (n, 3), parents (n,) int, labels)` of `bones`, `(heads, tails,
-    parents)` or `(heads, tails, parents, names)`; else `TypeError`/`ValueError` naming the
+    """`(heads (n, 3), tails (n, 3), parents (n,) int, labels, names)` of `bones`, `(heads,
+    tails, parents)` or `(heads, tails, parents, names)` (`names`: "bone b" where none are
+    given; `labels` name the bones in errors); else `TypeError`/`ValueError` naming the
     bone: a bone of zero length, with its head or tail outside the mesh, a parent out of
     range or in a cycle."""
     if (
@@ -149,6 +152,9 @@ def check_bones(bones, vertices, faces):
     if names is not None and (isinstance(names, str) or len(names) != n):
         raise ValueError(f"`bones[3]` (the names) must be a list of {n} bone names.")
     labels = [f"bone {b}" + (f" ({names[b]!r})" if names is not None else "") for b in range(n)]
+    names = [f"bone {b}" for b in range(n)] if names is None else list(names)
+    if not all(isinstance(name, str) and name for name in names) or len(set(names)) < n:
+        raise ValueError("`bones[3]` (the names) must be distinct non-empty strings.")
     bad = np.flatnonzero((parents < -1) | (parents >= n))
     if len(bad):
         b = int(bad[0])
@@ -174,7 +180,7 @@ def check_bones(bones, vertices, faces):
         raise ValueError(f"`bones`: {labels[b]} has zero length (its head is its tail"
                          f"{moved}).")  # fmt: skip
     heads, tails = ends[:n], ends[n:]
-    return heads, tails, parents, labels
+    return heads, tails, parents, labels, names
 
 
 def _cycle(parents: np.ndarray) -> list[int]:

@@ -111,16 +111,17 @@ def skeleton(mesh, *, medial: MedialMesh | None = None, spheres: int = 200,
 
     - `bones`: the limbs of an armature instead, as Blender exports it: `(heads (m, 3),
       tails (m, 3), parents (m,))` (parents: each bone's parent's index, −1 for a root
-      bone), optionally with the bones' names as a fourth entry (for the errors). Each bone
-      is a limb (limb `k` the `k`-th bone when every parent comes before its children, as
-      Blender lists them), except the bones inside the body (a rig's pelvis, spine and
-      neck bones: no limbs; a warning names them, `_bones_in_the_body`). A bone whose head is its
-      parent's tail continues its parent's chain of joints, and the chains are cut as
-      `chains` are (`_skeleton.bones`); a bone starting elsewhere (a clavicle on the
-      chest) starts a chain of its own, hanging from the limb of its nearest ancestor (its
-      parent first) whose region holds its head: the body for a root bone, and for a thigh
-      under a root bone that points up into the torso.
-      The body is what no bone takes: a torso is the body, not a tube to bend.
+      bone), optionally with the bones' names as a fourth entry. Each bone is a limb named as
+      the bone (`Limb.name`, "bone b" without names: poses and functions that take a limb
+      index take the name, `skeleton.index(name)` gives the index; the limbs in the bones'
+      order when every parent comes before its children, as Blender lists them), except the
+      bones inside the body (a rig's pelvis, spine and neck bones: no limbs; a warning names
+      them, `_bones_in_the_body`). A bone whose head is its parent's tail continues its
+      parent's chain of joints, and the chains are cut as `chains` are (`_skeleton.bones`); a
+      bone starting elsewhere (a clavicle on the chest) starts a chain of its own, hanging
+      from the limb of its nearest ancestor (its parent first) whose region holds its head:
+      the body for a root bone, and for a thigh under a root bone that points up into the
+      torso. The body is what no bone takes: a torso is the body, not a tube to bend.
 
     **Returns:** an `fj.Skeleton` whose `vertices` are the mesh's (n, 3), in its order.
 
@@ -225,7 +226,7 @@ def _bones_in_the_body(checked, vertices, adjacency, margin):
         warnings.warn(
             f"`bones`: {len(named)} bones lie inside the body ({', '.join(named[:6])}"
             f"{', …' if len(named) > 6 else ''}): no limbs, their children hanging from their "
-            "parents; limb k is the k-th of the other bones",
+            "parents; each other bone a limb, named as the bone (`skeleton.index(name)`)",
             stacklevel=3,  # (the caller of fj.skeleton)
         )
     return limbs, region, names
@@ -285,7 +286,8 @@ def _found_limbs(vertices, faces, medial, spheres, seed, adjacency, margin):
 def _from_unit(limb: Limb, frame: UnitFrame) -> Limb:
     """`limb` (found in the unit frame) in the mesh's: its spine mapped, its joint's arc
     length scaled."""
-    return Limb(spine_from_unit(limb.spine, frame), frame.scale * float(limb.joint), limb.parent)
+    return Limb(spine_from_unit(limb.spine, frame), frame.scale * float(limb.joint), limb.parent,
+                limb.name)
 
 
 def _unit_limbs(vertices, normals, centers, radii, edges, adjacency, margin):

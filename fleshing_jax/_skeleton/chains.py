@@ -121,7 +121,7 @@ def split_chains(limbs, founds, region, centers, radii, vertices, adjacency, mar
         own = region == k
         parent = _parent_piece(limb.parent, pieces, label, own, adjacency)
         first = len(out)
-        out.append(Limb(limb.spine, limb.joint, parent))
+        out.append(Limb(limb.spine, limb.joint, parent, limb.name))
         label[own] = first
         chain = [first]
         fit = (centers, radii, vertices, adjacency, margin)

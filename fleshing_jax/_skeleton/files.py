@@ -23,6 +23,7 @@ from .skeleton import Limb, Skeleton
 MAX_FILE_BYTES = 1 << 30  # 1 GiB: a 10-million-vertex mesh's skeleton fits
 MAX_LIMBS = 10_000
 MAX_VERTICES = 20_000_000
+MAX_NAME = 1000  # characters of a limb's name
 _SPINE_FIELDS = {"control_points": "points", "degree": "int", "knots": "array_or_none",
                  "subdivisions": "int"}  # fmt: skip
 
@@ -46,7 +47,7 @@ def save_skeleton(skeleton: Skeleton, path: str | os.PathLike) -> None:
     target = check_medial_path(path)
     limbs = [
         {"spine": json.loads(spine_json(limb.spine)), "joint": float(limb.joint),
-         "parent": limb.parent}
+         "parent": limb.parent} | ({"name": limb.name} if limb.name else {})
         for limb in skeleton.limbs
     ]  # fmt: skip
     data = {
@@ -119,10 +120,15 @@ def _field(path, data: dict, name: str):
 def _limb(path, i: int, data) -> Limb:
     """Limb `i` of the file `path` from its JSON object."""
     where = f"limbs[{i}]"
-    if not isinstance(data, dict) or set(data) != {"spine", "joint", "parent"}:
+    if not isinstance(data, dict) or not (
+            {"spine", "joint", "parent"} <= set(data) <= {"spine", "joint", "parent", "name"}):
         raise ValueError(f"{path}: {where} must be an object with fields 'spine', 'joint' and "
-                         "'parent'.")  # fmt: skip
+                         "'parent' (and optionally 'name').")  # fmt: skip
     spine, joint, parent = data["spine"], data["joint"], data["parent"]
+    name = data.get("name", "")
+    if not isinstance(name, str) or len(name) > MAX_NAME:
+        raise ValueError(f"{path}: {where}.name must be a string of at most {MAX_NAME} "
+                         "characters.")  # fmt: skip
     _check_field(path, "scalar", f"{where}.joint", joint)
     _check_field(path, "int", f"{where}.parent", parent)
     if not isinstance(spine, dict) or spine.get("type") != "bspline":
@@ -136,4 +142,4 @@ def _limb(path, i: int, data) -> Limb:
     control_points = np.asarray(arguments.pop("control_points"), np.float64)
     if arguments.get("knots") is not None:
         arguments["knots"] = np.asarray(arguments["knots"], np.float64)
-    return Limb(BSpline(control_points, **arguments), joint, parent)
+    return Limb(BSpline(control_points, **arguments), joint, parent, name)

@@ -35,6 +35,7 @@ from .._checks import is_concrete
 from .._fleshing.maps import WHOLE_FROM
 from .._numerics import dot, on_device
 from .._spines.bent import ramp, rotate
+from .skeleton import limb_index
 
 # κ·ρ kept in a zone: below the radial map's limit 1/√3 ≈ 0.577, where its concave side would
 # be crushed flat; at 0.45 a vertex's principal stretch stays below about 2.5. Below where a
@@ -251,16 +252,13 @@ def joint_range(registration, limb: int, direction=None, *, twist=0.0,
     when a child is posed too, the limb's zone then ending before their borders, alone.
 
     **Arguments:** `registration`: a `register_skeleton` (`SkeletonRegistration`); `limb`:
-    a limb index of its skeleton; `direction`, `twist`, `towards`: as `fj.LimbPose`'s;
-    `children_posed`: bool.
-    **Raises** `ValueError` for another limb index, or a direction as `fj.LimbPose` does.
+    a limb index of its skeleton or the limb's name; `direction`, `twist`, `towards`: as
+    `fj.LimbPose`'s; `children_posed`: bool.
+    **Raises** `ValueError` for another limb index or name, or a direction as `fj.LimbPose`
+    does.
     """
-    zones = registration.zones
-    if isinstance(limb, bool) or not isinstance(limb, int | np.integer) or not (
-            0 <= limb < len(zones)):
-        raise ValueError(
-            f"`limb`: {limb!r} is not a limb index of this registration (0 to {len(zones) - 1})."
-        )
+    limb = limb_index(limb, registration.names or ("",) * len(registration.zones), "limb",
+                      "registration")
     whole = None if children_posed else registration.wholes[limb]
     zone, joint, stop = ((registration.zones[limb], registration.joints[limb],
                           registration.stops[limb]) if whole is None

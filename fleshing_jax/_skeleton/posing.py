@@ -58,7 +58,7 @@ from .._spines.table import tabulable, tabulates
 from .joint_zone import JointZone, joint_zone
 from .limb_pose import LimbPose, sane_angles
 from .restore import corner_table, rest_volume, restored_volume
-from .skeleton import Skeleton, descendants
+from .skeleton import Skeleton, descendants, limb_index
 from .spill import spilled
 
 
@@ -106,7 +106,8 @@ class SkeletonRegistration(eqx.Module):
     `volume`: the rest vertices' (about their centre, in float64, then cast); `skeleton_id`:
     the skeleton's `fingerprint` (its limbs and regions, its mesh, its spines and joints), so that
     a pose with another skeleton is refused, saying which part differs; `children`: each limb's
-    children (the skeleton's, static: a joint's range counts a free only child's, `spill`).
+    children (the skeleton's, static: a joint's range counts a free only child's, `spill`);
+    `names`: the limbs' names (static, `Limb.name`: `fj.joint_range` takes them).
     """
 
     registrations: tuple[Registration, ...]
@@ -124,6 +125,7 @@ class SkeletonRegistration(eqx.Module):
     volume: Array  # scalar: the rest vertices' volume (`restore`)
     skeleton_id: tuple[int, ...] = eqx.field(static=True)  # `fingerprint` of its skeleton
     children: tuple[tuple[int, ...], ...] = eqx.field(static=True)
+    names: tuple[str, ...] = eqx.field(static=True, default=())  # the limbs' (`Limb.name`)
 
 
 class PosedSkeleton(NamedTuple):
@@ -254,7 +256,8 @@ def register_skeleton(mesh, skeleton: Skeleton, *, margin: float | None = None,
                                 on_device(corner_table(triangles, len(points)), np.int32),
                                 on_device(rest_volume(points, triangles), points.dtype),
                                 fingerprint(skeleton),
-                                tuple(map(skeleton.children, range(len(skeleton.limbs)))))
+                                tuple(map(skeleton.children, range(len(skeleton.limbs)))),
+                                skeleton.names)
 
 
 def _registered_rows(rows: np.ndarray, ids: np.ndarray, *, size: int, margin: Array,
@@ -394,27 +397,28 @@ def _border(edges: np.ndarray, inside: np.ndarray, other: np.ndarray) -> np.ndar
 
 
 def check_poses(poses, skeleton: Skeleton, name: str = "poses") -> dict:
-    """`poses` (the argument `name`) checked: a dict of limb index → `LimbPose` or spine,
-    returned with `int` keys in order."""
+    """`poses` (the argument `name`) checked: a dict of limb index or name → `LimbPose` or
+    spine, returned with `int` keys in order."""
     if not isinstance(poses, dict):
         raise TypeError(
             f"`{name}` must be a dict of limb index → LimbPose or spine, got {type(poses)}."
         )
+    checked = {}
     for k, pose in poses.items():
-        check_limb_index(k, skeleton, name)
+        index = check_limb_index(k, skeleton, name)
         if not isinstance(pose, LimbPose | AbstractSpine):
-            raise TypeError(f"`{name}[{k}]` must be a LimbPose or a spine, got {type(pose)}.")
-    return {int(k): v for k, v in sorted(poses.items())}
+            raise TypeError(f"`{name}[{k!r}]` must be a LimbPose or a spine, got {type(pose)}.")
+        if index in checked:
+            raise ValueError(f"`{name}`: limb {index} is posed twice (by its index and its "
+                             "name).")  # fmt: skip
+        checked[index] = pose
+    return dict(sorted(checked.items()))
 
 
 def check_limb_index(k, skeleton: Skeleton, name: str) -> int:
-    """`k` as an `int`, else `ValueError` naming the argument `name`: not a limb index."""
-    count = len(skeleton.limbs)
-    if isinstance(k, bool) or not isinstance(k, int | np.integer) or not 0 <= k < count:
-        raise ValueError(
-            f"`{name}`: {k!r} is not a limb index of this skeleton (0 to {count - 1})."
-        )
-    return int(k)
+    """Limb `k` (an index or a limb's name) as an `int`, else `ValueError` naming the argument
+    `name`."""
+    return limb_index(k, skeleton.names, name)
 
 
 def pose_skeleton(
@@ -428,8 +432,9 @@ def pose_skeleton(
     - `mesh_or_registration`: the mesh `skeleton` was built on (`trimesh.Trimesh` or
       `(vertices, faces)`), or its `register_skeleton` (the per-frame path: register once).
     - `skeleton`: an `fj.Skeleton`.
-    - `poses`: dict of limb index → `fj.LimbPose` (degrees) or a target spine for the limb (as
-      long as its rest spine, equal to it up to the joint for a closed seam).
+    - `poses`: dict of limb index (or name, `Limb.name`) → `fj.LimbPose` (degrees) or a
+      target spine for the limb (as long as its rest spine, equal to it up to the joint for a
+      closed seam).
     - `method`: the fleshing (`"radial"`, `"normal"`, `"binormal"`; `fj.METHODS`).
     - `check_projection`: whether each image is checked to project back onto its limb's bent
       spine at its mapped arc length (the global test, as `fj.pose`'s). `False` flags only the

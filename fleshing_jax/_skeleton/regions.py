@@ -261,7 +261,7 @@ def levelled(limbs: list, region: np.ndarray, vertices: np.ndarray, normals: np.
         if joint < float(limb.joint) and _neighbours(grown, limb.parent, adjacency) >= (
                 _neighbours(region, limb.parent, adjacency) - {k}):  # fmt: skip
             region = grown
-            limbs[k] = Limb(limb.spine, joint, limb.parent)
+            limbs[k] = Limb(limb.spine, joint, limb.parent, limb.name)
     return limbs, region
 
 

@@ -29,13 +29,17 @@ class Limb(eqx.Module):
     - `joint`: scalar: the arc length on `spine` where the limb leaves its parent,
       `0 < joint < spine.length`.
     - `parent`: static int: the parent limb's index in `Skeleton.limbs`, or −1 for the body.
+    - `name`: static str, "" for none: what a user calls the limb (an armature's bone name,
+      `fj.skeleton(mesh, bones=…)`); poses and functions that take a limb index take it too.
     """
 
     spine: AbstractSpine
     joint: Array
     parent: int = eqx.field(static=True)
+    name: str = eqx.field(static=True, default="")
 
-    def __init__(self, spine: AbstractSpine, joint: ArrayLike, parent: int = -1):
+    def __init__(self, spine: AbstractSpine, joint: ArrayLike, parent: int = -1,
+                 name: str = ""):  # fmt: skip
         if not isinstance(spine, AbstractSpine):
             raise TypeError(f"`spine` must be an AbstractSpine, got {type(spine).__name__}.")
         if isinstance(parent, bool | np.bool_) or not isinstance(parent, int | np.integer):
@@ -47,6 +51,9 @@ class Limb(eqx.Module):
         floats = [x for x in jax.tree.leaves(spine) if jnp.issubdtype(x.dtype, jnp.floating)]
         self.joint = jnp.asarray(joint, dtype=floats[0].dtype if floats else None)
         self.parent = int(parent)
+        if not isinstance(name, str):
+            raise TypeError(f"`name` must be a str, got {type(name).__name__}.")
+        self.name = name
 
     def __check_init__(self):
         if self.joint.shape != ():
@@ -57,6 +64,22 @@ class Limb(eqx.Module):
                 raise ValueError(
                     f"`joint` must lie inside the spine, in (0, {length:.6g}), got {joint:.6g}."
                 )
+
+
+def limb_index(k, names, argument: str, owner: str = "skeleton") -> int:
+    """Limb `k` (an index, or a limb's name among `names`, a tuple with one per limb, "" for
+    none) as an `int`, else `ValueError` naming the `argument`."""
+    if isinstance(k, str):
+        if k and k in names:
+            return names.index(k)
+        named = [name for name in names if name]
+        listed = (f"named: {', '.join(named[:8])}{', …' if len(named) > 8 else ''}" if named
+                  else "its limbs have no names")
+        raise ValueError(f"`{argument}`: no limb of this {owner} is named {k!r} ({listed}).")
+    if isinstance(k, bool) or not isinstance(k, int | np.integer) or not 0 <= k < len(names):
+        raise ValueError(f"`{argument}`: {k!r} is not a limb index of this {owner} "
+                         f"(0 to {len(names) - 1}) nor a limb's name.")  # fmt: skip
+    return int(k)
 
 
 def descendants(limbs) -> list[list[int]]:
@@ -78,7 +101,7 @@ def merge_limb(limbs, region: np.ndarray, k: int):
     for i, limb in enumerate(limbs):
         if i != k:
             up = parent if limb.parent == k else limb.parent
-            merged.append(Limb(limb.spine, limb.joint, up - 1 if up > k else up))
+            merged.append(Limb(limb.spine, limb.joint, up - 1 if up > k else up, limb.name))
     region = np.where(region == k, parent, region)
     return merged, np.where(region > k, region - 1, region)
 
@@ -131,6 +154,10 @@ class Skeleton(eqx.Module):
         if is_concrete(self.vertices) and not np.isfinite(np.asarray(self.vertices)).all():
             # (Else saved, it is a file `load_skeleton` refuses, and no mesh matches it.)
             raise ValueError("`vertices` must be finite (found NaN or inf).")
+        names = [limb.name for limb in self.limbs if limb.name]
+        twice = next((name for name in names if names.count(name) > 1), None)
+        if twice is not None:
+            raise ValueError(f"`limbs`: two limbs are named {twice!r}: names must be unique.")
         if is_concrete(self.region) and n:
             region = np.asarray(self.region)
             low, high = int(region.min()), int(region.max())
@@ -139,6 +166,25 @@ class Skeleton(eqx.Module):
                     f"`region` must hold limb indices in [-1, {len(self.limbs)}), "
                     f"got [{low}, {high}]."
                 )
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        """Each limb's name ("" for none: a limb found on the medial axis)."""
+        return tuple(limb.name for limb in self.limbs)
+
+    def index(self, name: str) -> int:
+        """The index of the limb named `name` (an armature's bone name, `Limb.name`); every
+        function that takes a limb index takes its name too."""
+        if not isinstance(name, str):
+            raise TypeError(f"`name` must be a limb's name (str), got {type(name).__name__}.")
+        return limb_index(name, self.names, "name")
+
+    def _split_name(self, name: str) -> str:
+        """A split limb's new part's name: `name.1` (`name.2`, … where taken), "" for ""."""
+        count = 1
+        while name and f"{name}.{count}" in self.names:
+            count += 1
+        return f"{name}.{count}" if name else ""
 
     def limb_at(self, point: ArrayLike) -> int:
         """The limb whose region holds the rest vertex nearest to `point` ((3,) finite), −1
@@ -151,6 +197,7 @@ class Skeleton(eqx.Module):
 
     def children(self, index: int) -> tuple[int, ...]:
         """The indices of the limbs whose parent is limb `index` (−1: the body's limbs)."""
+        index = self.index(index) if isinstance(index, str) else index
         if isinstance(index, bool | np.bool_) or not isinstance(index, int | np.integer):
             raise TypeError(f"`index` must be an integer limb index or -1, got {index!r}.")
         if not -1 <= index < len(self.limbs):
@@ -244,8 +291,8 @@ class Skeleton(eqx.Module):
             base = np.asarray(other.spine(other.joint), np.float64)
             return index + (float(s[spine.query(base)[1]]) > at)
 
-        limbs = [Limb(other.spine, other.joint, parent(other)) for other in self.limbs]
-        limbs.insert(index + 1, Limb(limb.spine, at, index))
+        limbs = [Limb(other.spine, other.joint, parent(other), other.name) for other in self.limbs]
+        limbs.insert(index + 1, Limb(limb.spine, at, index, self._split_name(limb.name)))
         region = np.where(region > index, region + 1, region)
         return Skeleton(limbs, np.where(beyond, index + 1, region), self.vertices)
 
