@@ -1,7 +1,7 @@
 """Our jointed pose against Blender's armature on the same joint rotations (issues 45/46).
 
     python benchmarks/blender_armature.py --bpy /path/to/venv-with-bpy/bin/python \
-        [--character biped|spot|human|insect|dog|kangaroo|dinosaur] \
+        [--character biped|spot|human|insect|dog|kangaroo|dinosaur|cow] [--own-armature] \
         [--figure benchmarks/figures/skeleton-biped-vs-blender.png]
 
 The procedural biped's skeleton (`fj.skeleton`, 200 spheres): one leg posed at its hip 40°,
@@ -15,7 +15,11 @@ head turned.
 Blender (`pip install bpy` in another environment: `--bpy` names its Python) gets one bone
 per limb (head at the limb's bend start, tail where its bend is complete), a still body
 bone, automatic heat weights, and as each bone's rotation the rotation our pose gives that
-limb's end (so both pose the same joints by the same angles). Prints a Markdown table:
+limb's end (so both pose the same joints by the same angles). `--own-armature` (the human
+and the cow): both get the armature the character is modelled on instead (`skin_characters.py`'s
+bones: pelvis, spine, clavicles and hips too), ours through `fj.skeleton(mesh, bones=...)`
+(the bones inside the body no limbs), the same poses given by bone name; Blender's bones
+that are none of our limbs stay at rest. Prints a Markdown table:
 volume change, the worst edge stretch and how many edges stretch past 2.5×, the body's
 largest drift, flagged vertices (ours) and the time of a frame (ours: float32, jitted;
 Blender: its depsgraph's evaluation of the armature modifier, LBS and DQS).
@@ -197,6 +201,41 @@ def cow_poses(fj, skeleton):
                                                        up=up)}
 
 
+def own_bones(character: str) -> tuple:
+    """The armature `character` of `skin_characters.py` is modelled on, as Blender exports
+    it: `(heads (m, 3), tails (m, 3), parents (m,), names)`, bone `a-b` from joint `a` to
+    joint `b`, its parent the bone ending at `a` (−1: none)."""
+    from skin_characters import CHARACTERS
+
+    joints, bones = CHARACTERS[character]["joints"], CHARACTERS[character]["bones"]
+    parents = [next((i for i, (_, end) in enumerate(bones) if end == a), -1) for a, _ in bones]
+    return (np.array([joints[a][0] for a, _ in bones], float),
+            np.array([joints[b][0] for _, b in bones], float), np.array(parents),
+            [f"{a}-{b}" for a, b in bones])
+
+
+def human_armature_poses(fj, skeleton):
+    """`human_poses` on the human's own armature (`own_bones`), its bones posed by name."""
+    ahead = np.array([0.0, 1.0, 0.0])
+    poses = {f"l{a}-l{b}": fj.LimbPose(angle, towards=sign * ahead)
+             for a, b, angle, sign in (("hip", "knee", 40.0, 1), ("knee", "ankle", 70.0, -1),
+                                       ("ankle", "toe", 20.0, 1), ("shoulder", "elbow", 40.0, 1),
+                                       ("elbow", "wrist", 70.0, 1), ("wrist", "hand", 20.0, 1))}
+    poses["neck-head"] = fj.LimbPose(30.0, towards=ahead)
+    return lambda registration: poses
+
+
+def cow_armature_poses(fj, skeleton):
+    """`cow_poses` on the cow's own armature (`own_bones`), its bones posed by name."""
+    up, ahead = np.array([0.0, 0.0, 1.0]), np.array([1.0, 0.0, 0.0])
+    poses = {"front left hip-front left knee": fj.LimbPose(45.0, towards=ahead),
+             "front left knee-front left hoof": fj.LimbPose(45.0, towards=ahead),
+             "hind right hip-hind right knee": fj.LimbPose(30.0, towards=-ahead),
+             "tail-tail tip": fj.LimbPose(60.0, towards=up)}
+    return lambda registration: poses | {"neck-head": fj.turn(registration, skeleton,
+                                                              "neck-head", 45.0, up=up)}
+
+
 def skin_mesh(bpy: str, name: str):
     """The character `name` of `skin_characters.py`, modelled by Blender in a subprocess
     (`bpy`)."""
@@ -211,16 +250,24 @@ def skin_mesh(bpy: str, name: str):
                                process=False)
 
 
-def ours(out: Path, character: str, bpy: str):
+def ours(out: Path, character: str, bpy: str, own: bool = False):
     import equinox as eqx
     import jax
 
     jax.config.update("jax_enable_x64", True)
     import fleshing_jax as fj
     from fleshing_jax._medial_axis.characters import biped
-    from fleshing_jax._skeleton.posing import placed_poses, posed_limbs
+    from fleshing_jax._skeleton.posing import check_poses, placed_poses, posed_limbs
 
-    if character == "spot":
+    bones = None
+    if own:
+        mesh = skin_mesh(bpy, character)
+        mesh = mesh if mesh.is_watertight else fj.cap_holes(mesh)
+        bones = own_bones(character)
+        skeleton = fj.skeleton(mesh, bones=bones)
+        poses_of = {"human": human_armature_poses,
+                    "cow": cow_armature_poses}[character](fj, skeleton)
+    elif character == "spot":
         mesh = fj.data.spot()
         skeleton = fj.skeleton(mesh)
         poses_of = spot_poses(fj, skeleton)
@@ -242,15 +289,27 @@ def ours(out: Path, character: str, bpy: str):
     posed = fj.pose_skeleton(registration, skeleton, poses)
     rotations = np.tile(np.eye(3), (count, 1, 1))
     # (As the pose places them: a head's zone running on past its unposed ears, `WholeLimb`.)
-    placed = placed_poses(registration, skeleton, poses)[0]
-    for k, (_, _, motion, _) in posed_limbs(placed, poses, "radial", True, False).items():
+    placed, indexed, _ = placed_poses(registration, skeleton, check_poses(poses, skeleton))
+    for k, (_, _, motion, _) in posed_limbs(placed, indexed, "radial", True, False).items():
         rotations[k] = np.asarray(motion.rotation)
-    joints, stops = placed.joints, placed.stops
-    limbs = skeleton.limbs
-    heads = np.array([np.asarray(limbs[k].spine(joints[k])) for k in range(count)])
-    tails = np.array([np.asarray(limbs[k].spine(min(float(stops[k]),
-                                                    float(limbs[k].spine.length))))
-                      for k in range(count)])  # fmt: skip
+    if bones is not None:
+        # Blender gets the whole armature; a bone that is no limb (inside the body) stays.
+        heads, tails, parents = bones[:3]
+        rotations = np.array([rotations[skeleton.index(name)] if name in skeleton.names
+                              else np.eye(3) for name in bones[3]])
+    else:
+        # One bone per limb (head at the limb's bend start, tail where its bend is
+        # complete) under a still body bone (bone 0) at the body's centre.
+        joints, stops, limbs = placed.joints, placed.stops, skeleton.limbs
+        centre = vertices[np.asarray(skeleton.region) == -1].mean(axis=0)
+        heads = np.array([centre - (0, 0, 0.1)]
+                         + [np.asarray(limbs[k].spine(joints[k])) for k in range(count)])
+        tails = np.array([centre + (0, 0, 0.15)]
+                         + [np.asarray(limbs[k].spine(min(float(stops[k]),
+                                                          float(limbs[k].spine.length))))
+                            for k in range(count)])  # fmt: skip
+        parents = np.array([-1] + [limb.parent + 1 for limb in limbs])
+        rotations = np.concatenate([np.eye(3)[None], rotations])
     fast = fj.register_skeleton(mesh, skeleton, dtype=np.float32)
     frame = jax.jit(lambda scale: fj.pose_skeleton(
         fast, skeleton, {k: eqx.tree_at(lambda q: q.bend, p, scale * p.bend)
@@ -263,8 +322,7 @@ def ours(out: Path, character: str, bpy: str):
         times.append(time.perf_counter() - start)
     np.savez(out, vertices=vertices, faces=faces, posed=np.asarray(posed.vertices),
              valid=np.asarray(posed.valid), region=np.asarray(skeleton.region),
-             rotations=rotations, heads=heads, tails=tails,
-             parents=np.array([limb.parent for limb in limbs]),
+             rotations=rotations, heads=heads, tails=tails, parents=parents,
              frame_ms=1e3 * np.median(times))  # fmt: skip
 
 
@@ -286,14 +344,11 @@ def blender(data: Path, out: Path):
     bpy.context.view_layer.objects.active = armature
     bpy.ops.object.mode_set(mode="EDIT")
     bones = armature.data.edit_bones
-    torso = bones.new("body")
-    centre = vertices[d["region"] == -1].mean(axis=0)
-    torso.head, torso.tail = centre - (0, 0, 0.1), centre + (0, 0, 0.15)
     made = []
     for k, parent in enumerate(parents):
-        bone = bones.new(f"limb{k}")
+        bone = bones.new(f"bone{k}")
         bone.head, bone.tail = d["heads"][k], d["tails"][k]
-        bone.parent = torso if parent < 0 else made[parent]
+        bone.parent = None if parent < 0 else made[parent]
         made.append(bone)
     bpy.ops.object.mode_set(mode="OBJECT")
     body.select_set(True)
@@ -305,8 +360,8 @@ def blender(data: Path, out: Path):
     for k in range(len(parents)):
         # Our rotation R of the limb's end, in the armature's space: the bone's own
         # rotation is B^T R B in its rest frame B.
-        frame = np.array(armature.data.bones[f"limb{k}"].matrix_local.to_3x3())
-        pose = armature.pose.bones[f"limb{k}"]
+        frame = np.array(armature.data.bones[f"bone{k}"].matrix_local.to_3x3())
+        pose = armature.pose.bones[f"bone{k}"]
         pose.rotation_mode = "QUATERNION"
         pose.rotation_quaternion = mathutils.Matrix(
             (frame.T @ d["rotations"][k] @ frame).tolist()).to_quaternion()
@@ -349,13 +404,19 @@ def main():
     parser.add_argument("--character", default="biped",
                         choices=("biped", "spot", "human", "insect", "dog", "kangaroo",
                                  "dinosaur", "cow"))
+    parser.add_argument("--own-armature", action="store_true",
+                        help="the human's or cow's own armature (`skin_characters.py`'s bones, "
+                             "every one to Blender, ours from `fj.skeleton(mesh, bones=...)`), "
+                             "not one bone per limb of our found skeleton")
     parser.add_argument("--blender-side", nargs=2, help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.blender_side:
         return blender(*map(Path, args.blender_side))
     with tempfile.TemporaryDirectory() as folder:
         mine, theirs = Path(folder) / "ours.npz", Path(folder) / "blender.npz"
-        ours(mine, args.character, args.bpy)
+        if args.own_armature and args.character not in ("human", "cow"):
+            parser.error("--own-armature: --character human or cow")
+        ours(mine, args.character, args.bpy, args.own_armature)
         subprocess.run([args.bpy, __file__, "--bpy", args.bpy, "--blender-side", str(mine),
                         str(theirs)], check=True, capture_output=True)  # fmt: skip
         o, b = dict(np.load(mine)), dict(np.load(theirs))
