@@ -135,6 +135,16 @@ def test_insect_has_six_legs_on_its_thorax_and_a_head_with_two_antennae():
     below = [skeleton.chain(skeleton.limb_at(tip)) for tip in _mirrored(INSECT_ANTENNA[-1])]
     assert all(len(c) >= 2 and c[0] == head for c in below)
     assert below[0][1] != below[1][1]
+    # A front leg placed by hand (coxa, knee, ankle, foot), as an armature's bones: three
+    # limbs, the femur the first's. Refused before ("no room to bend limb 0": the femur's
+    # spine through the knee cut its corner, its region grown from the foot lost the femur);
+    # now fitted up to the knee, its region grown among the vertices nearest to the chain.
+    # (Its region still runs past the knee to the tibia's middle, where limb 1's begins.)
+    coxa, femur, knee, tibia, ankle, tarsus = legs[0]
+    given = fj.skeleton(mesh, chains=[[(coxa[0], 0.13, 0.32), knee[:3], ankle[:3],
+                                       (tarsus[0], 0.45, 0.03)]])
+    assert len(given.limbs) == 3
+    assert [given.limb_at(p[:3]) for p in (coxa, femur, knee, ankle, tarsus)] == [-1, 0, 0, 1, 2]
 
 
 def test_insect_with_a_head_thicker_than_its_thorax_is_rooted_at_the_thorax():

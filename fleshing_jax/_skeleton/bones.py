@@ -62,6 +62,7 @@ def bone_limbs(checked, vertices, adjacency, margin, body=frozenset()):
         else:
             chain_of[b] = ([b], 0)
     tree = cKDTree(vertices)
+    segments = np.stack([heads, tails], axis=1)
     region = np.full(len(vertices), -1)
     index = {}  # bone → limb (a bone in the body: its parent's limb, or −1)
     limbs: list[Limb] = []
@@ -72,8 +73,10 @@ def bone_limbs(checked, vertices, adjacency, margin, body=frozenset()):
         parent = index[int(parents[b])] if parents[b] >= 0 else -1
         if i == 0 or chain[i - 1] in inside:
             parent = _holding(heads[b], b, parents, index, region, tree)
+        # (The other bones, for where the chain's own vertices are: `chain_limb`.)
+        others = segments[np.setdiff1d(np.arange(len(heads)), chain[i:])]
         limb = None if b in body else chain_limb(points, i, parent, tree, region, vertices,
-                                                 adjacency, margin)
+                                                 adjacency, margin, others)
         if limb is None:
             index[b] = parent
             if b not in body:

@@ -199,15 +199,24 @@ def _bones_in_the_body(checked, vertices, adjacency, margin):
         limbs, region, names, kept, before = bone_limbs(checked, vertices, adjacency, margin,
                                                         frozenset(body))
         conflict = _conflict(limbs, region, vertices, adjacency)
-        starts = ([kept[conflict[0]]] if conflict is not None
-                  else [b for b, c in before.items() if c in kept])
-        chosen = None
-        for start in starts:
-            line, a = [start], int(parents[start])
+
+        def line(b) -> list[int]:  # bone `b`, then its ancestors with limbs
+            up, a = [b], int(parents[b])
             while a >= 0:
-                line += [a] if a in kept else []
+                up += [a] if a in kept else []
                 a = int(parents[a])
-            deepest = max(line, key=lambda b: depth(b, limbs, kept, conflict is not None))
+            return up
+
+        # A child with no room first, unless a limb above it left a bone of its chain
+        # nothing (it took that bone's part: a hip bone from the pelvis's middle took the
+        # thigh's, and the shin's foot has no room below it); then the bones left nothing.
+        left = [(b, False) for b, c in before.items() if c in kept]
+        starts = [(kept[conflict[0]], True)] if conflict is not None else []
+        above = [(b, j) for b, j in left if starts and before[b] in line(starts[0][0])]
+        starts = above + starts + left
+        chosen = None
+        for start, joint in starts:
+            deepest = max(line(start), key=lambda b: depth(b, limbs, kept, joint))
             if deepest in kept:  # (else the bone itself: it stays no limb)
                 chosen = deepest
                 break

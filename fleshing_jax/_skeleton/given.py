@@ -10,7 +10,10 @@ region is cut out of limb i − 1's at `p(i)`, the first one's out of the region
 the head's). The local radius at each point is its distance to the surface (the spine's
 curvature bound and its region's reach, as the medial radius is for a found limb): a point
 just outside, or a tip just within the surface, is first moved to the middle of the shape
-there (`inside.placed_inside`).
+there (`inside.placed_inside`). A chain bent at rest at a joint past what one spine follows
+(a dinosaur's or an insect's leg up to its knee, then down) has the limb before that joint
+fitted up to it, its region the chain's own vertices (nearer to it than to the other chains
+or bones), as a found limb bent at rest is (`rest_bend`).
 """
 
 from __future__ import annotations
@@ -19,9 +22,11 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from .._checks import check_finite_points
+from .chains import TURN
 from .inside import placed_inside
-from .limb_fit import fit_limb
+from .limb_fit import WIDE, fit_limb
 from .limbs import LimbPath
+from .regions import REACH, spine_samples
 from .skeleton import Limb
 
 
@@ -65,10 +70,12 @@ def given_limbs(chains, vertices, faces, adjacency, margin):
     tree = cKDTree(vertices)
     region = np.full(len(vertices), -1)
     limbs: list[Limb] = []
-    for c, points in enumerate(check_chains(chains, vertices, faces)):
+    checked = check_chains(chains, vertices, faces)
+    for c, points in enumerate(checked):
         parent = int(region[tree.query(points[0])[1]])
         for i in range(len(points) - 1):
-            limb = chain_limb(points, i, parent, tree, region, vertices, adjacency, margin)
+            limb = chain_limb(points, i, parent, tree, region, vertices, adjacency, margin,
+                              _segments([*checked[:c], points[:i + 1], *checked[c + 1:]]))
             parent = add_limb(limbs, region, limb, (
                 f"`chains[{c}]`: the limb from point {i} to its tip gets no part of the "
                 "surface to move (no vertex past the point within the spine's reach, or "
@@ -86,7 +93,13 @@ def add_limb(limbs: list, region: np.ndarray, limb, refusal: str) -> int:
     return len(limbs) - 1
 
 
-def chain_limb(points, i, parent, tree, region, vertices, adjacency, margin):
+def _segments(chains) -> np.ndarray:
+    """(m, 2, 3): the segments of the polylines `chains` (each (k, 3), k ≥ 1)."""
+    pieces = [np.stack([c[:-1], c[1:]], axis=1) for c in chains if len(c) > 1]
+    return np.concatenate(pieces) if pieces else np.zeros((0, 2, 3))
+
+
+def chain_limb(points, i, parent, tree, region, vertices, adjacency, margin, others=None):
     """The limb of the chain of joints `points` ((k, 3)) from its point `i` to its tip, cut out
     of the region of limb `parent` (−1: the body; `region` (n,) the limbs' so far):
     `(Limb, its region's vertex indices)`, or `None` when it gets no part of the surface.
@@ -99,6 +112,65 @@ def chain_limb(points, i, parent, tree, region, vertices, adjacency, margin):
     radii = np.r_[radius[0], radius]
     path = np.arange(i + 1, len(centers))  # p(i) … pn
     found = LimbPath(path, i, np.zeros(0, int), path, parent)
-    spine, part = fit_limb(found, centers, radii, vertices, adjacency, region == parent,
-                           margin, cut_at=points[i])  # fmt: skip
+    allowed = region == parent
+    spine, part = fit_limb(found, centers, radii, vertices, adjacency, allowed, margin,
+                           cut_at=points[i])  # fmt: skip
+    if (part is not None and i + 2 < len(points) and _turn(points, i + 1) >= TURN
+            and np.linalg.norm(points[i + 1] - points[i]) >= 2 * radius[i]
+            and part.joint > _arc_at(spine, points[i + 1])):
+        # Bent at rest at its next joint (a dinosaur's or an insect's leg, up to the knee and
+        # down), past what one spine follows: the spine cuts the knee's corner, and the
+        # region grown from the tip lost the limb's own bone (see `rest_bend`). Its spine is
+        # then fitted up to that joint only, its region grown among the chain's vertices
+        # beyond p(i) whatever their distance to that spine; the next limbs cut theirs out.
+        # (Only a limb as long as the shape is thick at its start: a torso's spine bones,
+        # shorter, are its body, not a leg bent at rest.)
+        top = np.arange(i + 1, i + 3)  # p(i), p(i+1)
+        chain = allowed & _nearest_segments(points[i:], radius[i:], others, vertices, tree)
+        top_spine, top_part = fit_limb(LimbPath(top, i, np.zeros(0, int), top, parent),
+                                       centers, radii, vertices, adjacency, allowed, margin,
+                                       cut_at=points[i], owned=chain)  # fmt: skip
+        if top_part is not None and top_part.joint < _arc_at(top_spine, points[i + 1]):
+            spine, part = top_spine, top_part
     return None if part is None else (Limb(spine, part.joint, parent), part.vertices)
+
+
+def _turn(points: np.ndarray, j: int) -> float:
+    """The angle (degrees) between the segments before and after `points[j]`."""
+    a, b = points[j] - points[j - 1], points[j + 1] - points[j]
+    cosine = a @ b / (np.linalg.norm(a) * np.linalg.norm(b))
+    return float(np.degrees(np.arccos(np.clip(cosine, -1.0, 1.0))))
+
+
+def _arc_at(spine, point: np.ndarray) -> float:
+    """The arc length of `spine`'s sample nearest to `point` (3,)."""
+    s, samples, _ = map(np.asarray, spine_samples(spine))
+    return float(s[np.argmin(np.linalg.norm(samples - point, axis=1))])
+
+
+def _nearest_segments(points, radius, others, vertices, tree) -> np.ndarray:
+    """(n,) bool: the `vertices` within `WIDE · REACH` local radii of the polyline `points`
+    (k, 3) (the radius interpolated along each segment between its ends' `radius` (k,)) and
+    nearer to it, in local radii, than to any of the `others` segments ((m, 2, 3) or `None`:
+    the other bones or chains; their radii the distances of their ends to the surface, a
+    `cKDTree` `tree` of `vertices`), as a found limb's own vertices are those nearest to its
+    medial spheres: a thigh's, not the body's around its hip."""
+    gap, reach = _segment_gaps(points[:-1], points[1:], vertices, radius[:-1], radius[1:])
+    own = np.min(gap / reach, axis=0)
+    near = own <= WIDE * REACH
+    if others is not None and len(others):
+        ends = tree.query(others.reshape(-1, 3))[0].reshape(-1, 2)
+        gap, reach = _segment_gaps(others[:, 0], others[:, 1], vertices, ends[:, 0], ends[:, 1])
+        near &= own <= np.min(gap / reach, axis=0)
+    return near
+
+
+def _segment_gaps(a, b, vertices, ra, rb):
+    """`(gaps (k, n), radii (k, n))`: each vertex's distance to each segment `a[j]`–`b[j]`
+    ((k, 3) each), and the radius there interpolated between `ra` and `rb` ((k,), > 0)."""
+    gaps, radii = [], []
+    for p, q, r0, r1 in zip(a, b, ra, rb, strict=True):
+        t = np.clip((vertices - p) @ (q - p) / max(float((q - p) @ (q - p)), 1e-300), 0.0, 1.0)
+        gaps.append(np.linalg.norm(vertices - (p + t[:, None] * (q - p)), axis=1))
+        radii.append(np.maximum(r0 + t * (r1 - r0), 1e-300))
+    return np.array(gaps), np.array(radii)
