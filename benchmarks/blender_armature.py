@@ -15,11 +15,11 @@ head turned.
 Blender (`pip install bpy` in another environment: `--bpy` names its Python) gets one bone
 per limb (head at the limb's bend start, tail where its bend is complete), a still body
 bone, automatic heat weights, and as each bone's rotation the rotation our pose gives that
-limb's end (so both pose the same joints by the same angles). `--own-armature` (the human
-and the cow): both get the armature the character is modelled on instead (`skin_characters.py`'s
-bones: pelvis, spine, clavicles and hips too), ours through `fj.skeleton(mesh, bones=...)`
-(the bones inside the body no limbs), the same poses given by bone name; Blender's bones
-that are none of our limbs stay at rest. Prints a Markdown table:
+limb's end (so both pose the same joints by the same angles). `--own-armature` (the human,
+the cow, the dinosaur): both get the armature the character is modelled on instead
+(`skin_characters.py`'s bones: pelvis, spine, clavicles and hips too), ours through
+`fj.skeleton(mesh, bones=...)` (the bones inside the body no limbs), the same poses given by
+bone name; Blender's bones that are none of our limbs stay at rest. Prints a Markdown table:
 volume change, the worst edge stretch and how many edges stretch past 2.5×, the body's
 largest drift, flagged vertices (ours) and the time of a frame (ours: float32, jitted;
 Blender: its depsgraph's evaluation of the armature modifier, LBS and DQS).
@@ -236,6 +236,19 @@ def cow_armature_poses(fj, skeleton):
                                                               "neck-head", 45.0, up=up)}
 
 
+def dinosaur_armature_poses(fj, skeleton):
+    """`dinosaur_poses` on the dinosaur's own armature (`own_bones`), by bone name: the neck
+    bone raised 30° and the head's 20° more, the left thigh 30° forwards and the shin 40°
+    backwards, the tail's second bone raised 30° (its first runs from the hips' middle)."""
+    up, ahead = np.array([0.0, 0.0, 1.0]), np.array([1.0, 0.0, 0.0])
+    poses = {"chest-neck": fj.LimbPose(30.0, towards=up),
+             "neck-head": fj.LimbPose(20.0, towards=up),
+             "left hip-left knee": fj.LimbPose(30.0, towards=ahead),
+             "left knee-left ankle": fj.LimbPose(40.0, towards=-ahead),
+             "tail 1-tail 2": fj.LimbPose(30.0, towards=up)}
+    return lambda registration: poses
+
+
 def skin_mesh(bpy: str, name: str):
     """The character `name` of `skin_characters.py`, modelled by Blender in a subprocess
     (`bpy`)."""
@@ -265,8 +278,8 @@ def ours(out: Path, character: str, bpy: str, own: bool = False):
         mesh = mesh if mesh.is_watertight else fj.cap_holes(mesh)
         bones = own_bones(character)
         skeleton = fj.skeleton(mesh, bones=bones)
-        poses_of = {"human": human_armature_poses,
-                    "cow": cow_armature_poses}[character](fj, skeleton)
+        poses_of = {"human": human_armature_poses, "cow": cow_armature_poses,
+                    "dinosaur": dinosaur_armature_poses}[character](fj, skeleton)
     elif character == "spot":
         mesh = fj.data.spot()
         skeleton = fj.skeleton(mesh)
@@ -414,8 +427,8 @@ def main():
         return blender(*map(Path, args.blender_side))
     with tempfile.TemporaryDirectory() as folder:
         mine, theirs = Path(folder) / "ours.npz", Path(folder) / "blender.npz"
-        if args.own_armature and args.character not in ("human", "cow"):
-            parser.error("--own-armature: --character human or cow")
+        if args.own_armature and args.character not in ("human", "cow", "dinosaur"):
+            parser.error("--own-armature: --character human, cow or dinosaur")
         ours(mine, args.character, args.bpy, args.own_armature)
         subprocess.run([args.bpy, __file__, "--bpy", args.bpy, "--blender-side", str(mine),
                         str(theirs)], check=True, capture_output=True)  # fmt: skip
