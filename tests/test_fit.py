@@ -432,6 +432,63 @@ def test_a_far_bend_from_the_rest_spine_starts_from_the_targets():
     assert float(fit.rms) <= 1e-3 * diagonal
 
 
+def test_a_fit_the_full_check_disagrees_with_is_solved_on_with_tighter_stops(monkeypatch):
+    # `_finished`: a solve that explained the data (its loss within the tolerance²) while the
+    # full projection check finds a point invalid (rms above the tolerance) is solved on from
+    # where it stopped, a tighter creep stop each round, until the check agrees; each round's
+    # steps counted; nothing for a fit explained or one whose own solve did not explain it.
+    # (The solves stubbed: the rule alone, no compile.)
+    import dataclasses
+
+    from fleshing_jax._fit import correspondences
+
+    @dataclasses.dataclass(frozen=True)
+    class Outcome:
+        rms: float
+        loss: float
+        num_steps: int
+        converged: bool = False
+        tolerance: float = 1.0
+        spine: object = None
+        twist: object = None
+
+    class Parameters:
+        def of(self, spine, twist):
+            return spine
+
+    rounds = iter([Outcome(2.0, 1e-4, 30, spine="a"), Outcome(0.5, 1e-6, 40, True, spine="b")])
+    seen = []
+
+    def fit(problem, solver, y, *rest):
+        seen.append((solver, y))
+        return next(rounds)
+
+    monkeypatch.setattr(correspondences, "fit", fit)
+    stopped = Outcome(3.0, 1e-2, 20, spine="start")  # one point invalid: rms 3 > 1
+    done = correspondences._finished(None, Parameters(), stopped, ["x", "y", "z"], False, 256,
+                                     False, 1e-3)
+    assert seen == [("x", "start"), ("y", "a")]
+    assert (done.spine, done.converged, done.num_steps) == ("b", True, 90)
+    seen.clear()
+    for result in (Outcome(0.5, 1e-2, 20), Outcome(3.0, 2.0, 20)):  # explained; a minimum above
+        assert correspondences._finished(None, Parameters(), result, ["x"], False, 256, False,
+                                         1e-3) is result
+    assert seen == []
+
+
+def test_the_spine_fits_trust_region_grows_after_a_good_step_not_a_near_exact_one():
+    # fit_spine's Levenberg-Marquardt grows its trust region once a step's loss fell by 3/4
+    # of the model's prediction (optimistix's 0.99 held the damping along a spine's sliding
+    # directions: spot's tail bent 60 deg crept to max_steps); the other fits' keep theirs.
+    from fleshing_jax._fit.problem import GOOD_STEP, default_solver
+
+    ours = default_solver("least_squares", jnp.float64, None, None, explained=1e-6)
+    assert ours.search.high_cutoff == GOOD_STEP == 0.75
+    for other in (default_solver("least_squares", jnp.float64, None, None),
+                  default_solver("least_squares", jnp.float64, None, None, damping=1e-3)):
+        assert other.search.high_cutoff == 0.99
+
+
 @needs_bspline
 def test_the_start_from_the_targets_holds_fixed_control_points_and_needs_a_bspline():
     rest = BSpline(_STRAIGHT, degree=3)
