@@ -435,8 +435,9 @@ def test_a_far_bend_from_the_rest_spine_starts_from_the_targets():
 def test_a_fit_the_full_check_disagrees_with_is_solved_on_with_tighter_stops(monkeypatch):
     # `_finished`: a solve that explained the data (its loss within the tolerance²) while the
     # full projection check finds a point invalid (rms above the tolerance) is solved on from
-    # where it stopped, a tighter creep stop each round, until the check agrees; each round's
-    # steps counted; nothing for a fit explained or one whose own solve did not explain it.
+    # where it stopped, a tighter creep stop each round, until the check agrees; then, out of
+    # steps, with the usual stop; each round's steps counted, the stages kept; nothing for a
+    # fit that converged or one whose own solve did not explain the data.
     # (The solves stubbed: the rule alone, no compile.)
     import dataclasses
 
@@ -451,12 +452,14 @@ def test_a_fit_the_full_check_disagrees_with_is_solved_on_with_tighter_stops(mon
         tolerance: float = 1.0
         spine: object = None
         twist: object = None
+        stages: int = 1
 
     class Parameters:
         def of(self, spine, twist):
             return spine
 
-    rounds = iter([Outcome(2.0, 1e-4, 30, spine="a"), Outcome(0.5, 1e-6, 40, True, spine="b")])
+    rounds = iter([Outcome(2.0, 1e-4, 30, spine="a"), Outcome(0.5, 1e-6, 40, spine="b"),
+                   Outcome(0.5, 1e-6, 5, True, spine="c")])
     seen = []
 
     def fit(problem, solver, y, *rest):
@@ -464,15 +467,15 @@ def test_a_fit_the_full_check_disagrees_with_is_solved_on_with_tighter_stops(mon
         return next(rounds)
 
     monkeypatch.setattr(correspondences, "fit", fit)
-    stopped = Outcome(3.0, 1e-2, 20, spine="start")  # one point invalid: rms 3 > 1
-    done = correspondences._finished(None, Parameters(), stopped, ["x", "y", "z"], False, 256,
-                                     False, 1e-3)
-    assert seen == [("x", "start"), ("y", "a")]
-    assert (done.spine, done.converged, done.num_steps) == ("b", True, 90)
+    stopped = Outcome(3.0, 1e-2, 20, spine="start", stages=4)  # a point invalid: rms 3 > 1
+    done = correspondences._finished(None, Parameters(), stopped, "usual", ["x", "y", "z"],
+                                     False, 256, False, 1e-3)
+    assert seen == [("x", "start"), ("y", "a"), ("usual", "b")]
+    assert (done.spine, done.converged, done.num_steps, done.stages) == ("c", True, 95, 4)
     seen.clear()
-    for result in (Outcome(0.5, 1e-2, 20), Outcome(3.0, 2.0, 20)):  # explained; a minimum above
-        assert correspondences._finished(None, Parameters(), result, ["x"], False, 256, False,
-                                         1e-3) is result
+    for result in (Outcome(0.5, 1e-2, 20, True), Outcome(3.0, 2.0, 20)):  # converged; a minimum
+        assert correspondences._finished(None, Parameters(), result, "usual", ["x"], False, 256,
+                                         False, 1e-3) is result
     assert seen == []
 
 

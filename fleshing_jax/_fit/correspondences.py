@@ -299,9 +299,8 @@ def fit_spine(
         arced = start.arc(setup.parameters, shaped)
         shaped, arced = (start.turned(problem, y, target, weights) for y in (shaped, arced))
         result = staged(1, start.closer(problem, setup.y0, shaped, arced))
-        result = _finished(
-            problem, setup.parameters, result, tighter, fit_twist, max_steps, throw, tolerance
-        )
+        result = _finished(problem, setup.parameters, result, solver, tighter, fit_twist,
+                           max_steps, throw, tolerance)
         if not _explained(result):
             # Often stopped near the answer at a cliff (a point posed invalid, its target
             # valid: the insect's body bent 90°, 200 points, 1.3e-2 of the diagonal): from
@@ -310,7 +309,8 @@ def fit_spine(
                                                      else None), follow=True)
             result = polished if float(polished.rms) < float(result.rms) else result
         if not _explained(result):
-            retried = staged(AUTO_STAGES, setup.y0)
+            retried = _finished(problem, setup.parameters, staged(AUTO_STAGES, setup.y0),
+                                solver, tighter, fit_twist, max_steps, throw, tolerance)
             low, high = sorted((float(result.rms), float(retried.rms)))
             stopped = [r.result == optx.RESULTS.successful for r in (result, retried)]
             same = all(stopped) and high < verdict.SAME_RESIDUAL * low and not (
@@ -336,14 +336,17 @@ def _finished(
     problem: Correspondence,
     parameters: Parameters,
     result: FitResult,
+    solver,
     tighter: list,
     fit_twist: bool,
     max_steps: int,
     throw: bool,
     tolerance: float,
 ) -> FitResult:
-    """`result` solved on from where it stopped with each of the `tighter` solvers in turn,
-    while its solve explained the data but the full projection check does not.
+    """`result` solved on from where it stopped, while its own solve explained the data
+    (its loss within the tolerance²) but it did not converge: with each of the `tighter`
+    solvers in turn while the full projection check disagrees (rms above the tolerance),
+    with `solver` (the usual stop) where it agrees but the solve ran out of steps.
 
     The solve poses its points checked at their feet alone (`check_projection=False`); the
     reported rms checks each image against the whole fitted spine. A target near the valid
@@ -354,14 +357,15 @@ def _finished(
     a creep stop ten times tighter each round, the spine comes nearer the answer, whose
     curvature passes the check, and the fit is then reported as what it is."""
     steps = result.num_steps
-    for solver in tighter:
-        if _explained(result) or float(result.loss) > float(result.tolerance) ** 2:
+    for tight in tighter:
+        if result.converged or float(result.loss) > float(result.tolerance) ** 2:
             break
         y = parameters.of(result.spine, result.twist if fit_twist else None)
-        on = fit(problem, solver, y, max_steps, throw, tolerance, ADVICE)
+        agrees = float(result.rms) <= float(result.tolerance)
+        on = fit(problem, solver if agrees else tight, y, max_steps, throw, tolerance, ADVICE)
         steps = steps + on.num_steps
-        if float(on.rms) < float(result.rms):
-            result = dataclasses.replace(on, num_steps=steps)
+        if float(on.rms) < float(result.rms) or agrees:
+            result = dataclasses.replace(on, num_steps=steps, stages=result.stages)
     return result
 
 
