@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 import fleshing_jax as fj
+from fleshing_jax._spines import arclength
 from fleshing_jax._spines.bspline import _de_boor
 
 CONTROL = np.array(
@@ -190,3 +191,22 @@ def test_float32():
     assert abs(float(spine.length) - float(reference.length)) < 1e-5 * float(reference.length)
     speed = jax.jit(jax.vmap(jax.jacfwd(spine)))(s)
     assert np.max(np.abs(np.linalg.norm(speed, axis=-1) - 1)) < 1e-5
+
+
+def test_arc_length_inverse_runs_newton_until_converged():
+    # Control points spaced geometrically: the speed changes by much of itself within a
+    # sub-interval, where two Newton steps and the polish leave s(u(s)) off by 4e-8 of the
+    # length; the inverse stops on the step's size, not after a fixed count.
+    points = [[0, 0, 0], [5e-4, 2e-4, 0], [4e-3, 2e-3, 0], [0.03, 0.02, 0], [0.3, 0.1, 0],
+              [3, 1, 0.5]]  # fmt: skip
+    tables = fj.BSpline(np.array(points), degree=5, subdivisions=8)._prepare().tables
+    length = tables.cumulative[tables.end]
+
+    def residual(s):
+        i, u, j = arclength.inverse(tables.coefficients, tables.cumulative, tables.parts, s,
+                                    tables.end)  # fmt: skip
+        start = -1 + 2 * (j % tables.parts).astype(s.dtype) / tables.parts
+        return tables.cumulative[j] + arclength._partial(tables.coefficients[i], start, u) - s
+
+    s = jnp.linspace(0, length, 2001)
+    assert float(jnp.max(jnp.abs(jax.jit(jax.vmap(residual))(s)))) < 1e-14 * float(length)
