@@ -141,10 +141,15 @@ def test_insect_has_six_legs_on_its_thorax_and_a_head_with_two_antennae():
     # now fitted up to the knee, its region grown among the vertices nearest to the chain.
     # (Its region still runs past the knee to the tibia's middle, where limb 1's begins.)
     coxa, femur, knee, tibia, ankle, tarsus = legs[0]
-    given = fj.skeleton(mesh, chains=[[(coxa[0], 0.13, 0.32), knee[:3], ankle[:3],
-                                       (tarsus[0], 0.45, 0.03)]])
+    chain = np.array([(coxa[0], 0.13, 0.32), knee[:3], ankle[:3], (tarsus[0], 0.45, 0.03)])
+    given = fj.skeleton(mesh, chains=[chain])
     assert len(given.limbs) == 3
     assert [given.limb_at(p[:3]) for p in (coxa, femur, knee, ankle, tarsus)] == [-1, 0, 0, 1, 2]
+    # The same leg as an armature's three bones: the same limbs, named as the bones.
+    bones = fj.skeleton(mesh, bones=(chain[:-1], chain[1:], np.array([-1, 0, 1]),
+                                     ["femur", "tibia", "tarsus"]))
+    assert np.array_equal(np.asarray(bones.region), np.asarray(given.region))
+    assert bones.names == ("femur", "tibia", "tarsus")
 
 
 def test_insect_with_a_head_thicker_than_its_thorax_is_rooted_at_the_thorax():

@@ -317,6 +317,36 @@ def test_the_deeper_of_a_bone_left_nothing_and_the_limb_before_it_joins_the_body
     assert limbs == ["tail"] and names == ["bone 1"] and found == [set(), {0}]
 
 
+def test_a_bone_left_nothing_above_a_child_with_no_room_is_settled_first(monkeypatch):
+    # A dinosaur's hip bone from the pelvis's middle took the thigh's part (the thigh got
+    # nothing), and below them the shin leaves the foot no room. The cause is above: the
+    # deeper of the hip bone and the thigh joins the body first (the hip bone), and the limbs
+    # found again are the thigh, the shin and the foot; the shin, settled first, went into
+    # the body instead.
+    import trimesh
+
+    from fleshing_jax._skeleton import build
+
+    ball = trimesh.creation.icosphere(2, 1.0)
+    x = np.array([0.0, 0.5, 0.7, 0.85, 0.95])
+    heads, tails = np.c_[x[:-1], 0 * x[:-1], 0 * x[:-1]], np.c_[x[1:], 0 * x[1:], 0 * x[1:]]
+    found = []
+
+    def bone_limbs(checked, vertices, adjacency, margin, body=frozenset()):
+        found.append(set(body))
+        if 0 in body:  # (limbs, region, labels, kept, before)
+            return ["thigh", "shin", "foot"], None, ["bone 1", "bone 2", "bone 3"], [1, 2, 3], {}
+        return ["hip", "shin", "foot"], None, ["bone 0", "bone 2", "bone 3"], [0, 2, 3], {1: 0}
+
+    monkeypatch.setattr(build, "bone_limbs", bone_limbs)
+    # (The shin, limb 1 while the hip bone is a limb, leaves its child the foot no room.)
+    monkeypatch.setattr(build, "_conflict", lambda *args: None if found[-1] else (1, 2, 0.0))
+    checked = (heads, tails, np.array([-1, 0, 1, 2]), [f"bone {b}" for b in range(4)])
+    with pytest.warns(UserWarning, match=r"1 bones lie inside the body \(bone 0\)"):
+        limbs, _, _ = build._bones_in_the_body(checked, np.asarray(ball.vertices), None, 0)
+    assert limbs == ["thigh", "shin", "foot"] and found == [set(), {0}]
+
+
 def test_bad_bones_are_refused_by_name(given):
     mesh, _ = given
     heads, tails, parents = _bones(CHAINS)

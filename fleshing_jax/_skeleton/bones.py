@@ -76,14 +76,13 @@ def bone_limbs(checked, vertices, adjacency, margin, body=frozenset()):
         # (The other bones, for where the chain's own vertices are: `chain_limb`.)
         others = segments[np.setdiff1d(np.arange(len(heads)), chain[i:])]
         limb = None if b in body else chain_limb(points, i, parent, tree, region, vertices,
-                                                 adjacency, margin, others)
+                                                 adjacency, margin, others, names[b])
         if limb is None:
             index[b] = parent
             if b not in body:
                 inside.append(b)
             continue
-        named = Limb(limb[0].spine, limb[0].joint, limb[0].parent, names[b])
-        index[b] = add_limb(limbs, region, (named, limb[1]), "")
+        index[b] = add_limb(limbs, region, limb, "")
         kept.append(b)
     # (For each bone inside the body that continues a chain, the bone before it.)
     before = {b: chain_of[b][0][chain_of[b][1] - 1] for b in inside if chain_of[b][1] > 0}

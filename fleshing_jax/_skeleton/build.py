@@ -185,7 +185,10 @@ def _bones_in_the_body(checked, vertices, adjacency, margin):
     ancestors with limbs (the distance to the surface at its head; where a child has no
     room, at its limb's joint: the spine bone's is in the chest's middle, the neck bone's
     where its region leaves the chest) joins the body's bones and the limbs are found
-    again. (Chains a user places are refused instead.)"""
+    again. A child with no room is settled first, unless a limb above it left a bone of its
+    own chain nothing (a dinosaur's hip bone from the pelvis's middle took the thigh's part,
+    and the shin below has no room for the foot): that bone's case is settled first, where
+    the cause lies. (Chains a user places are refused instead.)"""
     heads, parents, labels = checked[0], checked[2], checked[3]
     tree = cKDTree(vertices)
 

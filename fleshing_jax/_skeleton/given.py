@@ -99,11 +99,13 @@ def _segments(chains) -> np.ndarray:
     return np.concatenate(pieces) if pieces else np.zeros((0, 2, 3))
 
 
-def chain_limb(points, i, parent, tree, region, vertices, adjacency, margin, others=None):
+def chain_limb(points, i, parent, tree, region, vertices, adjacency, margin, others=None,
+               name: str = ""):
     """The limb of the chain of joints `points` ((k, 3)) from its point `i` to its tip, cut out
     of the region of limb `parent` (−1: the body; `region` (n,) the limbs' so far):
     `(Limb, its region's vertex indices)`, or `None` when it gets no part of the surface.
-    `tree`: a `cKDTree` of `vertices`."""
+    `tree`: a `cKDTree` of `vertices`; `others`: (m, 2, 3) the other bones' or chains'
+    segments (where a chain bent at rest has its own vertices); `name`: the limb's name."""
     radius = tree.query(points)[0]  # the distance to the surface, at a vertex's precision
     # As spheres: a point a radius before p0 (inside the parent: the spine starts there),
     # then the chain's points.
@@ -132,7 +134,7 @@ def chain_limb(points, i, parent, tree, region, vertices, adjacency, margin, oth
                                        cut_at=points[i], owned=chain)  # fmt: skip
         if top_part is not None and top_part.joint < _arc_at(top_spine, points[i + 1]):
             spine, part = top_spine, top_part
-    return None if part is None else (Limb(spine, part.joint, parent), part.vertices)
+    return None if part is None else (Limb(spine, part.joint, parent, name), part.vertices)
 
 
 def _turn(points: np.ndarray, j: int) -> float:
