@@ -251,7 +251,8 @@ def _parser() -> argparse.ArgumentParser:
         "pose a closed mesh limb by limb on its skeleton (each limb bent, the rest still)",
         "Bend limbs of IN, each along its own spine from its joint (its child limbs "
         "follow; the body and the other limbs stay exactly still), and write OUT in the format "
-        "of its extension. Each limb is named by --limb K (its index in the skeleton) or --at "
+        "of its extension. Each limb is named by --limb K (its index in the skeleton, or its "
+        "name: a skeleton from an armature's bones) or --at "
         "X,Y,Z (the limb holding the vertex nearest to that point), followed by its --bend "
         "(and optionally --direction and --twist), in degrees; or all of them in --poses.",
         "input mesh (closed)", epilog=POSES_FORMAT, raw=True,

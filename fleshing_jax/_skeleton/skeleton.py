@@ -112,7 +112,8 @@ class Skeleton(eqx.Module):
 
     Edited by hand with `merge(k)` (a joint removed: limb `k` joins its parent) and
     `split(k, point)` (a joint added: the part of limb `k` past the point a child limb);
-    `fj.save_skeleton` writes it as JSON.
+    `fj.save_skeleton` writes it as JSON. `names` gives each limb's name (`Limb.name`: an
+    armature's bone's) and `index(name)` its index.
 
     **Arguments/fields:**
 
