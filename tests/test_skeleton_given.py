@@ -65,6 +65,26 @@ def test_joints_on_a_mirror_plane_or_a_tube_s_axis_are_inside():
     assert np.all(moved_inside(axis + [0, 0.31, 0], vertices, faces)[1] > 0)
 
 
+def test_a_joint_off_its_limb_s_axis_is_moved_onto_it_across_the_limb():
+    # A knee placed at the front of a leg (a third of the way across), as animators do: its
+    # distance to the surface was the leg's radius there, and the leg's region began far
+    # below it. Centred joints, and one just off the axis, stay where they are placed.
+    from fleshing_jax._skeleton.inside import bisectors, on_axis
+
+    angle = np.linspace(0, 2 * np.pi, 16, endpoint=False)
+    tube = fj.extrusion(0.3 * np.stack([np.cos(angle), np.sin(angle)], 1), 6.0, 60)
+    vertices, faces = np.asarray(tube.vertices), np.asarray(tube.faces)
+    joints = np.array([[2.0, 0.2, 0.0], [3.0, -0.1, 0.15], [4.0, 0.05, 0.0], [5.0, 0.0, 0.0]])
+    before, after = joints - [0.5, 0.0, 0.0], joints + [0.5, 0.0, 0.1]
+    axes = bisectors(before, joints, after)
+    assert np.allclose(np.linalg.norm(axes, axis=1), 1.0)
+    moved = on_axis(joints, axes, vertices, faces)
+    # Across the limb only: no joint slides along it.
+    assert np.allclose(np.einsum("ij,ij->i", moved - joints, axes), 0.0, atol=1e-12)
+    assert np.all(np.linalg.norm(moved[:2, 1:], axis=1) < 0.02)  # on the 16-gon's axis
+    assert np.array_equal(moved[2:], joints[2:])
+
+
 def test_joints_just_past_the_surface_are_moved_to_the_middle_of_the_shape(given):
     # An armature's tip at the sole or a joint where a subdivided skin shrank away from its
     # cage lies just outside: moved to the centre of the largest ball inside touching its
@@ -345,6 +365,42 @@ def test_a_bone_left_nothing_above_a_child_with_no_room_is_settled_first(monkeyp
     with pytest.warns(UserWarning, match=r"1 bones lie inside the body \(bone 0\)"):
         limbs, _, _ = build._bones_in_the_body(checked, np.asarray(ball.vertices), None, 0)
     assert limbs == ["thigh", "shin", "foot"] and found == [set(), {0}]
+
+
+def test_a_short_bone_bent_into_its_limb_goes_before_the_deeper_thigh(monkeypatch):
+    # An insect's coxa bone from the thorax's middle to the hip, shorter than the thorax is
+    # thick, then the thigh up to the knee: the coxa's spine through the bent hip took part of
+    # the leg (its region begins past its tail), the thigh little, and the thigh leaves the
+    # shin no room. The thigh's joint is deeper in the body than the coxa's, and it went into
+    # the body (the leg's thigh lost); the coxa, which lost its bone, goes first now.
+    import trimesh
+
+    from fleshing_jax._skeleton import build
+    from fleshing_jax._skeleton.skeleton import Limb
+
+    ball = trimesh.creation.icosphere(2, 1.0)
+    joints = np.array([(0.0, 0, 0), (0.6, 0, 0), (0.75, 0, 0.35), (0.9, 0, 0.1)])
+    heads, tails = joints[:-1], joints[1:]
+
+    def limb(a, b, joint):
+        return Limb(fj.BSpline(np.linspace(a, b, 6)), joint)
+
+    coxa, thigh = limb(joints[0], (1.0, 0, 0), 0.8), limb(joints[1], joints[2], 0.05)
+    shin = limb(joints[2], joints[3], 0.05)
+    found = []
+
+    def bone_limbs(checked, vertices, adjacency, margin, body=frozenset()):
+        found.append(set(body))
+        if body:  # (limbs, region, labels, kept, before)
+            return [thigh, shin], None, ["bone 1", "bone 2"], [1, 2], {}
+        return [coxa, thigh, shin], None, ["bone 0", "bone 1", "bone 2"], [0, 1, 2], {}
+
+    monkeypatch.setattr(build, "bone_limbs", bone_limbs)
+    monkeypatch.setattr(build, "_conflict", lambda *args: None if found[-1] else (1, 2, 0.0))
+    checked = (heads, tails, np.array([-1, 0, 1]), [f"bone {b}" for b in range(3)])
+    with pytest.warns(UserWarning, match=r"1 bones lie inside the body \(bone 0\)"):
+        build._bones_in_the_body(checked, np.asarray(ball.vertices), None, 0)
+    assert found == [set(), {0}]
 
 
 def test_bad_bones_are_refused_by_name(given):

@@ -293,6 +293,28 @@ def ray_inside(points, a, b, c) -> np.ndarray:
     return votes >= 2
 
 
+def first_hits(origins, directions, a, b, c) -> np.ndarray:
+    """`(R,)` the distance from each of `origins (R, 3)` along its unit direction
+    (`directions (R, 3)`) to the first of the triangles `a, b, c` (each (T, 3)) it crosses,
+    `inf` where it crosses none (Möller and Trumbore's test, each ray against every triangle:
+    for the few rays a skeleton's joints cast)."""
+    e1, e2 = b - a, c - a
+    hits = np.full(len(origins), np.inf)
+    for r, (o, d) in enumerate(zip(np.asarray(origins, np.float64),
+                                   np.asarray(directions, np.float64), strict=True)):
+        h = np.cross(d, e2)
+        det = np.einsum("ij,ij->i", e1, h)
+        safe = np.where(det != 0, det, 1.0)
+        s = o - a
+        u = np.einsum("ij,ij->i", s, h) / safe
+        q = np.cross(s, e1)
+        v = (q @ d) / safe
+        t = np.einsum("ij,ij->i", e2, q) / safe
+        hit = (det != 0) & (u >= 0) & (v >= 0) & (u + v <= 1) & (t > 0)
+        hits[r] = t[hit].min(initial=np.inf)
+    return hits
+
+
 def _generic_frame() -> np.ndarray:
     """A rotation `(3, 3)` whose columns lie along no simple direction of a model's axes."""
     axis = np.array([1.0, 2.0**0.5, 3.0**0.5])

@@ -26,7 +26,7 @@ from scipy.spatial import cKDTree
 
 from .._checks import check_finite_points
 from .given import add_limb, chain_limb
-from .inside import placed_inside
+from .inside import bisectors, on_axis, placed_inside
 from .skeleton import Limb
 
 # A bone continues its parent's chain when its head lies within this fraction of the mesh's
@@ -46,7 +46,7 @@ def bone_limbs(checked, vertices, adjacency, margin, body=frozenset()):
     one); `before`: for each of the latter that continues a chain, the bone before it."""
     heads, tails, parents, labels, names = checked
     order = _order(parents)
-    connected = _connected(heads, tails, parents, vertices)
+    connected = connected_bones(heads, tails, parents, vertices)
     # Each bone's chain of joints (its first bone's head, then each bone's tail) and its
     # place in it: a bone continues its parent's chain when its head is the parent's tail
     # and no earlier sibling continues it already.
@@ -89,7 +89,7 @@ def bone_limbs(checked, vertices, adjacency, margin, body=frozenset()):
     return limbs, region, [labels[b] for b in kept], kept, before
 
 
-def _connected(heads, tails, parents, vertices) -> np.ndarray:
+def connected_bones(heads, tails, parents, vertices) -> np.ndarray:
     """`(m,)` bool: each bone's head is its parent's tail (within `CONNECTED` of the
     diagonal of `vertices`), as Blender writes a connected bone's."""
     diagonal = float(np.linalg.norm(np.ptp(vertices, axis=0)))
@@ -167,11 +167,23 @@ def check_bones(bones, vertices, faces):
         raise ValueError("`bones`: the parents form a cycle: "
                          + " → ".join(labels[b] for b in cycle) + ".")  # fmt: skip
     # A tail no bone continues from is a chain's tip.
+    connected = connected_bones(heads, tails, parents, vertices)
     continued = np.zeros(n, bool)
-    continued[parents[_connected(heads, tails, parents, vertices)]] = True
+    continued[parents[connected]] = True
     ends = placed_inside(np.concatenate([heads, tails]),
                          [f"{label}'s {end}" for end in ("head", "tail") for label in labels],
                          vertices, faces, "bones", np.r_[np.zeros(n, bool), ~continued])
+    # Each joint where a bone continues its parent's chain moved onto the limb's axis when
+    # off it (`inside.on_axis`: a knee placed at its front), the child's head with it.
+    child = np.full(n, -1)
+    child[parents[connected][::-1]] = np.flatnonzero(connected)[::-1]  # (the first child)
+    joints = np.flatnonzero(child >= 0)
+    if len(joints):
+        heads_, tails_ = ends[:n], ends[n:]
+        tails_[joints] = on_axis(tails_[joints], bisectors(heads_[joints], tails_[joints],
+                                                           tails_[child[joints]]),
+                                 vertices, faces)  # fmt: skip
+        heads_[connected] = tails_[parents[connected]]
     diagonal = float(np.linalg.norm(np.ptp(vertices, axis=0)))
     # (Checked after the move too: both ends past the surface may meet at one point.)
     short = np.flatnonzero(np.linalg.norm(ends[n:] - ends[:n], axis=1) <= 1e-9 * diagonal)

@@ -14,10 +14,10 @@ from .._medial_axis.medial_mesh import MedialMesh
 from .._medial_axis.shells import bodies
 from .._medial_axis.unit import UnitFrame
 from .._mesh.deform import longest_edge
-from .bones import bone_limbs, check_bones
-from .chains import split_chains
+from .bones import bone_limbs, check_bones, connected_bones
+from .chains import TURN, split_chains
 from .fit import nearest_spheres, sphere_gaps, spine_from_unit
-from .given import given_limbs
+from .given import SHORT, _arc_at, _turn, given_limbs
 from .limb_fit import fit_limb
 from .limbs import ROUTES, find_limbs
 from .regions import levelled, mesh_adjacency, spine_samples, vertex_normals
@@ -107,7 +107,8 @@ def skeleton(mesh, *, medial: MedialMesh | None = None, spheres: int = 200,
       outwards (where the limb leaves its parent, its joints, its tip), as bones are placed
       in Blender; a chain is `n` limbs, each the parent of the next, cut at its points
       (`_skeleton.given`). A chain whose `p0` lies in an earlier chain's region (an ear on a
-      head) hangs from that limb.
+      head) hangs from that limb. A joint off the limb's axis (a knee placed at its front)
+      is moved across the limb to its middle (`_skeleton.inside.on_axis`).
 
     - `bones`: the limbs of an armature instead, as Blender exports it: `(heads (m, 3),
       tails (m, 3), parents (m,))` (parents: each bone's parent's index, −1 for a root
@@ -189,13 +190,31 @@ def _bones_in_the_body(checked, vertices, adjacency, margin):
     own chain nothing (a dinosaur's hip bone from the pelvis's middle took the thigh's part,
     and the shin below has no room for the foot): that bone's case is settled first, where
     the cause lies. (Chains a user places are refused instead.)"""
-    heads, parents, labels = checked[0], checked[2], checked[3]
+    heads, tails, parents, labels = checked[0], checked[1], checked[2], checked[3]
     tree = cKDTree(vertices)
+    # The bones of the body bent at rest into their limbs (a coxa from the thorax's middle
+    # into a thigh): shorter than `SHORT` radii at their heads, from the body's middle out to
+    # where the limb leaves it (their tails less than half as deep as their heads), their
+    # chains turning by at least `TURN` at their tails. Not fitted up to their tails
+    # (`chain_limb`), their spines through the bent joint took a part of the leg. (A neck
+    # bone into a head, as deep at both ends, is the head's.)
+    deep = tree.query(np.concatenate([heads, tails]))[0].reshape(2, -1)
+    short = (np.linalg.norm(tails - heads, axis=1) < SHORT * deep[0]) & (deep[1] < 0.5 * deep[0])
+    bent = np.zeros(len(heads), bool)
+    for c in np.flatnonzero(connected_bones(heads, tails, parents, vertices)):
+        p = parents[c]
+        bent[p] |= short[p] and _turn(np.stack([heads[p], tails[p], tails[c]]), 1) >= TURN
 
     def depth(b, limbs, kept, joint: bool) -> float:
-        """How deep in the body bone `b` starts: at its limb's joint, or at its head."""
-        at = limbs[kept.index(b)].spine(float(limbs[kept.index(b)].joint)) if joint else heads[b]
-        return float(tree.query(np.asarray(at))[0])
+        """How deep in the body bone `b` starts: at its limb's joint, or at its head. A limb
+        whose region begins past the tail of its bone, bent at rest into its limb (`bent`),
+        lost its bone: it is the first to go (a coxa; the thigh after it was deeper)."""
+        if not joint:
+            return float(tree.query(heads[b])[0])
+        limb = limbs[kept.index(b)]
+        if bent[b] and float(limb.joint) > _arc_at(limb.spine, tails[b]):
+            return np.inf
+        return float(tree.query(np.asarray(limb.spine(float(limb.joint))))[0])
 
     body = set()
     while True:
@@ -219,6 +238,7 @@ def _bones_in_the_body(checked, vertices, adjacency, margin):
         starts = above + starts + left
         chosen = None
         for start, joint in starts:
+            # (The highest of equals: two limbs that lost their bones, the cause above.)
             deepest = max(line(start), key=lambda b: depth(b, limbs, kept, joint))
             if deepest in kept:  # (else the bone itself: it stays no limb)
                 chosen = deepest

@@ -23,17 +23,23 @@ from scipy.spatial import cKDTree
 
 from .._checks import check_finite_points
 from .chains import TURN
-from .inside import placed_inside
+from .inside import bisectors, on_axis, placed_inside
 from .limb_fit import WIDE, fit_limb
 from .limbs import LimbPath
 from .regions import REACH, spine_samples
 from .skeleton import Limb
 
+# A bone shorter than this many times the shape's thickness at its head (its distance to the
+# surface) is the body's: a torso's spine bone, a coxa or a clavicle from the torso's middle.
+# Bent at rest into its limb, it is not fitted up to its joint as a leg is (`chain_limb`).
+SHORT = 2.0
+
 
 def check_chains(chains, vertices: np.ndarray, faces: np.ndarray) -> list[np.ndarray]:
     """`chains` as a list of (k, 3) float64 arrays, k ≥ 2, every point inside the mesh (one
-    just past it moved inside: `inside.placed_inside`) and no two consecutive points equal;
-    else `TypeError`/`ValueError` naming the chain and point."""
+    just past it moved inside: `inside.placed_inside`; a joint off its limb's axis moved onto
+    it: `inside.on_axis`) and no two consecutive points equal; else `TypeError`/`ValueError`
+    naming the chain and point."""
     if isinstance(chains, str | bytes) or not hasattr(chains, "__len__") or len(chains) == 0:
         raise TypeError(
             "`chains` must be a non-empty list of chains, each a list of points [p0, p1, …] "
@@ -60,6 +66,14 @@ def check_chains(chains, vertices: np.ndarray, faces: np.ndarray) -> list[np.nda
             raise ValueError(f"`chains[{i}]`: points {j} and {j + 1} lie past the surface: "
                              "moved inside, they are the same point.")
         checked.append(points)
+    # Joints off the limb's axis (a knee placed at its front) moved onto it (`on_axis`).
+    inner = [(i, j) for i, points in enumerate(checked) for j in range(1, len(points) - 1)]
+    if inner:
+        at = np.array([checked[i][j] for i, j in inner])
+        axes = bisectors(np.array([checked[i][j - 1] for i, j in inner]), at,
+                         np.array([checked[i][j + 1] for i, j in inner]))
+        for (i, j), point in zip(inner, on_axis(at, axes, vertices, faces), strict=True):
+            checked[i][j] = point
     return checked
 
 
@@ -118,7 +132,7 @@ def chain_limb(points, i, parent, tree, region, vertices, adjacency, margin, oth
     spine, part = fit_limb(found, centers, radii, vertices, adjacency, allowed, margin,
                            cut_at=points[i])  # fmt: skip
     if (part is not None and i + 2 < len(points) and _turn(points, i + 1) >= TURN
-            and np.linalg.norm(points[i + 1] - points[i]) >= 2 * radius[i]
+            and np.linalg.norm(points[i + 1] - points[i]) >= SHORT * radius[i]
             and part.joint > _arc_at(spine, points[i + 1])):
         # Bent at rest at its next joint (a dinosaur's or an insect's leg, up to the knee and
         # down), past what one spine follows: the spine cuts the knee's corner, and the

@@ -17,9 +17,12 @@ import warnings
 
 import numpy as np
 
-from .._medial_axis.surface import SurfaceQuery, ray_inside
+from .._medial_axis.surface import SurfaceQuery, first_hits, ray_inside
 
 _STEPS = 32  # shrinking-ball steps (each halves the error or better; 5–10 on the cow)
+# Chord midpoints a joint is moved by (`on_axis`): a round tube's off-axis knee is on its axis
+# after the first; an oval one's nearer with each.
+ROUNDS = 3
 
 
 def placed_inside(points: np.ndarray, labels: list[str], vertices: np.ndarray,
@@ -106,3 +109,51 @@ def _medial_radius(surface: SurfaceQuery, foot: np.ndarray, normal: np.ndarray) 
             break
         radius = smaller
     return radius
+
+
+def on_axis(points: np.ndarray, axes: np.ndarray, vertices: np.ndarray,
+            faces: np.ndarray) -> np.ndarray:
+    """`points (k, 3)`, joints inside the mesh, with those lying off their limb's axis moved
+    onto it, across the limb; `axes (k, 3)` the limb's unit direction at each (the bisector
+    of the bones that meet there).
+
+    Animators place a knee or an elbow towards the front of the joint, where it bends best in
+    Blender (the insect's knees 0.3 of the way across the leg, the kangaroo's 0.45). A joint's
+    distance to the surface is the limb's radius there, and a spine through the front of a
+    knee does not reach the back of the leg: the leg's region began far below the knee. In
+    the plane through the joint across the limb, the chord through it away from its closest
+    surface point is cut in its middle, `ROUNDS` times. The move is kept where the joint lay
+    nearer the surface than half the moved point's distance to it, and moved no farther than
+    that distance: a knee goes to the middle of the leg, where a hip at the body's junction,
+    whose chord crosses the torso, and a centred joint (every joint of the human's and the
+    cow's armatures) stay."""
+    points = np.array(points, np.float64)
+    a, b, c = (vertices[faces[:, k]] for k in range(3))
+    surface = SurfaceQuery(vertices, faces)
+    gap, _, _ = surface.query(points)
+    moved = points.copy()
+    for _ in range(ROUNDS):
+        _, foot, _ = surface.query(moved)
+        away = moved - foot
+        away -= np.einsum("ij,ij->i", away, axes)[:, None] * axes
+        length = np.linalg.norm(away, axis=1)
+        ok = length > 0
+        away = away / np.where(ok, length, 1.0)[:, None]
+        ahead = first_hits(moved, away, a, b, c)
+        behind = first_hits(moved, -away, a, b, c)
+        ok &= np.isfinite(ahead) & np.isfinite(behind)
+        moved[ok] += (0.5 * (ahead - behind))[ok, None] * away[ok]
+    new_gap, _, _ = surface.query(moved)
+    keep = (gap < 0.5 * new_gap) & (np.linalg.norm(moved - points, axis=1) <= new_gap)
+    return np.where(keep[:, None], moved, points)
+
+
+def bisectors(before: np.ndarray, at: np.ndarray, after: np.ndarray) -> np.ndarray:
+    """`(k, 3)` the unit direction of a chain at its joints `at (k, 3)`, between the points
+    `before` and `after` it (each (k, 3)): the bisector of its two bones' directions."""
+    into = (at - before) / np.linalg.norm(at - before, axis=1, keepdims=True)
+    out = (after - at) / np.linalg.norm(after - at, axis=1, keepdims=True)
+    both = into + out
+    # (A chain folded back on itself at a joint, by 180°, runs along either bone there.)
+    length = np.linalg.norm(both, axis=1, keepdims=True)
+    return np.where(length > 1e-9, both / np.maximum(length, 1e-300), into)
