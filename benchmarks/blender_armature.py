@@ -16,13 +16,13 @@ Blender (`pip install bpy` in another environment: `--bpy` names its Python) get
 per limb (head at the limb's bend start, tail where its bend is complete), a still body
 bone, automatic heat weights, and as each bone's rotation the rotation our pose gives that
 limb's end (so both pose the same joints by the same angles). `--own-armature` (the human,
-the cow, the dinosaur): both get the armature the character is modelled on instead
-(`skin_characters.py`'s bones: pelvis, spine, clavicles and hips too), ours through
-`fj.skeleton(mesh, bones=...)` (the bones inside the body no limbs), the same poses given by
-bone name; Blender's bones that are none of our limbs stay at rest. Prints a Markdown table:
-volume change, the worst edge stretch and how many edges stretch past 2.5×, the body's
-largest drift, flagged vertices (ours) and the time of a frame (ours: float32, jitted;
-Blender: its depsgraph's evaluation of the armature modifier, LBS and DQS).
+the cow, the dinosaur, the insect, the kangaroo): both get the armature the character is
+modelled on instead (`skin_characters.py`'s bones: pelvis, spine, clavicles and hips too), ours
+through `fj.skeleton(mesh, bones=...)` (the bones inside the body no limbs), the same poses
+given by bone name; Blender's bones that are none of our limbs stay at rest. Prints a
+Markdown table: volume change, the worst edge stretch and how many edges stretch past 2.5×,
+the body's largest drift, flagged vertices (ours) and the time of a frame (ours: float32,
+jitted; Blender: its depsgraph's evaluation of the armature modifier, LBS and DQS).
 """
 
 from __future__ import annotations
@@ -34,6 +34,9 @@ import time
 from pathlib import Path
 
 import numpy as np
+
+# The characters whose own armature (`--own-armature`) has poses here.
+OWN = ("human", "cow", "dinosaur", "insect", "kangaroo")
 
 
 def _longest_chains(skeleton) -> dict:
@@ -249,6 +252,29 @@ def dinosaur_armature_poses(fj, skeleton):
     return lambda registration: poses
 
 
+def insect_armature_poses(fj, skeleton):
+    """`insect_poses` on the insect's own armature (`own_bones`), by bone name: the left front
+    thigh raised 30° and its shin 30° more, the left hind thigh swung 30° backwards (the head
+    is no limb there: its neck and head bones lie in the thorax and head's middle)."""
+    up, back = np.array([0.0, 0.0, 1.0]), np.array([-1.0, 0.0, 0.0])
+    poses = {"lfront hip-lfront knee": fj.LimbPose(30.0, towards=up),
+             "lfront knee-lfront ankle": fj.LimbPose(30.0, towards=up),
+             "lhind hip-lhind knee": fj.LimbPose(30.0, towards=back)}
+    return lambda registration: poses
+
+
+def kangaroo_armature_poses(fj, skeleton):
+    """`kangaroo_poses` on the kangaroo's own armature (`own_bones`), by bone name: the tail's
+    first bone raised 30°, the left thigh swung 30° forwards, the left upper arm 40°
+    forwards, the snout turned 30° about up (the neck and head bones lie in the body)."""
+    up, ahead = np.array([0.0, 0.0, 1.0]), np.array([1.0, 0.0, 0.0])
+    poses = {"pelvis-tail 1": fj.LimbPose(30.0, towards=up),
+             "left hip-left knee": fj.LimbPose(30.0, towards=ahead),
+             "left shoulder-left elbow": fj.LimbPose(40.0, towards=ahead)}
+    return lambda registration: poses | {"head-snout": fj.turn(registration, skeleton,
+                                                               "head-snout", 30.0, up=up)}
+
+
 def skin_mesh(bpy: str, name: str):
     """The character `name` of `skin_characters.py`, modelled by Blender in a subprocess
     (`bpy`)."""
@@ -279,7 +305,8 @@ def ours(out: Path, character: str, bpy: str, own: bool = False):
         bones = own_bones(character)
         skeleton = fj.skeleton(mesh, bones=bones)
         poses_of = {"human": human_armature_poses, "cow": cow_armature_poses,
-                    "dinosaur": dinosaur_armature_poses}[character](fj, skeleton)
+                    "dinosaur": dinosaur_armature_poses, "insect": insect_armature_poses,
+                    "kangaroo": kangaroo_armature_poses}[character](fj, skeleton)
     elif character == "spot":
         mesh = fj.data.spot()
         skeleton = fj.skeleton(mesh)
@@ -418,7 +445,7 @@ def main():
                         choices=("biped", "spot", "human", "insect", "dog", "kangaroo",
                                  "dinosaur", "cow"))
     parser.add_argument("--own-armature", action="store_true",
-                        help="the human's or cow's own armature (`skin_characters.py`'s bones, "
+                        help="the character's own armature (`skin_characters.py`'s bones, "
                              "every one to Blender, ours from `fj.skeleton(mesh, bones=...)`), "
                              "not one bone per limb of our found skeleton")
     parser.add_argument("--blender-side", nargs=2, help=argparse.SUPPRESS)
@@ -427,8 +454,8 @@ def main():
         return blender(*map(Path, args.blender_side))
     with tempfile.TemporaryDirectory() as folder:
         mine, theirs = Path(folder) / "ours.npz", Path(folder) / "blender.npz"
-        if args.own_armature and args.character not in ("human", "cow", "dinosaur"):
-            parser.error("--own-armature: --character human, cow or dinosaur")
+        if args.own_armature and args.character not in OWN:
+            parser.error(f"--own-armature: --character {', '.join(OWN)}")
         ours(mine, args.character, args.bpy, args.own_armature)
         subprocess.run([args.bpy, __file__, "--bpy", args.bpy, "--blender-side", str(mine),
                         str(theirs)], check=True, capture_output=True)  # fmt: skip

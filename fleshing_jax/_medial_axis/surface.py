@@ -297,15 +297,23 @@ def first_hits(origins, directions, a, b, c) -> np.ndarray:
     """`(R,)` the distance from each of `origins (R, 3)` along its unit direction
     (`directions (R, 3)`) to the first of the triangles `a, b, c` (each (T, 3)) it crosses,
     `inf` where it crosses none (Möller and Trumbore's test, each ray against every triangle:
-    for the few rays a skeleton's joints cast)."""
-    e1, e2 = b - a, c - a
+    for the few rays a skeleton's joints cast). Only the triangles whose bounding ball the
+    ray's line meets ahead of its origin are tested."""
+    centre = (a + b + c) / 3
+    reach = np.sqrt(np.max([np.einsum("ij,ij->i", x - centre, x - centre) for x in (a, b, c)],
+                           axis=0)) * (1 + 1e-9)  # fmt: skip
     hits = np.full(len(origins), np.inf)
     for r, (o, d) in enumerate(zip(np.asarray(origins, np.float64),
                                    np.asarray(directions, np.float64), strict=True)):
+        w = centre - o
+        along = w @ d
+        off = np.einsum("ij,ij->i", w, w) - along**2
+        near = np.flatnonzero((off <= reach**2) & (along >= -reach))
+        p, e1, e2 = a[near], b[near] - a[near], c[near] - a[near]
         h = np.cross(d, e2)
         det = np.einsum("ij,ij->i", e1, h)
         safe = np.where(det != 0, det, 1.0)
-        s = o - a
+        s = o - p
         u = np.einsum("ij,ij->i", s, h) / safe
         q = np.cross(s, e1)
         v = (q @ d) / safe
