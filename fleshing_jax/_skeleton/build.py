@@ -17,7 +17,7 @@ from .._mesh.deform import longest_edge
 from .bones import bone_limbs, check_bones, connected_bones
 from .chains import TURN, split_chains
 from .fit import nearest_spheres, sphere_gaps, spine_from_unit
-from .given import SHORT, _arc_at, _turn, given_limbs
+from .given import SHORT, arc_at, given_limbs, turn_at
 from .limb_fit import fit_limb
 from .limbs import ROUTES, find_limbs
 from .regions import levelled, mesh_adjacency, spine_samples, vertex_normals
@@ -203,7 +203,7 @@ def _bones_in_the_body(checked, vertices, adjacency, margin):
     bent = np.zeros(len(heads), bool)
     for c in np.flatnonzero(connected_bones(heads, tails, parents, vertices)):
         p = parents[c]
-        bent[p] |= short[p] and _turn(np.stack([heads[p], tails[p], tails[c]]), 1) >= TURN
+        bent[p] |= short[p] and turn_at(np.stack([heads[p], tails[p], tails[c]]), 1) >= TURN
 
     def depth(b, limbs, kept, joint: bool) -> float:
         """How deep in the body bone `b` starts: at its limb's joint, or at its head. A limb
@@ -212,7 +212,7 @@ def _bones_in_the_body(checked, vertices, adjacency, margin):
         if not joint:
             return float(tree.query(heads[b])[0])
         limb = limbs[kept.index(b)]
-        if bent[b] and float(limb.joint) > _arc_at(limb.spine, tails[b]):
+        if bent[b] and float(limb.joint) > arc_at(limb.spine, tails[b]):
             return np.inf
         return float(tree.query(np.asarray(limb.spine(float(limb.joint))))[0])
 
@@ -238,7 +238,6 @@ def _bones_in_the_body(checked, vertices, adjacency, margin):
         starts = above + starts + left
         chosen = None
         for start, joint in starts:
-            # (The highest of equals: two limbs that lost their bones, the cause above.)
             deepest = max(line(start), key=lambda b: depth(b, limbs, kept, joint))
             if deepest in kept:  # (else the bone itself: it stays no limb)
                 chosen = deepest

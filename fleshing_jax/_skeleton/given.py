@@ -131,9 +131,9 @@ def chain_limb(points, i, parent, tree, region, vertices, adjacency, margin, oth
     allowed = region == parent
     spine, part = fit_limb(found, centers, radii, vertices, adjacency, allowed, margin,
                            cut_at=points[i])  # fmt: skip
-    if (part is not None and i + 2 < len(points) and _turn(points, i + 1) >= TURN
+    if (part is not None and i + 2 < len(points) and turn_at(points, i + 1) >= TURN
             and np.linalg.norm(points[i + 1] - points[i]) >= SHORT * radius[i]
-            and part.joint > _arc_at(spine, points[i + 1])):
+            and part.joint > arc_at(spine, points[i + 1])):
         # Bent at rest at its next joint (a dinosaur's or an insect's leg, up to the knee and
         # down), past what one spine follows: the spine cuts the knee's corner, and the
         # region grown from the tip lost the limb's own bone (see `rest_bend`). Its spine is
@@ -146,19 +146,19 @@ def chain_limb(points, i, parent, tree, region, vertices, adjacency, margin, oth
         top_spine, top_part = fit_limb(LimbPath(top, i, np.zeros(0, int), top, parent),
                                        centers, radii, vertices, adjacency, allowed, margin,
                                        cut_at=points[i], owned=chain)  # fmt: skip
-        if top_part is not None and top_part.joint < _arc_at(top_spine, points[i + 1]):
+        if top_part is not None and top_part.joint < arc_at(top_spine, points[i + 1]):
             spine, part = top_spine, top_part
     return None if part is None else (Limb(spine, part.joint, parent, name), part.vertices)
 
 
-def _turn(points: np.ndarray, j: int) -> float:
+def turn_at(points: np.ndarray, j: int) -> float:
     """The angle (degrees) between the segments before and after `points[j]`."""
     a, b = points[j] - points[j - 1], points[j + 1] - points[j]
     cosine = a @ b / (np.linalg.norm(a) * np.linalg.norm(b))
     return float(np.degrees(np.arccos(np.clip(cosine, -1.0, 1.0))))
 
 
-def _arc_at(spine, point: np.ndarray) -> float:
+def arc_at(spine, point: np.ndarray) -> float:
     """The arc length of `spine`'s sample nearest to `point` (3,)."""
     s, samples, _ = map(np.asarray, spine_samples(spine))
     return float(s[np.argmin(np.linalg.norm(samples - point, axis=1))])
