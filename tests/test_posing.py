@@ -59,11 +59,18 @@ def test_bent_spine_is_the_base_up_to_the_joint_and_rigid_past_its_stop():
 
         return ((bent(before), prepared.jet_and_normals(before)),
                 (base(before), base.jet_and_normals(before)),
-                jax.vmap(derivatives)(inside), jax.vmap(prepared)(past), jax.vmap(base)(past))
+                jax.vmap(derivatives)(inside), jax.vmap(prepared)(past), jax.vmap(base)(past),
+                jax.vmap(prepared.jet)(zone))
 
     inside = jnp.asarray([1.2, 2.0, 3.0, 3.6, float(base.length) - 0.1])
     past = jnp.linspace(3.5, float(base.length), 5)
-    bent_before, base_before, (dc, tangent, dt, k), a, b = values(0.8, inside, past)
+    zone = jnp.linspace(1.0, 3.5, 1601)
+    bent_before, base_before, (dc, tangent, dt, k), a, b, (c, t, _) = values(0.8, inside, past)
+    # The position is the integral of the tangent (Simpson's rule on a fine grid as the
+    # reference): on a free-form base the quadrature is taken in its parameter.
+    h = float(zone[1] - zone[0])
+    simpson = np.cumsum(h / 3 * (t[:-2:2] + 4 * t[1:-1:2] + t[2::2]), axis=0)
+    np.testing.assert_allclose(c[2::2] - c[0], simpson, rtol=0, atol=1e-11)
     for x, y in zip(jax.tree.leaves(bent_before), jax.tree.leaves(base_before)):
         np.testing.assert_array_equal(x, y)
     # Exactly arc length, with the jet's derivatives consistent to round-off (det J = 1).

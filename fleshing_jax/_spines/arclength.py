@@ -90,12 +90,28 @@ def cumulative_lengths(coefficients: Array, parts: int, count: Array | None = No
 
 
 def _partial(coefficients: Array, a: Array, u: Array) -> Array:
+    """`∫_a^u |P'|` on one piece (coefficients (d+1, 3)), for `u` of any shape (same shape)."""
     x, w = np.polynomial.legendre.leggauss(GAUSS_NODES)
-    nodes = a + (u - a) * jnp.asarray((x + 1) / 2, u.dtype)
+    nodes = a + (u - a)[..., None] * jnp.asarray((x + 1) / 2, u.dtype)
     # (`norm`: a sum over a minor axis of 3 is slow batched on XLA's CPU backend, and this
     # runs in every Newton step of every point posed on an exact spine, in double precision.)
     speed = norm(piece_derivative(coefficients, nodes, 1))
     return (u - a) * dot(jnp.asarray(w / 2, u.dtype), speed)
+
+
+def in_parameter(piece: Array, a: Array, start: Array, u0: Array, u1: Array, x, w):
+    """A Gauss–Legendre rule (nodes `x`, weights `w` on `[−1, 1]`, NumPy) for `∫ f(s) T(s) ds`
+    over the arc from local parameter `u0` to `u1` of one sub-interval of a piece
+    (coefficients (d+1, 3), the sub-interval's start `a`, arc length `start` there), written
+    in the piece's parameter: `T ds = P'(u) du`. No arc-length inverse: the nodes' arc lengths
+    are the forward `s(u)` (`GAUSS_NODES` points each), where a rule in `s` needs `u(s)` at each.
+
+    **Returns:** `(s, d, weights)`: the nodes' arc lengths (G,), `P'` there (G, 3) and the
+    weights (G,), so that the integral is `Σ_g weights_g f(s_g) d_g`."""
+    half = (u1 - u0) / 2
+    u = u0 + half * jnp.asarray(np.asarray(x) + 1, u0.dtype)
+    return start + _partial(piece, a, u), piece_derivative(piece, u, 1), half * jnp.asarray(
+        w, u0.dtype)
 
 
 def locate(cumulative: Array, s: Array, end: Array | int | None = None) -> Array:
@@ -104,6 +120,11 @@ def locate(cumulative: Array, s: Array, end: Array | int | None = None) -> Array
     j = jnp.searchsorted(cumulative, s, side="right", method="compare_all") - 1
     end = cumulative.shape[0] - 1 if end is None else end
     return jnp.clip(j, 0, end - 1)
+
+
+def sub_interval_start(j: Array, parts: int, dtype) -> Array:
+    """The local parameter where sub-interval `j` (int) of its piece starts, in `[−1, 1)`."""
+    return -1 + 2 * (j % parts).astype(dtype) / parts
 
 
 def inverse(coefficients: Array, cumulative: Array, parts: int, s: Array, end=None):
@@ -121,7 +142,7 @@ def inverse(coefficients: Array, cumulative: Array, parts: int, s: Array, end=No
     )
     j = locate(fixed_cumulative, s_fixed, end)
     i = j // parts
-    a = -1 + 2 * (j % parts).astype(s.dtype) / parts
+    a = sub_interval_start(j, parts, s.dtype)
     b = a + 2.0 / parts
     sa, sb = fixed_cumulative[j], fixed_cumulative[j + 1]
     piece = fixed_coefficients[i]

@@ -21,7 +21,10 @@ preserves volume exactly: `det J = 1` needs only `C₁′ = T₁` and `k₁ = T�
 about the tangent does not change the determinant). `k₁ = Q k₀ + Q′ T₀` is written out; the
 position between `j` and `e` is the integral of `T₁`, by Gauss–Legendre on intervals split at the
 base's own breaks (B-spline pieces), at `j` and at `e`, where the integrand is analytic: the
-quadrature's error, and its derivative's, are at round-off.
+quadrature's error, and its derivative's, are at round-off. On a free-form base (B-spline,
+polynomial) the rule is taken in the base's own parameter `u`, where `T₀ ds = P′(u) du` and the
+nodes' arc lengths are the forward `s(u)`: no arc-length inverse at the nodes (each was a
+Newton iteration, most of a float64 pose), one only at the point itself, which its jet needs.
 """
 
 from __future__ import annotations
@@ -35,6 +38,7 @@ from jaxtyping import Array, ArrayLike
 from .._batching.grid import grid_vmap
 from .._checks import as_float_array, is_concrete
 from .._numerics import dot, held_trig
+from . import arclength, parametric
 from .looked_up import GAUSS_POINTS, GAUSS_WEIGHTS, NODE_WEIGHTS, LookedUpSpine
 from .spine import AbstractSpine, AbstractTabulatedSpine, torsion_of
 from .table import SpineTable
@@ -169,7 +173,9 @@ class PreparedBent(AbstractSpine):
     **Fields:** `base` (prepared); `joint`, `stop`, `bend`, `twist` (scalars); `bend_axis` and
     `twist_axis` (3,): the bend's axis and the joint's tangent (the twist's axis); `breaks`
     (M,): the quadrature's breaks on `[joint, stop]`; `positions` (M, 3): `C₁` there;
-    `rest_stop` (3,): `C₀(stop)`.
+    `rest_stop` (3,): `C₀(stop)`; `located`: on a free-form base (`parametric.Tables`), where
+    each break lies on it, `(piece, parameter, sub-interval)` (M,) each (`parametric.locate`),
+    else `None`.
     """
 
     base: AbstractSpine
@@ -182,6 +188,7 @@ class PreparedBent(AbstractSpine):
     breaks: Array
     positions: Array
     rest_stop: Array
+    located: tuple[Array, Array, Array] | None = None
 
     @property
     def length(self) -> Array:
@@ -222,18 +229,42 @@ class PreparedBent(AbstractSpine):
                               + self.twist * about_tangent)
         return tangent, k + turn_slope, i, j
 
+    def _turn_along(self, s: Array, v: Array) -> Array:
+        """`Q(s) v` (n, 3) at arc lengths `s` (n,) for vectors `v` (n, 3), each point's sines
+        and cosines held (`_trig`)."""
+        r = self._angles(s)[0]
+        return jax.vmap(lambda r, v, *trig: self._turn(r, v, trig))(r, v, *self._trig(r))
+
     def _tangents(self, s: Array) -> Array:
         """`T₁(s) = Q(s) T₀(s)` (..., 3) at arc lengths `s` (any shape) in `[joint, stop]`
-        (the quadrature's integrand), each point's sines and cosines held (`_trig`)."""
+        (the quadrature's integrand)."""
         flat = s.reshape(-1)
-        r = self._angles(flat)[0]
-        turned = jax.vmap(lambda p, r, *trig: self._turn(r, self.base._jet(p)[1], trig))(
-            flat, r, *self._trig(r))
+        turned = self._turn_along(flat, jax.vmap(lambda p: self.base._jet(p)[1])(flat))
         return turned.reshape(s.shape + (3,))
 
-    def _position(self, s: Array, c0: Array, integrate: bool = True) -> Array:
+    def _free_form(self) -> parametric.Tables | None:
+        """The base's tables where it is a free-form spine (`parametric`), else `None`."""
+        tables = getattr(self.base, "tables", None)
+        return tables if isinstance(tables, parametric.Tables) else None
+
+    def _integral_in_parameter(self, m: Array, u: Array, j: Array) -> Array:
+        """`∫ T₁ ds` (3,) from break `m` to the base's point at parameter `u` of sub-interval
+        `j` (`parametric.locate`), on a free-form base: Gauss–Legendre in its parameter
+        (`arclength.in_parameter`). The break and the point share their sub-interval (the
+        breaks hold the base's); where they do not (a point outside `(joint, stop)`, whose
+        integral is not used), to the end of the break's."""
+        tab = self._free_form()
+        piece, start, sub = (v[m] for v in self.located)
+        a = arclength.sub_interval_start(sub, tab.parts, u.dtype)
+        end = jnp.where(j == sub, u, a + 2.0 / tab.parts)
+        s, d, w = arclength.in_parameter(tab.coefficients[piece], a, tab.cumulative[sub], start,
+                                         end, GAUSS_POINTS, GAUSS_WEIGHTS)
+        return w @ self._turn_along(s, d)
+
+    def _position(self, s: Array, c0: Array, integrate: bool = True, at=None) -> Array:
         """`C₁(s)`, given `c0 = C₀(s)`; `integrate=False` for an `s` known to lie outside
-        `(joint, stop)` (the ends: no quadrature traced)."""
+        `(joint, stop)` (the ends: no quadrature traced); `at`: where `s` lies on a free-form
+        base (`parametric.locate`), for its quadrature in the base's parameter."""
         one = jnp.ones_like(s)
         rigid = self.positions[-1] + self._turn(one, c0 - self.rest_stop, self._trig(one))
         if not integrate:
@@ -241,6 +272,9 @@ class PreparedBent(AbstractSpine):
         inside = jnp.where(s < self.joint, self.joint, jnp.where(s > self.stop, self.stop, s))
         m = jnp.clip(jnp.searchsorted(self.breaks, inside, side="right") - 1, 0,
                      self.breaks.shape[0] - 2)
+        if at is not None:
+            integral = self.positions[m] + self._integral_in_parameter(m, at[1], at[2])
+            return jnp.where(s <= self.joint, c0, jnp.where(s >= self.stop, rigid, integral))
         start = self.breaks[m]
         half = (inside - start) / 2
         points = start + half * (1 + jnp.asarray(GAUSS_POINTS, s.dtype))
@@ -254,27 +288,43 @@ class PreparedBent(AbstractSpine):
         fleshing cannot place a point (it was not registered on the base), this places it as
         a cross-section of the bent limb there moves. `table`: this spine's (`_table`), where
         the caller made it: `C₁(s)` read from it, not integrated (float32 posing)."""
-        c0 = self.base._jet(s)[0]
-        c1 = self._position(s, c0) if table is None else table.jet(s)[0]
+        at = self._located(s)
+        c0 = self.base._jet(s)[0] if at is None else self._base_located(at)[0][0][0]
+        c1 = self._position(s, c0, at=at) if table is None else table.jet(s)[0]
         r = self._angles(s)[0]
         return c1 + self._turn(r, x - c0, self._trig(r))
 
-    def _turned(self, s: Array, base, integrate: bool = True):
-        """`_jet_and_normals` at `s` from the base's there (`integrate`: as `_position`)."""
+    def _turned(self, s: Array, base, integrate: bool = True, at=None):
+        """`_jet_and_normals` at `s` from the base's there (`integrate`, `at`: as
+        `_position`)."""
         (c0, t0, k0), (i0, j0) = base
         r, slope = self._angles(s)
         tangent, k, i, j = self._turn_frame(r, slope, t0, k0, i0, j0, self._trig(r))
-        return (self._position(s, c0, integrate), tangent, k), (i, j)
+        return (self._position(s, c0, integrate, at), tangent, k), (i, j)
+
+    def _located(self, s: Array):
+        """Where `s` lies on a free-form base (`parametric.locate`), else `None`: located once
+        for the base's jet and the position's quadrature."""
+        tab = self._free_form()
+        return None if tab is None or self.located is None else parametric.locate(tab, s)
+
+    def _base_located(self, at) -> list:
+        """The base's `_anchors` at the point `at` (`_located`)."""
+        return parametric.evaluate_located(self._free_form(), *at)
 
     def _jet_and_normals(self, s: Array):
-        return self._turned(s, self.base._jet_and_normals(s))
+        at = self._located(s)
+        if at is None:
+            return self._turned(s, self.base._jet_and_normals(s))
+        return self._turned(s, self._base_located(at)[0], at=at)
 
     def _anchors(self, s: Array) -> list:
         # The base's three evaluations shared (`AbstractSpine._anchors`); the ends lie before
         # the joint and past the stop, where no quadrature is needed.
-        here, start, end = self.base._anchors(s)
+        at = self._located(s)
+        here, start, end = self.base._anchors(s) if at is None else self._base_located(at)
         ends = (jnp.zeros_like(self.length), self.length)
-        return [self._turned(s, here)] + [
+        return [self._turned(s, here, at=at)] + [
             self._turned(x, base, integrate=False) for x, base in zip(ends, (start, end))
         ]
 
@@ -350,14 +400,24 @@ def _prepared(spine: BentSpine) -> PreparedBent:
     cuts = jnp.concatenate([base._breaks(), uniform, jnp.stack(ends)])
     breaks = jnp.sort(jnp.where(cuts < spine.joint, spine.joint,
                                 jnp.where(cuts > spine.stop, spine.stop, cuts)))
+    tab = getattr(base, "tables", None)
+    located = (jax.vmap(lambda b: parametric.locate(tab, b))(breaks)
+               if isinstance(tab, parametric.Tables) else None)
     partial = PreparedBent(base, spine.joint, spine.stop, spine.bend, spine.twist, axis, t,
-                           breaks, jnp.zeros((breaks.shape[0], 3), c.dtype), c)
+                           breaks, jnp.zeros((breaks.shape[0], 3), c.dtype), c, located)
     # Each interval's integral of T₁ (Gauss–Legendre), summed from C₀(joint).
-    half = (breaks[1:] - breaks[:-1]) / 2
-    points = (breaks[:-1] + half)[:, None] + half[:, None] * jnp.asarray(GAUSS_POINTS, c.dtype)
-    values = partial._tangents(points)  # (M − 1, GAUSS, 3)
-    steps = half[:, None] * jnp.einsum("g,mgc->mc", jnp.asarray(GAUSS_WEIGHTS, c.dtype), values)
+    if located is None:
+        half = (breaks[1:] - breaks[:-1]) / 2
+        points = (breaks[:-1] + half)[:, None] + half[:, None] * jnp.asarray(GAUSS_POINTS,
+                                                                            c.dtype)
+        values = partial._tangents(points)  # (M − 1, GAUSS, 3)
+        steps = half[:, None] * jnp.einsum("g,mgc->mc", jnp.asarray(GAUSS_WEIGHTS, c.dtype),
+                                           values)
+    else:  # (to each next break, in the base's parameter)
+        _, u, j = located
+        steps = jax.vmap(partial._integral_in_parameter)(jnp.arange(breaks.shape[0] - 1), u[1:],
+                                                         j[1:])
     positions = c + jnp.concatenate([jnp.zeros((1, 3), c.dtype), jnp.cumsum(steps, axis=0)])
     rest_stop = base._jet(spine.stop)[0]
     return PreparedBent(base, spine.joint, spine.stop, spine.bend, spine.twist, axis, t, breaks,
-                        positions, rest_stop)
+                        positions, rest_stop, located)

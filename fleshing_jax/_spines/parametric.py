@@ -122,19 +122,20 @@ def tables(spine: AbstractParametricSpine) -> Tables:
     return Tables(coefficients, cumulative, (c, t, k, normals), end, parts)
 
 
-def _locate(tab: Tables, s: Array):
-    i, u, j = arclength.inverse(tab.coefficients, tab.cumulative, tab.parts, s, tab.end)
-    return i, u, j
+def locate(tab: Tables, s: Array) -> tuple[Array, Array, Array]:
+    """`(i, u, j)` at arc length `s` (scalar): the piece, its local parameter (differentiable)
+    and the sub-interval (`arclength.inverse`)."""
+    return arclength.inverse(tab.coefficients, tab.cumulative, tab.parts, s, tab.end)
 
 
 def jet_at(tab: Tables, s):
-    i, u, _ = _locate(tab, s)
+    i, u, _ = locate(tab, s)
     return _jet_of(tab.coefficients[i], u)[0]
 
 
 def jets_at(tab: Tables, s):
     """Jets at `s` and at both ends."""
-    i, u, _ = _locate(tab, s)
+    i, u, _ = locate(tab, s)
     a = tab.coefficients
     ends = [(a[0], -jnp.ones_like(s)), (a[tab.end // tab.parts - 1], jnp.ones_like(s))]
     return [_jet_of(p, v)[0] for p, v in [(a[i], u)] + ends]
@@ -142,7 +143,11 @@ def jets_at(tab: Tables, s):
 
 def evaluate_at(tab: Tables, s):
     """Jet and normals at `s`, and at both ends (the anchors of the continuations)."""
-    i, u, j = _locate(tab, s)
+    return evaluate_located(tab, *locate(tab, s))
+
+
+def evaluate_located(tab: Tables, i: Array, u: Array, j: Array):
+    """`evaluate_at` at the point `locate` found: piece `i`, parameter `u`, sub-interval `j`."""
     jet = _jet_of(tab.coefficients[i], u)[0]
     c, t, k, normals = tab.nodes
     normal = double_reflection(c[j], t[j], normals[j], jet[0], jet[1], k[j])
@@ -151,7 +156,7 @@ def evaluate_at(tab: Tables, s):
 
 
 def torsion_at(tab: Tables, s):
-    i, u, _ = _locate(tab, s)
+    i, u, _ = locate(tab, s)
     _, (c1, c2, c3) = _jet_of(tab.coefficients[i], u, order=3)
     b = jnp.cross(c1, c2)
     return safe_divide(dot(b, c3), dot(b, b))
