@@ -432,6 +432,34 @@ def test_a_far_bend_from_the_rest_spine_starts_from_the_targets():
     assert float(fit.rms) <= 1e-3 * diagonal
 
 
+@needs_bspline
+def test_the_start_from_the_targets_continues_an_unseen_end_rigidly():
+    # `start.continued`: a rest spine whose first half no target sees (spot's tail's, started
+    # inside the rump) starts with that half moved by the first seen station's rigid motion;
+    # its control points were the seen half's cubic extrapolated (the start 1.6 of the
+    # diagonal off on the seen half, its length 7.9 for 4).
+    rest = BSpline(_STRAIGHT, degree=3)
+    source = cloud(rest, radius=0.3)
+    bent = fj.Arc(4.0 / (np.pi / 2), 4.0)
+    target, _ = fj.flesh(source, rest, bent)
+    registration = fj.register(source, rest)
+    seen = np.asarray(registration.arc_length) > 2.0
+    diagonal = np.linalg.norm(np.ptp(np.asarray(target)[seen], axis=0))
+    parameters = make_parameters(rest, None, None)
+    y = start.initial(parameters, registration, rest, target, seen.astype(float), None)
+    spine = parameters.spine(y)
+    s = np.linspace(2.0, 4.0, 9)
+    shaped, truth = (np.asarray(mapped(curve, s)) for curve in (spine, bent))
+    assert np.abs(shaped - truth).max() < 0.05 * diagonal  # 0.03
+    assert abs(float(spine.length) / 4.0 - 1) < 0.02
+    # Only an unseen end of a control point's spacing or more: a station short is left.
+    motions = [None, None, (np.zeros(3), np.ones(3), np.eye(3)), None]
+    at = np.arange(12.0).reshape(4, 3)
+    moved = start.continued(motions, at, shortest=2)
+    np.testing.assert_array_equal(moved[:2], at[:2] + 1)
+    assert np.isnan(moved[2:]).all()
+
+
 def test_a_fit_the_full_check_disagrees_with_is_solved_on_with_tighter_stops(monkeypatch):
     # `_finished`: a solve that explained the data (its loss within the tolerance²) while the
     # full projection check finds a point invalid (rms above the tolerance) is solved on from

@@ -71,8 +71,9 @@ def spine_points(arc_length, points, target, weights, feet, length: float, count
     - `feet`: (N, 3) `C₀(sᵢ)`.
     - `length`: the length of `C₀`; `count`: how many stations (rotations) along it.
 
-    **Returns:** `(ĉ, ω)`: (N, 3) the bent spine's estimated points at the feet, (N,) their
-    weights (0 where the point is not counted or no rotation could be estimated near it).
+    **Returns:** `(ĉ, ω, motions)`: (N, 3) the bent spine's estimated points at the feet, (N,)
+    their weights (0 where the point is not counted or no rotation could be estimated near
+    it), and each station's rigid motion `(c, c′, R)` (`None` where none was estimated).
     """
     s = np.asarray(arc_length, np.float64)
     w = np.asarray(weights, np.float64)
@@ -83,17 +84,45 @@ def spine_points(arc_length, points, target, weights, feet, length: float, count
     offsets = x - np.asarray(feet, np.float64)
     centre = np.zeros_like(x)
     seen = np.zeros(len(s), bool)
+    motions = [None] * count
     for j, station in enumerate(stations):
-        here = nearest == j
+        here = (nearest == j) & (w > 0)
         g = w * np.exp(-0.5 * ((s - station) / width) ** 2)
         if not here.any() or np.count_nonzero(g > 1e-6 * g.max(initial=0.0)) < 3:
             continue
-        rotation = rigid_motion(x, y, g)[2]
-        centre[here] = y[here] - offsets[here] @ rotation.T
+        motions[j] = rigid_motion(x, y, g)
+        centre[here] = y[here] - offsets[here] @ motions[j][2].T
         seen |= here
     r0 = AXIS_SCALE * length
     omega = np.where(seen, w / (np.sum(offsets**2, axis=-1) + r0**2), 0.0)
-    return centre, omega
+    return centre, omega, motions
+
+
+def continued(motions, rest, shortest: int = STATIONS_PER_CONTROL_POINT) -> np.ndarray:
+    """Where the bent spine runs at the stations past either end of those the points say it
+    (a tail's rest spine started inside the rump, whose points are no targets): `C₀` there
+    (`rest`, (M, 3) at the M stations) moved by the rigid motion of the last estimated station
+    before them (`motions`, as `spine_points` returns them). (M, 3), NaN rows elsewhere and
+    for an unseen end shorter than `shortest` stations (a control point's spacing: the seen
+    stations' spline holds it, as within a gap between seen ones).
+
+    Without them, the control points there were the seen stretch's polynomial extrapolated
+    (spot's tail bent 90°: the first half of its spine unseen, the start 1.2 of the
+    diagonal from the targets, farther than the rest spine's 0.41); such a stretch only has
+    to keep its length and meet the seen one's start and direction."""
+    known = np.flatnonzero([m is not None for m in motions])
+    out = np.full_like(np.asarray(rest, np.float64), np.nan)
+    if len(known) == 0:
+        return out
+    ends = (
+        (np.arange(known[0]), known[0]),
+        (np.arange(known[-1] + 1, len(motions)), known[-1]),
+    )
+    for unseen, edge in ends:
+        if len(unseen) >= shortest:
+            c, c_, r = motions[edge]
+            out[unseen] = c_ + (rest[unseen] - c) @ r.T
+    return out
 
 
 def parameters_at(spline: BSpline, fractions) -> np.ndarray:
@@ -131,26 +160,40 @@ def control_points(init: BSpline, free, q, omega, fractions, prior) -> np.ndarra
     return out.reshape(n, 3)
 
 
-def from_targets(init: BSpline, free, arc_length, feet, length, points, target, weights):
+def from_targets(init: BSpline, free, arc_length, source_spine, points, target, weights):
     """`init`'s control points (n, 3) moved onto where the targets say the bent spine runs
-    (module docstring), or `None` when too few points say it.
+    (module docstring; at the stations no point says it, `continued`), or `None` when too few
+    points say it.
 
     **Arguments:**
 
     - `init`: a concrete `BSpline`, the fit's initial spine (its knots and degree are kept).
     - `free`: flat indices of the free entries of its (n, 3) control points.
     - `arc_length`: (N,) the source points' arc lengths on the rest spine `C₀` (their
-      registration); `feet`: (N, 3) `C₀` there; `length`: the length of `C₀`.
+      registration); `source_spine`: `C₀`.
     - `points`, `target`: (N, 3); `weights`: (N,) (0 for invalid points and padding).
     """
     n = init.control_points.shape[0]
-    centre, omega = spine_points(arc_length, points, target, weights, feet, float(length),
-                                 STATIONS_PER_CONTROL_POINT * n)
+    length = float(source_spine.length)
+    count = STATIONS_PER_CONTROL_POINT * n
+    at = (np.arange(count) + 0.5) / count  # the stations, as fractions of the length
+    # `C₀` at the feet and at the stations, in one eager evaluation.
+    stations = jnp.asarray(at * length, arc_length.dtype)
+    on_rest = np.asarray(jax.vmap(source_spine)(jnp.concatenate([arc_length, stations])))
+    feet, rest = on_rest[: len(arc_length)], on_rest[len(arc_length) :]
+    centre, omega, motions = spine_points(arc_length, points, target, weights, feet, length, count)
     if np.count_nonzero(omega) < init.degree + 1:
         return None
+    fractions = np.clip(np.asarray(arc_length, np.float64) / length, 0.0, 1.0)
+    # The unseen stations count as much as a typical seen point (the median's weight).
+    unseen = continued(motions, rest)
+    filled = np.isfinite(unseen[:, 0])
+    typical = np.median(omega[omega > 0])
+    centre = np.concatenate([centre, unseen[filled]])
+    omega = np.concatenate([omega, np.full(np.count_nonzero(filled), typical)])
+    fractions = np.concatenate([fractions, at[filled]])
     c, c_, r = rigid_motion(points, target, weights)
     prior = c_ + (np.asarray(init.control_points, np.float64) - c) @ r.T
-    fractions = np.clip(np.asarray(arc_length, np.float64) / float(length), 0.0, 1.0)
     return control_points(init, free, centre, omega, fractions, prior)
 
 
@@ -163,11 +206,9 @@ def initial(parameters: Parameters, registration: Registration, source_spine, ta
     if not applies(parameters):
         return None
     init = parameters.base
-    arc_length = registration.arc_length
-    feet = jax.vmap(source_spine)(arc_length)
     counted = np.where(np.asarray(registration.valid), np.asarray(weights, np.float64), 0.0)
-    points = from_targets(init, np.asarray(parameters.free[0]), arc_length, feet,
-                          source_spine.length, registration.points, target, counted)
+    points = from_targets(init, np.asarray(parameters.free[0]), registration.arc_length,
+                          source_spine, registration.points, target, counted)
     if points is None or not np.isfinite(points).all():
         return None
     dtype = init.control_points.dtype
