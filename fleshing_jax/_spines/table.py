@@ -88,10 +88,18 @@ class PiecewiseCubic(eqx.Module):
     coefficients: Array
     inner: int = eqx.field(static=True)
 
-    def __init__(self, spine: AbstractSpine, function: Callable, inner: int | None = None):
+    def __init__(
+        self,
+        spine: AbstractSpine,
+        function: Callable,
+        inner: int | None = None,
+        extension: tuple[Array, Array] | None = None,
+    ):
         """`function`: `s` (scalar) → (F,); `spine` gives the range and the default `inner`
-        (`max(MIN_PIECES, spine.default_samples())`)."""
-        e0, e1 = spine.extension()
+        (`max(MIN_PIECES, spine.default_samples())`); `extension`: `spine.extension()`, where
+        the caller has it (each evaluates the spine at both ends: on a free-form spine, an
+        arc-length inverse apiece, traced and compiled again)."""
+        e0, e1 = spine.extension() if extension is None else extension
         self.length, self.lo, self.hi = spine.length, -e0, spine.length + e1
         self.inner = max(MIN_PIECES, spine.default_samples()) if inner is None else inner
         self.coefficients = _fit(grid_vmap(function, self.nodes()))
@@ -179,15 +187,18 @@ def _fit(samples: Array) -> Array:
 
 
 def tabulated(
-    spine: AbstractSpine, function: Callable, inner: int | None = None
+    spine: AbstractSpine,
+    function: Callable,
+    inner: int | None = None,
+    extension: tuple[Array, Array] | None = None,
 ) -> PiecewiseCubic | Sinusoid:
     """`function` of arc length (`s` → (F,)) on `spine`'s search range, to be looked up per
     point (`fields`): as a `PiecewiseCubic`, or on an arc exactly as a `Sinusoid` (whatever is
     built from its point, frame and curvature is one), whose `sincos` costs less than the
-    cubics' four reads a value."""
+    cubics' four reads a value. `extension`: `spine.extension()`, where the caller has it."""
     if isinstance(spine, Arc):
         return Sinusoid(spine.radius, function)
-    return PiecewiseCubic(spine, function, inner)
+    return PiecewiseCubic(spine, function, inner, extension)
 
 
 class SpineTable(eqx.Module):
@@ -212,9 +223,11 @@ class SpineTable(eqx.Module):
     samples: int = eqx.field(static=True)
 
     def __init__(self, spine: AbstractSpine, inner: int | None = None):
-        e0, e1 = spine.extension()
-        self.length, self.lo, self.hi = spine.length, -e0, spine.length + e1
-        self.cubics = tabulated(spine, lambda s: table_values(*spine.jet_and_normals(s)), inner)
+        extension = spine.extension()
+        self.length, self.lo, self.hi = spine.length, -extension[0], spine.length + extension[1]
+        self.cubics = tabulated(
+            spine, lambda s: table_values(*spine.jet_and_normals(s)), inner, extension
+        )
         self.samples = spine.default_samples()
 
     def refit(
