@@ -82,8 +82,7 @@ def end_frames(spine) -> EndFrames:
 def _frames(spine) -> list[tuple[Array, Array, Array, Array, Array]]:
     """`(C, T, I, J, K)` of `spine` at 0 and at its length, evaluated together (`_anchors`:
     spines share their work between the two ends; no continuation past them is traced)."""
-    spine = spine._prepare()
-    _, start, end = spine._anchors(jnp.zeros_like(spine.length))
+    start, end = spine._prepare()._end_anchors()
     return [(c, t, i, j, k) for (c, t, k), (i, j) in (start, end)]
 
 

@@ -151,8 +151,13 @@ def evaluate_located(tab: Tables, i: Array, u: Array, j: Array):
     jet = _jet_of(tab.coefficients[i], u)[0]
     c, t, k, normals = tab.nodes
     normal = double_reflection(c[j], t[j], normals[j], jet[0], jet[1], k[j])
-    ends = [((c[e], t[e], k[e]), (normals[e], jnp.cross(t[e], normals[e]))) for e in (0, tab.end)]
-    return [(jet, (normal, jnp.cross(jet[1], normal)))] + ends
+    return [(jet, (normal, jnp.cross(jet[1], normal)))] + ends_of(tab)
+
+
+def ends_of(tab: Tables):
+    """Jet and normals at both ends: the first and last frame nodes."""
+    c, t, k, normals = tab.nodes
+    return [((c[e], t[e], k[e]), (normals[e], jnp.cross(t[e], normals[e]))) for e in (0, tab.end)]
 
 
 def torsion_at(tab: Tables, s):
@@ -166,7 +171,7 @@ def length_of(tab: Tables):
     return tab.cumulative[-1]
 
 
-EVALUATORS = Evaluators(length_of, jet_at, jets_at, evaluate_at, torsion_at)
+EVALUATORS = Evaluators(length_of, jet_at, jets_at, evaluate_at, torsion_at, ends_of)
 
 
 @Program  # (a spine's tables: small work, compiled quickly when called on its own)

@@ -238,4 +238,5 @@ EVALUATORS = Evaluators(
     jets=lambda tab, s: [jet for jet, _ in _evaluate(tab, s)],
     evaluate=_evaluate,
     torsion=_torsion,
+    ends=lambda tab: _evaluate(tab, jnp.zeros_like(tab[1][-1]))[1:],
 )

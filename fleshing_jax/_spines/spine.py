@@ -112,6 +112,11 @@ class AbstractSpine(eqx.Module):
         zero = jnp.zeros_like(self.length)
         return [self._jet_and_normals(x) for x in (s, zero, self.length)]
 
+    def _end_anchors(self) -> list:
+        """`_anchors` at 0 and at `length` only (spines with tables read them without
+        evaluating the spine anywhere else: the end frames, `_fleshing.ends`)."""
+        return self._anchors(jnp.zeros_like(self.length))[1:]
+
     def _prepare(self) -> AbstractSpine:
         """An equivalent spine for many evaluations in one trace (tables computed once)."""
         return self
@@ -284,6 +289,7 @@ class Evaluators(NamedTuple):
     jets: Callable  # → [jet at s, at 0, at length]
     evaluate: Callable  # → [(jet, (I, J)) at s, at 0, at length]
     torsion: Callable  # → scalar
+    ends: Callable  # tables → [(jet, (I, J)) at 0, at length]
 
     def __repr__(self):
         # By the functions' names, not their addresses: the same in every process, as the key
@@ -324,6 +330,9 @@ class PreparedSpine(AbstractSpine):
 
     def _anchors(self, s):
         return _call(self.functions.evaluate, self.tables, s)
+
+    def _end_anchors(self):
+        return _call(self.functions.ends, self.tables)
 
     def _anchor_jets(self, s):
         return _call(self.functions.jets, self.tables, s)
@@ -378,6 +387,9 @@ class AbstractTabulatedSpine(AbstractSpine):
 
     def _anchors(self, s):
         return self._prepare()._anchors(s)
+
+    def _end_anchors(self):
+        return self._prepare()._end_anchors()
 
     def _anchor_jets(self, s):
         return self._prepare()._anchor_jets(s)

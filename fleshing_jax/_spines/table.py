@@ -271,7 +271,11 @@ class SpineTable(eqx.Module):
 
     def _anchors(self, s):
         """`jet_and_normals` at `s`, at 0 and at `length` (as `AbstractSpine._anchors`)."""
-        return [self.jet_and_normals(x) for x in (s, jnp.zeros_like(self.length), self.length)]
+        return [self.jet_and_normals(s), *self._end_anchors()]
+
+    def _end_anchors(self):
+        """`jet_and_normals` at 0 and at `length` (as `AbstractSpine._end_anchors`)."""
+        return [self.jet_and_normals(x) for x in (jnp.zeros_like(self.length), self.length)]
 
     def jet(self, s):
         """`(C, T, k)` at `s`, each (3,): their 9 values read alone."""
