@@ -78,7 +78,9 @@ def test_a_joint_off_its_limb_s_axis_is_moved_onto_it_across_the_limb():
     before, after = joints - [0.5, 0.0, 0.0], joints + [0.5, 0.0, 0.1]
     axes = bisectors(before, joints, after)
     assert np.allclose(np.linalg.norm(axes, axis=1), 1.0)
-    moved = on_axis(joints, axes, vertices, faces)
+    with pytest.warns(UserWarning, match=r"`bones`: 2 joints off their limb's axis .* moved "
+                      r"across the limb to its middle \(knee by 0\.2, elbow by 0\.18"):
+        moved = on_axis(joints, axes, vertices, faces, ["knee", "elbow", "ankle", "hip"], "bones")
     # Across the limb only: no joint slides along it.
     assert np.allclose(np.einsum("ij,ij->i", moved - joints, axes), 0.0, atol=1e-12)
     assert np.all(np.linalg.norm(moved[:2, 1:], axis=1) < 0.02)  # on the 16-gon's axis

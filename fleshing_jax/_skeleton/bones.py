@@ -180,9 +180,9 @@ def check_bones(bones, vertices, faces):
     joints = np.flatnonzero(child >= 0)
     if len(joints):
         heads_, tails_ = ends[:n], ends[n:]
-        tails_[joints] = on_axis(tails_[joints], bisectors(heads_[joints], tails_[joints],
-                                                           tails_[child[joints]]),
-                                 vertices, faces)  # fmt: skip
+        axes = bisectors(heads_[joints], tails_[joints], tails_[child[joints]])
+        tails_[joints] = on_axis(tails_[joints], axes, vertices, faces,
+                                 [f"{labels[b]}'s tail" for b in joints], "bones")  # fmt: skip
         heads_[connected] = tails_[parents[connected]]
     diagonal = float(np.linalg.norm(np.ptp(vertices, axis=0)))
     # (Checked after the move too: both ends past the surface may meet at one point.)

@@ -72,7 +72,9 @@ def check_chains(chains, vertices: np.ndarray, faces: np.ndarray) -> list[np.nda
         at = np.array([checked[i][j] for i, j in inner])
         axes = bisectors(np.array([checked[i][j - 1] for i, j in inner]), at,
                          np.array([checked[i][j + 1] for i, j in inner]))
-        for (i, j), point in zip(inner, on_axis(at, axes, vertices, faces), strict=True):
+        moved = on_axis(at, axes, vertices, faces, [f"`chains[{i}][{j}]`" for i, j in inner],
+                        "chains")
+        for (i, j), point in zip(inner, moved, strict=True):
             checked[i][j] = point
     return checked
 

@@ -112,10 +112,13 @@ def _medial_radius(surface: SurfaceQuery, foot: np.ndarray, normal: np.ndarray) 
 
 
 def on_axis(points: np.ndarray, axes: np.ndarray, vertices: np.ndarray,
-            faces: np.ndarray) -> np.ndarray:
+            faces: np.ndarray, labels: list[str] | None = None,
+            argument: str = "") -> np.ndarray:
     """`points (k, 3)`, joints inside the mesh, with those lying off their limb's axis moved
-    onto it, across the limb; `axes (k, 3)` the limb's unit direction at each (the bisector
-    of the bones that meet there).
+    onto it, across the limb, with a warning naming `argument` and the joints by their
+    `labels` when given;
+    `axes (k, 3)` the limb's unit direction at each (the bisector of the bones that meet
+    there).
 
     Animators place a knee or an elbow towards the front of the joint, where it bends best in
     Blender (the insect's knees 0.3 of the way across the leg, the kangaroo's 0.45). A joint's
@@ -144,7 +147,17 @@ def on_axis(points: np.ndarray, axes: np.ndarray, vertices: np.ndarray,
         ok &= np.isfinite(ahead) & np.isfinite(behind)
         moved[ok] += (0.5 * (ahead - behind))[ok, None] * away[ok]
     new_gap, _, _ = surface.query(moved)
-    keep = (gap < 0.5 * new_gap) & (np.linalg.norm(moved - points, axis=1) <= new_gap)
+    by = np.linalg.norm(moved - points, axis=1)
+    keep = (gap < 0.5 * new_gap) & (by <= new_gap)
+    if labels is not None and keep.any():
+        near = np.flatnonzero(keep)
+        named = ", ".join(f"{labels[i]} by {by[i]:.3g}" for i in near[:4])
+        warnings.warn(
+            f"`{argument}`: {len(near)} joints off their limb's axis (nearer the surface "
+            f"than half the limb's radius) moved across the limb to its middle ({named}"
+            f"{', …' if len(near) > 4 else ''})",
+            stacklevel=5,  # (the caller of fj.skeleton)
+        )
     return np.where(keep[:, None], moved, points)
 
 
