@@ -176,7 +176,9 @@ def check_bones(bones, vertices, faces):
     # Each joint where a bone continues its parent's chain moved onto the limb's axis when
     # off it (`inside.on_axis`: a knee placed at its front), the child's head with it.
     child = np.full(n, -1)
-    child[parents[connected][::-1]] = np.flatnonzero(connected)[::-1]  # (the first child)
+    kids = np.flatnonzero(connected)
+    joined, first = np.unique(parents[kids], return_index=True)
+    child[joined] = kids[first]  # (each bone's first connected child)
     joints = np.flatnonzero(child >= 0)
     if len(joints):
         heads_, tails_ = ends[:n], ends[n:]
