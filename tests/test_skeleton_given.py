@@ -87,6 +87,38 @@ def test_a_joint_off_its_limb_s_axis_is_moved_onto_it_across_the_limb():
     assert np.array_equal(moved[2:], joints[2:])
 
 
+def _turned(profile, x):
+    """Points on the surface of revolution about the x axis of radius `profile(x)`."""
+    angle = np.linspace(0, 2 * np.pi, 24, endpoint=False)
+    r = profile(x)
+    return np.stack([np.repeat(x, 24), np.outer(r, np.cos(angle)).ravel(),
+                     np.outer(r, np.sin(angle)).ravel()], 1)
+
+
+def test_a_bone_from_a_head_s_middle_leaves_it_at_its_ear_s_root():
+    # A bone from the head's middle to an ear's tip (a Blender horse's and kangaroo's ears):
+    # its region was cut at its head, the half of the head on the ear's side, and the other
+    # ear's bone got 4 vertices. It leaves the head at the ear's root, the waist a skin
+    # makes there; a horn modelled as a cone from the head's middle has none, and a tail's
+    # bone from its root (as thick) is not cut at a waist on its way.
+    from scipy.spatial import cKDTree
+
+    from fleshing_jax._skeleton.given import leaves_part
+
+    x = np.linspace(-0.1, 0.3, 401)
+    head = np.sqrt(np.clip(0.01 - x**2, 0.0, None))
+    ear = np.interp(x, [0.09, 0.105, 0.115, 0.13], [0.0436, 0.012, 0.012, 0.035])
+    eared = np.where(x < 0.09, head, ear)
+    horned = np.where(x < 0.06, head, np.interp(x, [0.06, 0.3], [0.08, 0.005]))
+    bone = np.array([[0.0, 0.0, 0.0], [0.28, 0.0, 0.0]])
+    root = leaves_part(bone, cKDTree(_turned(lambda t: np.interp(t, x, eared), x)))
+    assert 0.1 < root[0] < 0.12 and np.allclose(root[1:], 0.0)
+    cone = cKDTree(_turned(lambda t: np.interp(t, x, horned), x))
+    assert np.array_equal(leaves_part(bone, cone), bone[0])
+    tail = cKDTree(_turned(lambda t: np.interp(t, x, ear), x))  # a tube, waisted
+    assert np.array_equal(leaves_part(bone, tail), bone[0])
+
+
 def test_joints_just_past_the_surface_are_moved_to_the_middle_of_the_shape(given):
     # An armature's tip at the sole or a joint where a subdivided skin shrank away from its
     # cage lies just outside: moved to the centre of the largest ball inside touching its

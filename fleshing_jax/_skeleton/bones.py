@@ -7,7 +7,9 @@ own that hangs from its nearest ancestor (its parent first) whose region holds i
 body when none does). The chains are then cut as `fj.skeleton(mesh, chains=…)` cuts them
 (`_skeleton.given`): limb `k` is bone `k`'s, its spine from about a radius before its head
 through the later joints of its chain to the surface, its region cut out of its parent's at
-its head.
+its head; a chain's first bone from the middle of a thicker part where other bones start
+too (an ear's bone from the head's middle) where it leaves that part, at the waist a skin
+makes at the ear's root (`given.leaves_part`).
 
 The body is what no bone takes. A torso is the body, not a tube: a rig's pelvis, spine and
 neck bones in it are no limbs (those that get no part of the surface here; those whose
@@ -63,6 +65,10 @@ def bone_limbs(checked, vertices, adjacency, margin, body=frozenset()):
             chain_of[b] = ([b], 0)
     tree = cKDTree(vertices)
     segments = np.stack([heads, tails], axis=1)
+    # Bones from one point (a head's ears and muzzle from its middle): each may leave the
+    # part there further out (`given.leaves_part`).
+    diagonal = float(np.linalg.norm(np.ptp(vertices, axis=0)))
+    branch = cKDTree(heads).query_ball_point(heads, CONNECTED * diagonal, return_length=True) > 1
     region = np.full(len(vertices), -1)
     index = {}  # bone → limb (a bone in the body: its parent's limb, or −1)
     limbs: list[Limb] = []
@@ -76,7 +82,8 @@ def bone_limbs(checked, vertices, adjacency, margin, body=frozenset()):
         # (The other bones, for where the chain's own vertices are: `chain_limb`.)
         others = segments[np.setdiff1d(np.arange(len(heads)), chain[i:])]
         limb = None if b in body else chain_limb(points, i, parent, tree, region, vertices,
-                                                 adjacency, margin, others, names[b])
+                                                 adjacency, margin, others, names[b],
+                                                 at_root=bool(branch[b]))
         if limb is None:
             index[b] = parent
             if b not in body:

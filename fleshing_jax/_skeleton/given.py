@@ -33,6 +33,10 @@ from .skeleton import Limb
 # surface) is the body's: a torso's spine bone, a coxa or a clavicle from the torso's middle.
 # Bent at rest into its limb, it is not fitted up to its joint as a leg is (`chain_limb`).
 SHORT = 2.0
+# A chain's first segment leaves the part it starts in (a head, for an ear's bone from its
+# middle) at a waist, where that part is this many times as thick as the chain past the waist,
+# and the waist this many times thinner (`leaves_part`).
+THICKER = 2.0
 
 
 def check_chains(chains, vertices: np.ndarray, faces: np.ndarray) -> list[np.ndarray]:
@@ -116,12 +120,15 @@ def _segments(chains) -> np.ndarray:
 
 
 def chain_limb(points, i, parent, tree, region, vertices, adjacency, margin, others=None,
-               name: str = ""):
+               name: str = "", at_root: bool = False):
     """The limb of the chain of joints `points` ((k, 3)) from its point `i` to its tip, cut out
     of the region of limb `parent` (−1: the body; `region` (n,) the limbs' so far):
     `(Limb, its region's vertex indices)`, or `None` when it gets no part of the surface.
     `tree`: a `cKDTree` of `vertices`; `others`: (m, 2, 3) the other bones' or chains'
-    segments (where a chain bent at rest has its own vertices); `name`: the limb's name."""
+    segments (where a chain bent at rest has its own vertices); `name`: the limb's name;
+    `at_root`: a chain's first limb cut where it leaves the part `p0` lies in
+    (`leaves_part`: an armature's bone from a head's middle to an ear), not at `p0` (a
+    user's chain starts where its limb leaves its parent)."""
     radius = tree.query(points)[0]  # the distance to the surface, at a vertex's precision
     # As spheres: a point a radius before p0 (inside the parent: the spine starts there),
     # then the chain's points.
@@ -131,8 +138,9 @@ def chain_limb(points, i, parent, tree, region, vertices, adjacency, margin, oth
     path = np.arange(i + 1, len(centers))  # p(i) … pn
     found = LimbPath(path, i, np.zeros(0, int), path, parent)
     allowed = region == parent
+    cut = leaves_part(points, tree) if at_root and i == 0 else points[i]
     spine, part = fit_limb(found, centers, radii, vertices, adjacency, allowed, margin,
-                           cut_at=points[i])  # fmt: skip
+                           cut_at=cut)
     if (part is not None and i + 2 < len(points) and turn_at(points, i + 1) >= TURN
             and np.linalg.norm(points[i + 1] - points[i]) >= SHORT * radius[i]
             and part.joint > arc_at(spine, points[i + 1])):
@@ -151,6 +159,25 @@ def chain_limb(points, i, parent, tree, region, vertices, adjacency, margin, oth
         if top_part is not None and top_part.joint < arc_at(top_spine, points[i + 1]):
             spine, part = top_spine, top_part
     return None if part is None else (Limb(spine, part.joint, parent, name), part.vertices)
+
+
+def leaves_part(points: np.ndarray, tree) -> np.ndarray:
+    """(3,): where a chain `points` ((k, 3)) leaves the part its first point lies in: that
+    point, unless the part is at least `THICKER` times as thick there as the chain's first
+    segment is past a waist it narrows to, itself `THICKER` times thinner than that (the
+    distances to the surface, a `cKDTree` `tree` of the vertices): a bone from a head's
+    middle to an ear's tip, which leaves the head at the ear's root. Cut there, the ear's
+    region is the ear, not the half of the head on its side, and it bends at its root. (A
+    horn modelled as a cone from the head's middle narrows all its length; a tail's bone from
+    its root, as thick, passes near its curved surface: neither is cut further out.)"""
+    along = np.linspace(0.0, 1.0, 65)[:, None]
+    samples = points[0] + along * (points[1] - points[0])
+    depth = tree.query(samples)[0]
+    waist = int(np.argmin(depth))
+    beyond = depth[waist:].max()  # the chain's own thickness past its waist
+    if THICKER * depth[waist] > beyond or depth[0] < THICKER * beyond:
+        return points[0]
+    return samples[waist]
 
 
 def turn_at(points: np.ndarray, j: int) -> float:
