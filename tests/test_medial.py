@@ -16,6 +16,7 @@ from fleshing_jax._medial_axis.construct import medial_mesh
 from fleshing_jax._medial_axis.distance import medial_distance, point_distances
 from fleshing_jax._medial_axis.files import load_medial, save_medial
 from fleshing_jax._medial_axis.medial_mesh import MedialMesh
+from fleshing_jax._medial_axis.pairs import CHUNK
 from fleshing_jax._medial_axis.primitives import (
     UnionPrimitives,
     cone_distance,
@@ -323,6 +324,12 @@ def test_compiled_pair_distances_are_the_closed_forms_bit_for_bit():
     order = rng.permutation(len(pts))
     got = union.distance(points, pts[order], prim[order])
     np.testing.assert_array_equal(got.view(np.int64), expected[order].view(np.int64))
+    # Sorted by primitive (as the fit's pairs come), in runs longer than the loop's chunk of
+    # gathered samples (each pair five times).
+    runs = np.repeat(np.arange(len(pts)), 5)
+    assert 5 * len(points) > CHUNK
+    got = union.distance(points, pts[runs], prim[runs])
+    np.testing.assert_array_equal(got.view(np.int64), expected[runs].view(np.int64))
 
 
 def test_closest_points_on_triangles_match_trimesh():

@@ -29,37 +29,40 @@ from .primitives import FOOT
 
 @numba.njit(cache=True, error_model="numpy")
 def _least(a, b):
-    """`np.minimum(a, b)` of two floats (NaN if either is NaN; `a` on a tie)."""
-    return a if (a <= b or a != a) else b
+    """`np.minimum(a, b)` of two floats (NaN if either is NaN; `a` on a tie); no branch."""
+    return a if (a <= b) | (a != a) else b
 
 
 @numba.njit(cache=True, error_model="numpy", inline="always")
-def _cone_parts(px, py, pz, cone, i):
-    """`_Cones._parts` of one point and cone `i` (`cone`: `_Cones.columns`): the distances
-    to the end spheres and to the lateral surface, and the minimiser's position `t`."""
-    d0x, d0y, d0z = px - cone[0, i], py - cone[1, i], pz - cone[2, i]
+def _column(table, i):
+    """Column `i` of a table of 15 rows (`_Cones.columns`, `_Slabs.test`), as a tuple of
+    floats: read once for all the samples of one primitive."""
+    return (table[0, i], table[1, i], table[2, i], table[3, i], table[4, i], table[5, i],
+            table[6, i], table[7, i], table[8, i], table[9, i], table[10, i], table[11, i],
+            table[12, i], table[13, i], table[14, i])
+
+
+@numba.njit(cache=True, error_model="numpy", inline="always")
+def _cone_parts(px, py, pz, row):
+    """`_Cones._parts` of one point and the cone of `row` (its column of `_Cones.columns`,
+    `_column`): the distances to the end spheres and to the lateral surface, and the
+    minimiser's position `t`. Without branches (every quantity computed, then chosen), so
+    that a loop over the samples of one cone compiles into vector instructions: the same
+    values."""
+    d0x, d0y, d0z = px - row[0], py - row[1], pz - row[2]
     dd = (d0x * d0x + d0z * d0z) + d0y * d0y
-    end0 = np.sqrt(dd) - cone[9, i]
-    d1x, d1y, d1z = px - cone[6, i], py - cone[7, i], pz - cone[8, i]
-    end1 = np.sqrt((d1x * d1x + d1z * d1z) + d1y * d1y) - cone[10, i]
-    x = (d0x * cone[3, i] + d0z * cone[5, i]) + d0y * cone[4, i]
+    end0 = np.sqrt(dd) - row[9]
+    d1x, d1y, d1z = px - row[6], py - row[7], pz - row[8]
+    end1 = np.sqrt((d1x * d1x + d1z * d1z) + d1y * d1y) - row[10]
+    x = (d0x * row[3] + d0z * row[5]) + d0y * row[4]
     across = dd - x * x
-    if not (across >= 0.0 or across != across):  # np.maximum(·, 0)
-        across = 0.0
+    across = across if (across >= 0.0) | (across != across) else 0.0  # np.maximum(·, 0)
     y = np.sqrt(across)
-    s, co = cone[11, i], cone[12, i]
+    s, co = row[11], row[12]
     t = x - y * s / co
-    lateral = np.inf
-    if cone[14, i] > 0 and t >= 0 and t <= cone[13, i]:
-        lateral = x * s + y * co - cone[9, i]
+    lateral = x * s + y * co - row[9]
+    lateral = lateral if (row[14] > 0) & (t >= 0) & (t <= row[13]) else np.inf
     return end0, end1, lateral, t
-
-
-@numba.njit(cache=True, error_model="numpy")
-def _cone(px, py, pz, cone, i):
-    """`_Cones.distance` of one point to cone `i` (`cone`: `_Cones.columns`)."""
-    end0, end1, lateral, _ = _cone_parts(px, py, pz, cone, i)
-    return _least(_least(end0, end1), lateral)
 
 
 @numba.njit(cache=True, error_model="numpy", inline="always")
@@ -82,35 +85,64 @@ def _slab_parts(px, py, pz, table, i):
     return np.inf, b1, b2
 
 
-@numba.njit(cache=True, error_model="numpy")
-def _slab(px, py, pz, test, table, i):
-    """`_Slabs.distance` of one point to slab `i` (`test`, `table`: `_Slabs.test`, `.table`):
-    `inf` where the foot's coordinates put it off the triangle."""
-    dx, dy, dz = px - test[0, i], py - test[1, i], pz - test[2, i]
-    lift = np.abs((dx * test[3, i] + dz * test[5, i]) + dy * test[4, i])
-    b1 = ((dx * test[6, i] + dz * test[8, i]) + dy * test[7, i]) - lift * test[12, i]
-    b2 = ((dx * test[9, i] + dz * test[11, i]) + dy * test[10, i]) - lift * test[13, i]
-    if not (test[14, i] > 0 and b1 >= -FOOT and b2 >= -FOOT and b1 + b2 <= 1 + FOOT):
-        return np.inf
-    return _slab_parts(px, py, pz, table, i)[0]
+@numba.njit(cache=True, error_model="numpy", inline="always")
+def _slab_near(px, py, pz, row):
+    """Whether `_Slabs.distance` of one point to the slab of `row` (its column of
+    `_Slabs.test`, `_column`) may be finite: the foot's coordinates on or near the
+    triangle (`FOOT`). Without branches, as `_cone_parts`."""
+    dx, dy, dz = px - row[0], py - row[1], pz - row[2]
+    lift = np.abs((dx * row[3] + dz * row[5]) + dy * row[4])
+    b1 = ((dx * row[6] + dz * row[8]) + dy * row[7]) - lift * row[12]
+    b2 = ((dx * row[9] + dz * row[11]) + dy * row[10]) - lift * row[13]
+    return (row[14] > 0) & (b1 >= -FOOT) & (b2 >= -FOOT) & (b1 + b2 <= 1 + FOOT)
+
+
+CHUNK = 256  # samples of one primitive gathered at a time by `pair_distances` (a few kB)
 
 
 @numba.njit(cache=True, error_model="numpy")
 def pair_distances(points, pts, prim, kind, index, centers, radii, cone, test, table, out):
     """`out[k]`: the signed distance of `points[pts[k]]` to primitive `prim[k]` (`kind` 0, 1,
     2: lone sphere, cone, slab, number `index` among its kind; the tables of `_Cones` and
-    `_Slabs`). Every array float64 or int64 and contiguous (one compiled version)."""
-    for k in range(len(pts)):
-        j, q = pts[k], prim[k]
+    `_Slabs`). Every array float64 or int64 and contiguous (one compiled version).
+
+    By runs of pairs of one primitive (the searches' and the fit's pairs come sorted by
+    primitive, thousands a cone on spot; any order gives the same values): a cone's samples
+    are gathered `CHUNK` at a time and measured in a loop without branches, which compiles
+    into vector instructions (spot's fit: 0.5 → 0.2 s; the same values, bit for bit)."""
+    gx, gy, gz = np.empty(CHUNK), np.empty(CHUNK), np.empty(CHUNK)
+    near = np.empty(CHUNK, np.bool_)
+    start = 0
+    while start < len(pts):
+        q = prim[start]
+        stop = start + 1
+        while stop < len(pts) and prim[stop] == q:
+            stop += 1
         i = index[q]
-        px, py, pz = points[j, 0], points[j, 1], points[j, 2]
         if kind[q] == 0:
-            x, y, z = px - centers[i, 0], py - centers[i, 1], pz - centers[i, 2]
-            out[k] = np.sqrt((x * x + y * y) + z * z) - radii[i]
-        elif kind[q] == 1:
-            out[k] = _cone(px, py, pz, cone, i)
+            cx, cy, cz, r = centers[i, 0], centers[i, 1], centers[i, 2], radii[i]
+            for k in range(start, stop):
+                j = pts[k]
+                x, y, z = points[j, 0] - cx, points[j, 1] - cy, points[j, 2] - cz
+                out[k] = np.sqrt((x * x + y * y) + z * z) - r
         else:
-            out[k] = _slab(px, py, pz, test, table, i)
+            row = _column(cone, i) if kind[q] == 1 else _column(test, i)
+            for first in range(start, stop, CHUNK):
+                size = min(CHUNK, stop - first)
+                for k in range(size):
+                    j = pts[first + k]
+                    gx[k], gy[k], gz[k] = points[j, 0], points[j, 1], points[j, 2]
+                if kind[q] == 1:
+                    for k in range(size):
+                        end0, end1, lateral, _ = _cone_parts(gx[k], gy[k], gz[k], row)
+                        out[first + k] = _least(_least(end0, end1), lateral)
+                    continue
+                for k in range(size):
+                    near[k] = _slab_near(gx[k], gy[k], gz[k], row)
+                for k in range(size):  # (few are near: 7k of the fit's 1.3M slab pairs)
+                    out[first + k] = (_slab_parts(gx[k], gy[k], gz[k], table, i)[0] if near[k]
+                                      else np.inf)
+        start = stop
 
 
 @numba.njit(cache=True, error_model="numpy")
@@ -207,7 +239,7 @@ def attaining_spheres(points, pts, prim, pick, kind, index, cone, table, edges, 
             spheres[s, 0] = spheres[s, 1] = spheres[s, 2] = i
             weights[s, 0] = 1.0
         elif kind[q] == 1:
-            end0, end1, lateral, t = _cone_parts(px, py, pz, cone, i)
+            end0, end1, lateral, t = _cone_parts(px, py, pz, _column(cone, i))
             ends = _least(end0, end1)
             if lateral < ends:  # np.clip(t / length, 0, 1)
                 fraction = t / cone[13, i]
