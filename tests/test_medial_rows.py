@@ -69,9 +69,9 @@ def test_sorted_order_is_a_stable_argsort(bound):
 
 def test_quadric_loops_are_numpy_s_bit_for_bit():
     # The collapses' per-edge loops (`quadric_loops`) against the NumPy forms they replace:
-    # the summed quadrics, and the cheapest of four options (a negative radius never chosen,
-    # a NaN error picked first as by `np.argmin`, ties to the first).
-    from fleshing_jax._medial_axis.quadric_loops import cheapest, edge_quadrics
+    # the regularised systems, and the cheapest of four options (a negative radius never
+    # chosen, a NaN error picked first as by `np.argmin`, ties to the first).
+    from fleshing_jax._medial_axis.quadric_loops import cheapest, edge_systems
     from fleshing_jax._medial_axis.simplify import _error
 
     rng = np.random.default_rng(3)
@@ -79,23 +79,27 @@ def test_quadric_loops_are_numpy_s_bit_for_bit():
     spheres, b = rng.normal(size=(n, 4)), rng.normal(size=(n, 4))
     A, c = rng.normal(size=(n, 4, 4)) * 10.0 ** rng.integers(-6, 6, (n, 1, 1)), rng.normal(size=n)
     A[:, 0, 1] = -0.0  # (zeros' signs: the regularised matrix's `+ 0` makes them +0)
+    spheres[40:45, 0] = np.nan  # NaN errors
     i, j = rng.integers(0, n, (e, 2)).T  # (columns of the edges, as `simplify` passes)
-    Ae, be, ce, si, sj, mid, reg, rhs, length, dr = edge_quadrics(spheres, A, b, c, i, j)
+    j[:20] = i[:20]  # ties: both ends one sphere
+    i, j = np.ascontiguousarray(i), np.ascontiguousarray(j)
+    reg, rhs, length, dr = edge_systems(spheres, A, b, i, j)
+    Ae, be, ce, si, sj = A[i] + A[j], b[i] + b[j], c[i] + c[j], spheres[i], spheres[j]
     eps = 1e-6 * np.trace(Ae, axis1=1, axis2=2) / 4 + 1e-300
-    for x, y in ((Ae, A[i] + A[j]), (be, b[i] + b[j]), (ce, c[i] + c[j]), (si, spheres[i]),
-                 (sj, spheres[j]), (mid, (si + sj) / 2),
-                 (reg, Ae + eps[:, None, None] * np.eye(4)), (rhs, eps[:, None] * mid - be),
+    mid = (si + sj) / 2
+    for x, y in ((reg, Ae + eps[:, None, None] * np.eye(4)), (rhs, eps[:, None] * mid - be),
                  (length, np.linalg.norm(si[:, :3] - sj[:, :3], axis=1)),
                  (dr, np.abs(si[:, 3] - sj[:, 3]))):
         np.testing.assert_array_equal(x.view(np.int64), y.view(np.int64))  # bit for bit
-    options = [rng.normal(size=(e, 4)) for _ in range(4)]
-    options[2][:20] = options[1][:20]  # ties
-    options[3][20:30, 0] = np.nan  # a NaN error
+    best = rng.normal(size=(e, 4))
+    best[20:30, 0] = np.nan  # a NaN error first
+    options = [best, si, sj, mid]
     errors = np.stack([np.where(x[:, 3] >= 0, np.maximum(_error(Ae, be, ce, x), 0), np.inf)
                        for x in options], 1)
+    assert np.isnan(errors[:, 1:]).any() and np.isinf(errors).any()
     pick = np.argmin(errors, axis=1)
-    error, chosen = cheapest(Ae, be, ce, *options)
-    np.testing.assert_array_equal(error, errors[np.arange(e), pick])
+    error, chosen = cheapest(spheres, A, b, c, i, j, best)
+    np.testing.assert_array_equal(error.view(np.int64), errors[np.arange(e), pick].view(np.int64))
     np.testing.assert_array_equal(chosen, np.stack(options, 1)[np.arange(e), pick])
 
 

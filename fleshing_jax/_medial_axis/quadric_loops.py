@@ -79,73 +79,75 @@ def contact_quadrics(normals, points, weights, contacts, slide: float):
 
 
 @numba.njit(cache=True, error_model="numpy")
-def edge_quadrics(spheres, A, b, c, i, j):
-    """For edges `(i, j)` (each `(e,)`): `A[i] + A[j]` `(e, 4, 4)`, `b[i] + b[j]` `(e, 4)`,
-    `c[i] + c[j]` `(e,)`, the end spheres `spheres[i]`, `spheres[j]` and their midpoint
-    `(e, 4)` each; the regularised system of `simplify._edge_costs`, its matrix
-    `A + eps I` `(e, 4, 4)` and right-hand side `eps mid − b` `(e, 4)` (`eps = 1e-6 ×
-    trace / 4 + 1e-300`, the trace summed first to last); the centres' distance and the
-    radii's difference `|r_i − r_j|` `(e,)` each."""
+def edge_systems(spheres, A, b, i, j):
+    """For edges `(i, j)` (each `(e,)`): the regularised system of `simplify._edge_costs`,
+    its matrix `A[i] + A[j] + eps I` `(e, 4, 4)` and right-hand side `eps mid − (b[i] +
+    b[j])` `(e, 4)` (`mid` the end spheres' midpoint, `eps = 1e-6 × trace / 4 + 1e-300`,
+    the summed matrix's trace summed first to last); the centres' distance and the radii's
+    difference `|r_i − r_j|` `(e,)` each. (The summed quadrics are not kept: `cheapest`
+    sums them again, as it prices the options, cheaper than writing and reading them.)"""
     e = len(i)
-    Ae, be, ce = np.empty((e, 4, 4)), np.empty((e, 4)), np.empty(e)
-    si, sj, mid = np.empty((e, 4)), np.empty((e, 4)), np.empty((e, 4))
     reg, rhs = np.empty((e, 4, 4)), np.empty((e, 4))
     length, dr = np.empty(e), np.empty(e)
     for r in range(e):
         p, q = i[r], j[r]
+        eps = 1e-6 * ((((A[p, 0, 0] + A[q, 0, 0]) + (A[p, 1, 1] + A[q, 1, 1]))
+                       + (A[p, 2, 2] + A[q, 2, 2])) + (A[p, 3, 3] + A[q, 3, 3])) / 4 + 1e-300
         for u in range(4):
             for v in range(4):
-                Ae[r, u, v] = A[p, u, v] + A[q, u, v]
-            be[r, u] = b[p, u] + b[q, u]
-            si[r, u], sj[r, u] = spheres[p, u], spheres[q, u]
-            mid[r, u] = (si[r, u] + sj[r, u]) / 2
-        ce[r] = c[p] + c[q]
-        eps = 1e-6 * (((Ae[r, 0, 0] + Ae[r, 1, 1]) + Ae[r, 2, 2]) + Ae[r, 3, 3]) / 4 + 1e-300
-        for u in range(4):
-            for v in range(4):
-                reg[r, u, v] = Ae[r, u, v] + eps * (1.0 if u == v else 0.0)
-            rhs[r, u] = eps * mid[r, u] - be[r, u]
-        x, y, z = si[r, 0] - sj[r, 0], si[r, 1] - sj[r, 1], si[r, 2] - sj[r, 2]
+                reg[r, u, v] = (A[p, u, v] + A[q, u, v]) + eps * (1.0 if u == v else 0.0)
+            rhs[r, u] = eps * ((spheres[p, u] + spheres[q, u]) / 2) - (b[p, u] + b[q, u])
+        x = spheres[p, 0] - spheres[q, 0]
+        y = spheres[p, 1] - spheres[q, 1]
+        z = spheres[p, 2] - spheres[q, 2]
         length[r] = np.sqrt((x * x + y * y) + z * z)
-        dr[r] = np.abs(si[r, 3] - sj[r, 3])
-    return Ae, be, ce, si, sj, mid, reg, rhs, length, dr
+        dr[r] = np.abs(spheres[p, 3] - spheres[q, 3])
+    return reg, rhs, length, dr
 
 
 @numba.njit(cache=True, error_model="numpy")
-def _error(A, b, c, m, r):
-    """`simplify._error` of edge `r` at sphere `m[r]`, clamped as `_edge_costs` does: `inf`
-    for a negative radius, else `np.maximum(error, 0)`."""
-    if not m[r, 3] >= 0:
-        return np.inf
-    quadratic = 0.0
-    for u in range(4):
-        for v in range(4):
-            quadratic += m[r, u] * A[r, u, v] * m[r, v]
-    linear = (b[r, 0] * m[r, 0] + b[r, 2] * m[r, 2]) + (b[r, 1] * m[r, 1] + b[r, 3] * m[r, 3])
-    error = quadratic + 2 * linear + c[r]
-    return error if (error >= 0 or error != error) else 0.0
-
-
-@numba.njit(cache=True, error_model="numpy")
-def cheapest(A, b, c, best, si, sj, mid):
-    """Each edge's cheapest of its four options `best, si, sj, mid` (`(e, 4)` each) under its
-    quadric `(A, b, c)`: `(error (e,), chosen (e, 4))`."""
-    e = len(c)
+def cheapest(spheres, A, b, c, i, j, best):
+    """Each edge's `(i, j)` cheapest of its four options, `best (e, 4)`, its end spheres
+    `spheres[i]`, `spheres[j]` and their midpoint, under its summed quadric `(A[i] + A[j],
+    b[i] + b[j], c[i] + c[j])`: `(error (e,), chosen (e, 4))`. An option's error is
+    `simplify._error`, `inf` for a negative radius, else `np.maximum(error, 0)`; the four
+    options' sums run side by side (four independent chains of additions, not one after
+    another: each sum's terms still in their order)."""
+    e = len(i)
     error, chosen = np.empty(e), np.empty((e, 4))
+    Ae, be, option = np.empty((4, 4)), np.empty(4), np.empty((4, 4))
+    value = np.empty(4)
     for r in range(e):
-        pick, least = 0, _error(A, b, c, best, r)
-        if least == least:  # (a NaN is np.argmin's pick: the first one)
-            for k, option in enumerate((si, sj, mid)):
-                value = _error(A, b, c, option, r)
-                if value != value:
-                    pick, least = k + 1, value
-                    break
-                if value < least:
-                    pick, least = k + 1, value
-        source = best if pick == 0 else si if pick == 1 else sj if pick == 2 else mid
+        p, q = i[r], j[r]
         for u in range(4):
-            chosen[r, u] = source[r, u]
-        error[r] = least
+            for v in range(4):
+                Ae[u, v] = A[p, u, v] + A[q, u, v]
+            be[u] = b[p, u] + b[q, u]
+            option[0, u], option[1, u], option[2, u] = best[r, u], spheres[p, u], spheres[q, u]
+            option[3, u] = (spheres[p, u] + spheres[q, u]) / 2
+        ce = c[p] + c[q]
+        value[:] = 0.0
+        for u in range(4):
+            for v in range(4):
+                for k in range(4):
+                    value[k] += option[k, u] * Ae[u, v] * option[k, v]
+        for k in range(4):
+            m = option[k]
+            linear = (be[0] * m[0] + be[2] * m[2]) + (be[1] * m[1] + be[3] * m[3])
+            total = value[k] + 2 * linear + ce
+            total = total if (total >= 0 or total != total) else 0.0
+            value[k] = total if m[3] >= 0 else np.inf
+        pick = 0  # np.argmin's: a NaN first, else the first of the least
+        if value[0] == value[0]:
+            for k in range(1, 4):
+                if value[k] != value[k]:
+                    pick = k
+                    break
+                if value[k] < value[pick]:
+                    pick = k
+        for u in range(4):
+            chosen[r, u] = option[pick, u]
+        error[r] = value[pick]
     return error, chosen
 
 

@@ -83,16 +83,16 @@ def _error(A, b, c, m):
 def _edge_costs(spheres, A, b, c, edges, k, length_weight, scale, stable, hausdorff=0.0,
                 uncovered=None):
     # (Numba loops, `quadric_loops`: the quadrics summed and the options priced in one pass.)
-    from .quadric_loops import cheapest, edge_quadrics
+    from .quadric_loops import cheapest, edge_systems
 
     # The minimiser regularised towards the midpoint by `eps = 1e-6 trace(A) / 4`: the
     # system `(A + eps I) m = eps mid − b`, made in the sums' loop (as NumPy passes over
     # (e, 4, 4) arrays, the costs took twice as long on spot).
-    Ae, be, ce, si, sj, mid, reg, rhs, length, dr = edge_quadrics(spheres, A, b, c,
-                                                                  edges[:, 0], edges[:, 1])
+    i, j = np.ascontiguousarray(edges[:, 0]), np.ascontiguousarray(edges[:, 1])
+    reg, rhs, length, dr = edge_systems(spheres, A, b, i, j)
     best = np.linalg.solve(reg, rhs[..., None])[..., 0]
     # The cheapest of the four options (`_error`, a negative radius never chosen).
-    error, chosen = cheapest(Ae, be, ce, best, si, sj, mid)
+    error, chosen = cheapest(spheres, A, b, c, i, j, best)
     stability = np.clip((length - dr) / np.where(length > 0, length, 1.0), 0, 1)
     # Saturated: ratios above `stable` count as 1 (see the module's notes).
     stability = np.minimum(stability / stable, 1.0) if stable > 0 else stability
