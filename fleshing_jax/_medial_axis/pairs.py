@@ -293,7 +293,7 @@ def _inside(x, y, z, reach, centre, radius, i, t, lane):
     square += dy * dy
     square += dz * dz
     limit = radius[i] + reach[t, lane]
-    return square <= limit * limit and limit >= 0
+    return (square <= limit * limit) & (limit >= 0)
 
 
 @numba.njit(cache=True, error_model="numpy")
@@ -311,12 +311,17 @@ def tile_pairs(near, start: int, stop: int, tiles, centre, radius, order):
         for t in range(near.shape[1]):
             count += near[i, t]
     pts, prim = np.empty(count * width, np.int64), np.empty(count * width, np.int64)
+    inside = np.empty(width, np.bool_)
     count = 0
     for i in range(start, stop):
         for t in range(near.shape[1]):
             if near[i, t]:
+                # A tile's tests first (one loop without branches: vector instructions),
+                # then its pairs.
                 for lane in range(width):
-                    if _inside(x, y, z, reach, centre, radius, i, t, lane):
+                    inside[lane] = _inside(x, y, z, reach, centre, radius, i, t, lane)
+                for lane in range(width):
+                    if inside[lane]:
                         pts[count], prim[count] = order[t * width + lane], i
                         count += 1
     return pts[:count], prim[:count]
