@@ -202,11 +202,12 @@ class PreparedBent(AbstractSpine):
         value, slope = ramp(u)
         return value, slope / width
 
-    def _trig(self, r: Array) -> tuple[tuple[Array, Array], tuple[Array, Array]]:
+    def _trig(self, r: Array, bounded: bool = False) -> tuple[tuple[Array, Array], ...]:
         """The twist's and the bend's `(cos, sin)` for the ramp value `r` (any shape), held in
         memory (`held_trig`): evaluated a point at a time (double precision), each was
-        computed again for every coordinate of the frame and the quadrature it turns."""
-        twist, bend = held_trig(self.twist * r, self.bend * r)
+        computed again for every coordinate of the frame and the quadrature it turns.
+        `bounded`: `held_trig`'s (a table's nodes: in float32 by polynomials)."""
+        twist, bend = held_trig(self.twist * r, self.bend * r, bounded=bounded)
         return twist, bend  # (a tuple: vmapped as one argument)
 
     def _turn(self, r: Array, v: Array, trig: tuple) -> Array:
@@ -358,15 +359,16 @@ class PreparedBent(AbstractSpine):
         flat = nodes.reshape(-1)
         (c0, t0, k0), (i0, j0) = at.jet, at.normals
         r, slope = jax.vmap(self._angles)(flat)
-        # (Each node's sines and cosines computed once for its 15 coordinates: `held_trig`.)
-        trig = self._trig(r)
+        # (Each node's sines and cosines computed once for its 15 coordinates: `held_trig`; in
+        # float32 by polynomials, 5x faster than XLA's: within 1e-7, the vertices within 1.2e-7.)
+        trig = self._trig(r, bounded=True)
         tangent, k, i, j = jax.vmap(self._turn_frame)(r, slope, t0, k0, i0, j0, trig)
 
         # (Q − 1) T₀ at the quadrature points, one coordinate at a time, each point's sines and
         # cosines computed once for the three (`held_trig`).
         r = grid_vmap(lambda s: self._angles(s)[0], at.points)  # (P·4, NODE_GAUSS)
         tangents = [at.tangents[..., c] for c in range(3)]
-        twist, bend = self._trig(r)
+        twist, bend = self._trig(r, bounded=True)
         turned = _rotate_coordinates(self.bend_axis, bend, _rotate_coordinates(
             self.twist_axis, twist, tangents))
         weights = jnp.asarray(NODE_WEIGHTS, flat.dtype)
@@ -435,6 +437,6 @@ def sorted_by_rank(values: Array) -> Array:
     m = values.shape[0]
     earlier = jnp.arange(m)[:, None] < jnp.arange(m)[None, :]  # [j, i]: j before i
     below = (values[:, None] < values[None, :]) | ((values[:, None] == values[None, :]) & earlier)
-    rank = jnp.sum(below, axis=0)
+    rank = jnp.sum(below, axis=0, dtype=jnp.int32)
     placed = jnp.zeros_like(values).at[rank].set(values, unique_indices=True)
     return jnp.where(jnp.any(jnp.isnan(values)), jnp.nan, placed)
