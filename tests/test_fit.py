@@ -614,6 +614,32 @@ def test_the_arc_start_smooths_a_wiggly_start_onto_its_circle():
 
 
 @needs_bspline
+def test_the_circle_start_keeps_constant_speed_and_weighs_its_points():
+    # `start.through_circle` (the starts on a circle: `arc`, and `initial(circular=True)`
+    # from where the targets say the spine runs). A rest spine of uneven speed (its control
+    # points bunched at the root, as a curved `rest_spine`'s are uneven) put on a circle at
+    # its own speed rippled the arc's curvature (the insect's body: ±20 %, legs past the
+    # focal set): at constant speed it follows the circle. Points that say little (weight
+    # 1e-6, far off) do not move the circle.
+    k = 10
+    rest = BSpline(np.c_[4.0 * np.linspace(0, 1, k) ** 2, np.zeros(k), np.zeros(k)], degree=5)
+    truth = fj.Arc(4.0 / (np.pi / 2), 4.0)
+    f = np.linspace(0, 1, 200)
+    on = np.asarray(jax.vmap(truth)(4.0 * f))
+    off = on + np.where(np.arange(200) % 10 == 0, 0.5, 0.0)[:, None]  # every tenth 0.5 off
+    w = np.where(np.arange(200) % 10 == 0, 1e-6, 1.0)
+    prior = np.asarray(rest.control_points)
+    points = start.through_circle(rest, np.arange(3 * k), off, f, w, prior)
+    p = _de_boor(points, np.asarray(rest.knots), 5, np.linspace(0, 1, 401))
+    radius = float(truth.radius)
+    distance = np.hypot(np.hypot(p[:, 0], p[:, 1] - radius) - radius, p[:, 2])  # to the circle
+    assert distance.max() < 1e-5
+    at_own_speed = start.control_points(rest, np.arange(3 * k), on, np.ones(200), f, prior)
+    p = _de_boor(at_own_speed, np.asarray(rest.knots), 5, np.linspace(0, 1, 401))
+    assert np.abs(np.hypot(p[:, 0], p[:, 1] - radius) - radius).max() > 100 * distance.max()
+
+
+@needs_bspline
 def test_a_finely_subdivided_spine_is_solved_first_on_coarser_frames():
     # `coarse.coarser`: a curved `init` with fine frames (the insect's rest spine: 192
     # subdivisions a span) is solved first with 24, on the same control points, knots and

@@ -135,7 +135,8 @@ def fit_spine(
     shape: by default (`continuation="auto"`), a free-form `init` (a `BSpline` whose control
     points are fitted) starts with its control points fitted by linear least squares to
     where the targets say the bent spine runs (`_fit.start`), or from the circular arc
-    closest to that spine, whichever poses the source closest to the targets (`init` too),
+    closest to that spine, or from the circular arc closest to where the targets say the
+    spine runs, whichever poses the source closest to the targets (`init` too),
     each with the twist (when fitted) that rolls it onto them best (`start.turned`).
     A fit that does not converge with its rms above the tolerance is retried from where it
     stopped, the target solved first with every point posed by the map's formula (no cliffs
@@ -297,8 +298,10 @@ def fit_spine(
         shaped = start.initial(setup.parameters, setup.registration, source_spine,
                                target, weights, setup.y0[1])
         arced = start.arc(setup.parameters, shaped)
-        shaped, arced = (start.turned(problem, y, target, weights) for y in (shaped, arced))
-        result = staged(1, start.closer(problem, setup.y0, shaped, arced))
+        circled = start.initial(setup.parameters, setup.registration, source_spine, target,
+                                weights, setup.y0[1], circular=True)
+        starts = [start.turned(problem, y, target, weights) for y in (shaped, arced, circled)]
+        result = staged(1, start.closer(problem, setup.y0, *starts))
         result = _finished(problem, setup.parameters, result, solver, tighter, fit_twist,
                            max_steps, throw, tolerance)
         if not _explained(result):
