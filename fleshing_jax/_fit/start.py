@@ -25,6 +25,11 @@ A second start smooths the first: the same spine's control points on the circula
 closest to it (`arc`). The first is only as good as each station's rotation; its wiggles can
 hold the solve in a local minimum that a smooth start of the same overall bend avoids (the
 insect's body bent 90°: 0.11 of the diagonal from the first, 5e-6 in 17 steps from its arc).
+A third skips the spline: the circular arc closest to the points `ĉᵢ` themselves, weighted
+`ωᵢ` (`initial(..., circular=True)`). Where they scatter (the insect's body, 200 points), the
+first start's spline follows the scatter (its length 2.77 for 1.70, its arc's radius 0.51 for
+1.08) but their weighted circle does not (1.077; the source posed on it 1.1e-3 of the
+diagonal from the targets).
 
 Host-side (NumPy, one evaluation of `C₀` at the feet): it runs once, and only starts the solve.
 """
@@ -349,8 +354,9 @@ def through_circle(init: BSpline, free, samples, fractions, weights, prior):
     # constant speed (parameters even in the fraction), whichever follows it closer. A curved
     # rest spine's speed (the insect's body from `rest_spine`: its curvature up to 27) forced
     # onto a circle ripples the fitted curvature ±20 %: enough to put the images of the legs
-    # bent 90° (1 − k·d = 0.19) past the focal set, a minimum the solve did not leave (4e-2
-    # of the diagonal); at constant speed the same 16 control points follow the arc to 3e-10.
+    # bent 90° (1 − k·d = 0.19) past the focal set (the true bend put so: 9 of 200 points
+    # invalid, 3e-2 of the diagonal); at constant speed the same 16 control points follow
+    # the arc to 3e-10 (1.7e-8 of the diagonal, none invalid).
     # (Fixed control points keep `init`'s speed at the root: there `init`'s may follow closer.)
     ones = np.ones(ARC_SAMPLES)
     lo, hi = np.asarray(init.knots)[[init.degree, len(init.control_points)]]
