@@ -119,6 +119,29 @@ def test_a_bone_from_a_head_s_middle_leaves_it_at_its_ear_s_root():
     assert np.array_equal(leaves_part(bone, tail), bone[0])
 
 
+def test_only_bones_from_a_shared_point_are_cut_where_they_leave_its_part(monkeypatch):
+    # `bone_limbs` asks `chain_limb` for the cut at the part's waist (`at_root`) for the bones
+    # that start at one point (a head's ears), not for a lone chain's root (a user's bone
+    # placed where its limb leaves the body: a tail's, which hugs its curved surface).
+    from fleshing_jax._skeleton import bones
+
+    asked = {}
+
+    def chain_limb(points, i, parent, *args, at_root=False):
+        asked[args[-1]] = at_root
+        return None
+
+    monkeypatch.setattr(bones, "chain_limb", chain_limb)
+    angle = np.linspace(0, 2 * np.pi, 16, endpoint=False)
+    tube = fj.extrusion(0.3 * np.stack([np.cos(angle), np.sin(angle)], 1), 6.0, 60)
+    vertices, faces = np.asarray(tube.vertices), np.asarray(tube.faces)
+    heads = np.array([[0.5, 0, 0], [2.0, 0, 0], [2.0, 0, 0], [4.0, 0, 0]])
+    tails = np.array([[2.0, 0, 0], [3.5, 0.1, 0], [3.5, -0.1, 0], [5.5, 0, 0]])
+    checked = bones.check_bones((heads, tails, np.array([-1, 0, 0, 0])), vertices, faces)
+    bones.bone_limbs(checked, vertices, None, 0.01)
+    assert asked == {"bone 0": False, "bone 1": True, "bone 2": True, "bone 3": False}
+
+
 def test_joints_just_past_the_surface_are_moved_to_the_middle_of_the_shape(given):
     # An armature's tip at the sole or a joint where a subdivided skin shrank away from its
     # cage lies just outside: moved to the centre of the largest ball inside touching its

@@ -124,8 +124,7 @@ def skeleton(mesh, *, medial: MedialMesh | None = None, spheres: int = 200,
       the body for a root bone, and for a thigh under a root bone that points up into the
       torso; where it starts in the middle of a thicker part with other bones (an ear's
       bone from the head's middle), its region begins where it leaves that part, at the
-      ear's root. The body is
-      what no bone takes: a torso is the body, not a tube to bend.
+      ear's root. The body is what no bone takes: a torso is the body, not a tube to bend.
 
     **Returns:** an `fj.Skeleton` whose `vertices` are the mesh's (n, 3), in its order.
 

@@ -115,10 +115,9 @@ def on_axis(points: np.ndarray, axes: np.ndarray, vertices: np.ndarray,
             faces: np.ndarray, labels: list[str] | None = None,
             argument: str = "") -> np.ndarray:
     """`points (k, 3)`, joints inside the mesh, with those lying off their limb's axis moved
-    onto it, across the limb, with a warning naming `argument` and the joints by their
-    `labels` when given;
-    `axes (k, 3)` the limb's unit direction at each (the bisector of the bones that meet
-    there).
+    onto it, across the limb (`axes (k, 3)`: the limb's unit direction at each, the bisector
+    of the bones that meet there), with a warning naming `argument` and the joints by their
+    `labels` when given.
 
     Animators place a knee or an elbow towards the front of the joint, where it bends best in
     Blender (the insect's knees 0.3 of the way across the leg, the kangaroo's 0.45). A joint's
