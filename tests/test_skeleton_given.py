@@ -1,5 +1,7 @@
 """A skeleton from chains of joints a user places (`fj.skeleton(mesh, chains=…)`)."""
 
+import warnings
+
 import numpy as np
 import pytest
 
@@ -564,3 +566,42 @@ def test_bones_and_split_skeletons_save_and_load(given, split, tmp_path):
         for ours, theirs in zip(loaded.limbs, skeleton.limbs, strict=True):
             assert ours.parent == theirs.parent and float(ours.joint) == float(theirs.joint)
             assert np.array_equal(ours.spine.control_points, theirs.spine.control_points)
+
+
+@pytest.mark.parametrize("neck_from", [0.6, 0.1])
+def test_a_muzzle_with_no_room_before_it_moves_with_the_head(monkeypatch, neck_from):
+    # A horse's short head bone (the neck's top to the head's middle) has no room to bend
+    # before the muzzle's bone, which starts at the head's middle with the ears'. In a neck
+    # (its joint less than half as deep as the torso's middle) the muzzle moves with the head
+    # and the neck and head stay limbs; from the torso's middle, the neck bone joins the body.
+    import trimesh
+
+    from fleshing_jax._skeleton import build
+    from fleshing_jax._skeleton.skeleton import Limb
+
+    ball = trimesh.creation.icosphere(2, 1.0)
+    joints = np.array([(0.0, 0, 0), (neck_from, 0, 0), (0.8, 0, 0), (0.85, 0, 0)])
+    heads = np.concatenate([joints[:3], joints[3:], joints[3:]])  # spine, neck, head, muzzle, ear
+    tails = np.concatenate([joints[1:], [(0.97, 0, 0), (0.9, 0.1, 0)]])
+    neck = Limb(fj.BSpline(np.linspace(joints[1], joints[2], 6)), 0.05)
+    head = Limb(fj.BSpline(np.linspace(joints[2], (0.97, 0, 0), 6)), 0.02)
+    found = []
+
+    def bone_limbs(checked, vertices, adjacency, margin, body=frozenset()):
+        found.append(set(body))
+        kept = [b for b in (1, 2, 3, 4) if b not in body]
+        limbs = {1: neck, 2: head, 3: "muzzle", 4: "ear"}
+        return [limbs[b] for b in kept], None, [f"bone {b}" for b in kept], kept, {}
+
+    monkeypatch.setattr(build, "bone_limbs", bone_limbs)
+    # (The head, limb 1 while the neck is one, leaves the muzzle, limb 2, no room.)
+    monkeypatch.setattr(build, "_conflict", lambda *args: None if found[-1] else (1, 2, 0.0))
+    checked = (heads, tails, np.array([-1, 0, 1, 2, 2]), [f"bone {b}" for b in range(5)])
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        build._bones_in_the_body(checked, np.asarray(ball.vertices), None, 0)
+    said = " ".join(str(w.message) for w in caught)
+    if neck_from > 0.5:
+        assert found == [set(), {3}] and "bone 3: no limb, moving with its parent's" in said
+    else:
+        assert found == [set(), {1}] and "moving with" not in said

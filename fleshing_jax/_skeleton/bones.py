@@ -67,8 +67,7 @@ def bone_limbs(checked, vertices, adjacency, margin, body=frozenset()):
     segments = np.stack([heads, tails], axis=1)
     # Bones from one point (a head's ears and muzzle from its middle): each may leave the
     # part there further out (`given.leaves_part`).
-    diagonal = float(np.linalg.norm(np.ptp(vertices, axis=0)))
-    branch = cKDTree(heads).query_ball_point(heads, CONNECTED * diagonal, return_length=True) > 1
+    branch = forked(heads, vertices)
     region = np.full(len(vertices), -1)
     index = {}  # bone → limb (a bone in the body: its parent's limb, or −1)
     limbs: list[Limb] = []
@@ -94,6 +93,13 @@ def bone_limbs(checked, vertices, adjacency, margin, body=frozenset()):
     # (For each bone inside the body that continues a chain, the bone before it.)
     before = {b: chain_of[b][0][chain_of[b][1] - 1] for b in inside if chain_of[b][1] > 0}
     return limbs, region, [labels[b] for b in kept], kept, before
+
+
+def forked(heads, vertices) -> np.ndarray:
+    """`(m,)` bool: each bone starts where another bone starts too (within `CONNECTED` of
+    the mesh's diagonal): a head's muzzle and ears from its middle."""
+    diagonal = float(np.linalg.norm(np.ptp(vertices, axis=0)))
+    return cKDTree(heads).query_ball_point(heads, CONNECTED * diagonal, return_length=True) > 1
 
 
 def connected_bones(heads, tails, parents, vertices) -> np.ndarray:

@@ -14,7 +14,7 @@ from .._medial_axis.medial_mesh import MedialMesh
 from .._medial_axis.shells import bodies
 from .._medial_axis.unit import UnitFrame
 from .._mesh.deform import longest_edge
-from .bones import bone_limbs, check_bones, connected_bones
+from .bones import bone_limbs, check_bones, connected_bones, forked
 from .chains import TURN, split_chains
 from .fit import nearest_spheres, sphere_gaps, spine_from_unit
 from .given import SHORT, arc_at, given_limbs, turn_at
@@ -28,6 +28,10 @@ from .visible import FEWEST, box_diagonal, moves_visibly, visible
 # A child's region meets its parent's at least this many spine samples beyond where the
 # parent's region meets the rest (`_room_to_bend`; `register_skeleton` projects exactly).
 ROOM = 2
+# A conflict whose bones (the parent with no room and its ancestors with limbs) all have their
+# joints less than this fraction as deep as the armature's deepest bone head lies in a neck
+# and a head, not in the torso (`_bones_in_the_body`).
+NECK = 0.5
 # A medial mesh belongs to a mesh when its centres lie in the mesh's bounding box (up to this
 # fraction of its diagonal), no sphere's radius exceeds `REACHES` times the distance from its
 # centre to the nearest vertex, and every vertex lies within this fraction of the diagonal
@@ -191,7 +195,11 @@ def _bones_in_the_body(checked, vertices, adjacency, margin):
     again. A child with no room is settled first, unless a limb above it left a bone of its
     own chain nothing (a dinosaur's hip bone from the pelvis's middle took the thigh's part,
     and the shin below has no room for the foot): that bone's case is settled first, where
-    the cause lies. (Chains a user places are refused instead.)"""
+    the cause lies. A child with no room that is a last bone from a fork, where the bones
+    with no room before it are a neck's and a head's (their joints less than `NECK` as deep
+    as the deepest bone's head: a horse's muzzle, beside its ears from the head's middle,
+    and the short head bone from the neck's top), moves with its parent's limb instead: the
+    neck and head stay limbs. (Chains a user places are refused instead.)"""
     heads, tails, parents, labels = checked[0], checked[1], checked[2], checked[3]
     tree = cKDTree(vertices)
     # The bones of the body bent at rest into their limbs (a coxa from the thorax's middle
@@ -218,7 +226,9 @@ def _bones_in_the_body(checked, vertices, adjacency, margin):
             return np.inf
         return float(tree.query(np.asarray(limb.spine(float(limb.joint))))[0])
 
-    body = set()
+    # A last bone from a fork (a muzzle beside ears), which may rejoin its parent's limb.
+    last = forked(heads, vertices) & ~np.isin(np.arange(len(heads)), parents)
+    body, joined = set(), set()
     while True:
         limbs, region, names, kept, before = bone_limbs(checked, vertices, adjacency, margin,
                                                         frozenset(body))
@@ -239,6 +249,14 @@ def _bones_in_the_body(checked, vertices, adjacency, margin):
         above = [(b, j) for b, j in left if starts and before[b] in line(starts[0][0])]
         starts = above + starts + left
         chosen = None
+        if conflict is not None and conflict[1] is not None and not above:
+            k, child = kept[conflict[0]], kept[conflict[1]]
+            core = max(depth(b, limbs, kept, True) for b in line(k))
+            if last[child] and core < NECK * deep[0].max():
+                # (A neck's bones going into the body would leave the muzzle a limb alone.)
+                joined.add(child)
+                body.add(child)
+                continue
         for start, joint in starts:
             deepest = max(line(start), key=lambda b: depth(b, limbs, kept, joint))
             if deepest in kept:  # (else the bone itself: it stays no limb)
@@ -247,7 +265,7 @@ def _bones_in_the_body(checked, vertices, adjacency, margin):
         if chosen is None:
             break
         body.add(chosen)
-    inside = sorted(set(range(len(heads))) - set(kept))
+    inside = sorted(set(range(len(heads))) - set(kept) - joined)
     if not limbs:
         raise ValueError(
             f"`bones`: {labels[inside[0]]} gets no part of the surface to move (no vertex past "
@@ -261,6 +279,13 @@ def _bones_in_the_body(checked, vertices, adjacency, margin):
             f"{', …' if len(named) > 6 else ''}): no limbs, their children hanging from their "
             "parents; each other bone a limb, named as the bone (`skeleton.index(name)`)",
             stacklevel=3,  # (the caller of fj.skeleton)
+        )
+    if joined:
+        named = ", ".join(labels[b] for b in sorted(joined))
+        warnings.warn(
+            f"`bones`: {named}: no limb, moving with its parent's limb, which has no room to "
+            "bend before it (a muzzle from a head's middle: the neck and head stay limbs)",
+            stacklevel=3,
         )
     return limbs, region, names
 
