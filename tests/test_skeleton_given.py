@@ -605,3 +605,42 @@ def test_a_muzzle_with_no_room_before_it_moves_with_the_head(monkeypatch, neck_f
         assert found == [set(), {3}] and "bone 3: no limb, moving with its parent's" in said
     else:
         assert found == [set(), {1}] and "moving with" not in said
+
+
+@pytest.mark.parametrize("neck_from", [0.6, 0.1])
+def test_a_snout_its_head_left_nothing_moves_with_the_head(monkeypatch, neck_from):
+    # A kangaroo's head bone (the neck's top to the head's middle) took the snout's part, and
+    # the snout's bone, from the head's middle with the ears', got nothing. In a neck the
+    # snout moves with the head, which stays a limb; from the torso's middle the deepest of
+    # the snout's bone and its ancestors (the neck bone, at its head) joins the body.
+    import trimesh
+
+    from fleshing_jax._skeleton import build
+    from fleshing_jax._skeleton.skeleton import Limb
+
+    ball = trimesh.creation.icosphere(2, 1.0)
+    joints = np.array([(0.0, 0, 0), (neck_from, 0, 0), (0.8, 0, 0), (0.85, 0, 0)])
+    heads = np.concatenate([joints[:3], joints[3:], joints[3:]])  # spine, neck, head, snout, ear
+    tails = np.concatenate([joints[1:], [(0.97, 0, 0), (0.9, 0.1, 0)]])
+    neck = Limb(fj.BSpline(np.linspace(joints[1], joints[2], 6)), 0.05)
+    head = Limb(fj.BSpline(np.linspace(joints[2], (0.97, 0, 0), 6)), 0.02)
+    found = []
+
+    def bone_limbs(checked, vertices, adjacency, margin, body=frozenset()):
+        found.append(set(body))
+        kept = [b for b in (1, 2, 4) if b not in body]
+        limbs = {1: neck, 2: head, 4: "ear"}
+        before = {} if body else {3: 2}  # (the snout's bone left nothing by the head's)
+        return [limbs[b] for b in kept], None, [f"bone {b}" for b in kept], kept, before
+
+    monkeypatch.setattr(build, "bone_limbs", bone_limbs)
+    monkeypatch.setattr(build, "_conflict", lambda *args: None)
+    checked = (heads, tails, np.array([-1, 0, 1, 2, 2]), [f"bone {b}" for b in range(5)])
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        build._bones_in_the_body(checked, np.asarray(ball.vertices), None, 0)
+    said = " ".join(str(w.message) for w in caught)
+    if neck_from > 0.5:
+        assert found == [set()] and "bone 3: no limb, moving with its parent's" in said
+    else:
+        assert found == [set(), {1}] and "moving with" not in said

@@ -195,11 +195,12 @@ def _bones_in_the_body(checked, vertices, adjacency, margin):
     again. A child with no room is settled first, unless a limb above it left a bone of its
     own chain nothing (a dinosaur's hip bone from the pelvis's middle took the thigh's part,
     and the shin below has no room for the foot): that bone's case is settled first, where
-    the cause lies. A child with no room that is a last bone from a fork, where the bones
-    with no room before it are a neck's and a head's (their joints less than `NECK` as deep
-    as the deepest bone's head: a horse's muzzle, beside its ears from the head's middle,
-    and the short head bone from the neck's top), moves with its parent's limb instead: the
-    neck and head stay limbs. (Chains a user places are refused instead.)"""
+    the cause lies. A last bone from a fork, where the bones above it are a neck's and a
+    head's (their joints less than `NECK` as deep as the deepest bone's head), moves with its
+    parent's limb instead, when it has no room (a horse's muzzle, beside its ears from the
+    head's middle, after a short head bone from the neck's top) or its parent left it
+    nothing (a kangaroo's snout): the neck and head stay limbs. (Chains a user places are
+    refused instead.)"""
     heads, tails, parents, labels = checked[0], checked[1], checked[2], checked[3]
     tree = cKDTree(vertices)
     # The bones of the body bent at rest into their limbs (a coxa from the thorax's middle
@@ -228,6 +229,7 @@ def _bones_in_the_body(checked, vertices, adjacency, margin):
 
     # A last bone from a fork (a muzzle beside ears), which may rejoin its parent's limb.
     last = forked(heads, vertices) & ~np.isin(np.arange(len(heads)), parents)
+    neck = NECK * deep[0].max()
     body, joined = set(), set()
     while True:
         limbs, region, names, kept, before = bone_limbs(checked, vertices, adjacency, margin,
@@ -241,18 +243,22 @@ def _bones_in_the_body(checked, vertices, adjacency, margin):
                 a = int(parents[a])
             return up
 
+        def in_neck(bones) -> bool:  # (their limbs' joints, `NECK`)
+            return max((depth(a, limbs, kept, True) for a in bones), default=np.inf) < neck
+
+        # A last bone from a fork (a snout) its parent, in a neck, left nothing moves with it.
+        joined |= {b for b, c in before.items() if c in kept and last[b] and in_neck(line(b)[1:])}
         # A child with no room first, unless a limb above it left a bone of its chain
         # nothing (it took that bone's part: a hip bone from the pelvis's middle took the
         # thigh's, and the shin's foot has no room below it); then the bones left nothing.
-        left = [(b, False) for b, c in before.items() if c in kept]
+        left = [(b, False) for b, c in before.items() if c in kept and b not in joined]
         starts = [(kept[conflict[0]], True)] if conflict is not None else []
         above = [(b, j) for b, j in left if starts and before[b] in line(starts[0][0])]
         starts = above + starts + left
         chosen = None
         if conflict is not None and conflict[1] is not None and not above:
             k, child = kept[conflict[0]], kept[conflict[1]]
-            core = max(depth(b, limbs, kept, True) for b in line(k))
-            if last[child] and core < NECK * deep[0].max():
+            if last[child] and in_neck(line(k)):
                 # (A neck's bones going into the body would leave the muzzle a limb alone.)
                 joined.add(child)
                 body.add(child)
@@ -265,6 +271,7 @@ def _bones_in_the_body(checked, vertices, adjacency, margin):
         if chosen is None:
             break
         body.add(chosen)
+    joined -= set(kept)
     inside = sorted(set(range(len(heads))) - set(kept) - joined)
     if not limbs:
         raise ValueError(
@@ -283,8 +290,9 @@ def _bones_in_the_body(checked, vertices, adjacency, margin):
     if joined:
         named = ", ".join(labels[b] for b in sorted(joined))
         warnings.warn(
-            f"`bones`: {named}: no limb, moving with its parent's limb, which has no room to "
-            "bend before it (a muzzle from a head's middle: the neck and head stay limbs)",
+            f"`bones`: {named}: no limb, moving with its parent's limb (a last bone from a "
+            "head's middle, a muzzle beside the ears, that its parent has no room to bend "
+            "before or leaves nothing: the neck and head stay limbs)",
             stacklevel=3,
         )
     return limbs, region, names
