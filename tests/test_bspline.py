@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 import fleshing_jax as fj
+from fleshing_jax._numerics import dot, safe_sqrt
 from fleshing_jax._spines import arclength
 from fleshing_jax._spines.bspline import _de_boor
 
@@ -191,6 +192,24 @@ def test_float32():
     assert abs(float(spine.length) - float(reference.length)) < 1e-5 * float(reference.length)
     speed = jax.jit(jax.vmap(jax.jacfwd(spine)))(s)
     assert np.max(np.abs(np.linalg.norm(speed, axis=-1) - 1)) < 1e-5
+
+
+def test_extension_reaches_as_each_end_alone():
+    # Both ends are evaluated in one batched call (one arc-length inverse compiled, not two):
+    # each end's reach is what its own evaluation gives, bit for bit.
+    @eqx.filter_jit
+    def reaches(spine):
+        prepared = spine._prepare()
+        alone = []
+        for s in (jnp.zeros_like(prepared.length), prepared.length):
+            k = prepared._jet(s)[2]
+            kappa = safe_sqrt(dot(k, k))
+            alone.append(jnp.minimum(prepared.length, 0.5 * jnp.pi / jnp.maximum(kappa, 1e-30)))
+        return prepared.extension(), alone
+
+    both, alone = reaches(fj.BSpline(CONTROL.astype(np.float32)))
+    assert both[0].dtype == jnp.float32 and float(both[0]) != float(both[1])
+    np.testing.assert_array_equal(np.array(both), np.array(alone))
 
 
 def test_arc_length_inverse_runs_newton_until_converged():
