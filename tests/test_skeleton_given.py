@@ -568,12 +568,17 @@ def test_bones_and_split_skeletons_save_and_load(given, split, tmp_path):
             assert np.array_equal(ours.spine.control_points, theirs.spine.control_points)
 
 
+
 @pytest.mark.parametrize("neck_from", [0.6, 0.1])
-def test_a_muzzle_with_no_room_before_it_moves_with_the_head(monkeypatch, neck_from):
+@pytest.mark.parametrize("case", ["no room", "left nothing"])
+def test_a_muzzle_from_a_head_s_middle_moves_with_the_head(monkeypatch, case, neck_from):
     # A horse's short head bone (the neck's top to the head's middle) has no room to bend
-    # before the muzzle's bone, which starts at the head's middle with the ears'. In a neck
-    # (its joint less than half as deep as the torso's middle) the muzzle moves with the head
-    # and the neck and head stay limbs; from the torso's middle, the neck bone joins the body.
+    # before its muzzle's bone, which starts at the head's middle with the ears'; a kangaroo's
+    # head bone took its snout's part, and the snout's bone got nothing. In a neck (its joint
+    # less than half as deep as the torso's middle) the muzzle moves with the head, and the
+    # neck and head stay limbs; from the torso's middle the neck bone joins the body (the
+    # deepest of the head and its ancestors at their joints, or of the muzzle and its
+    # ancestors at their heads).
     import trimesh
 
     from fleshing_jax._skeleton import build
@@ -585,62 +590,27 @@ def test_a_muzzle_with_no_room_before_it_moves_with_the_head(monkeypatch, neck_f
     tails = np.concatenate([joints[1:], [(0.97, 0, 0), (0.9, 0.1, 0)]])
     neck = Limb(fj.BSpline(np.linspace(joints[1], joints[2], 6)), 0.05)
     head = Limb(fj.BSpline(np.linspace(joints[2], (0.97, 0, 0), 6)), 0.02)
+    limbs = {1: neck, 2: head, 3: "muzzle", 4: "ear"}
+    muzzle = 3 if case == "no room" else None  # (else: a bone left nothing by the head's)
     found = []
 
     def bone_limbs(checked, vertices, adjacency, margin, body=frozenset()):
         found.append(set(body))
-        kept = [b for b in (1, 2, 3, 4) if b not in body]
-        limbs = {1: neck, 2: head, 3: "muzzle", 4: "ear"}
-        return [limbs[b] for b in kept], None, [f"bone {b}" for b in kept], kept, {}
-
-    monkeypatch.setattr(build, "bone_limbs", bone_limbs)
-    # (The head, limb 1 while the neck is one, leaves the muzzle, limb 2, no room.)
-    monkeypatch.setattr(build, "_conflict", lambda *args: None if found[-1] else (1, 2, 0.0))
-    checked = (heads, tails, np.array([-1, 0, 1, 2, 2]), [f"bone {b}" for b in range(5)])
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always")
-        build._bones_in_the_body(checked, np.asarray(ball.vertices), None, 0)
-    said = " ".join(str(w.message) for w in caught)
-    if neck_from > 0.5:
-        assert found == [set(), {3}] and "bone 3: no limb, moving with its parent's" in said
-    else:
-        assert found == [set(), {1}] and "moving with" not in said
-
-
-@pytest.mark.parametrize("neck_from", [0.6, 0.1])
-def test_a_snout_its_head_left_nothing_moves_with_the_head(monkeypatch, neck_from):
-    # A kangaroo's head bone (the neck's top to the head's middle) took the snout's part, and
-    # the snout's bone, from the head's middle with the ears', got nothing. In a neck the
-    # snout moves with the head, which stays a limb; from the torso's middle the deepest of
-    # the snout's bone and its ancestors (the neck bone, at its head) joins the body.
-    import trimesh
-
-    from fleshing_jax._skeleton import build
-    from fleshing_jax._skeleton.skeleton import Limb
-
-    ball = trimesh.creation.icosphere(2, 1.0)
-    joints = np.array([(0.0, 0, 0), (neck_from, 0, 0), (0.8, 0, 0), (0.85, 0, 0)])
-    heads = np.concatenate([joints[:3], joints[3:], joints[3:]])  # spine, neck, head, snout, ear
-    tails = np.concatenate([joints[1:], [(0.97, 0, 0), (0.9, 0.1, 0)]])
-    neck = Limb(fj.BSpline(np.linspace(joints[1], joints[2], 6)), 0.05)
-    head = Limb(fj.BSpline(np.linspace(joints[2], (0.97, 0, 0), 6)), 0.02)
-    found = []
-
-    def bone_limbs(checked, vertices, adjacency, margin, body=frozenset()):
-        found.append(set(body))
-        kept = [b for b in (1, 2, 4) if b not in body]
-        limbs = {1: neck, 2: head, 4: "ear"}
-        before = {} if body else {3: 2}  # (the snout's bone left nothing by the head's)
+        kept = [b for b in (1, 2, muzzle, 4) if b is not None and b not in body]
+        before = {} if body or muzzle else {3: 2}
         return [limbs[b] for b in kept], None, [f"bone {b}" for b in kept], kept, before
 
     monkeypatch.setattr(build, "bone_limbs", bone_limbs)
-    monkeypatch.setattr(build, "_conflict", lambda *args: None)
+    # (No room: the head, limb 1 while the neck is one, leaves the muzzle, limb 2, none.)
+    conflict = (1, 2, 0.0) if muzzle else None
+    monkeypatch.setattr(build, "_conflict", lambda *args: None if found[-1] else conflict)
     checked = (heads, tails, np.array([-1, 0, 1, 2, 2]), [f"bone {b}" for b in range(5)])
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         build._bones_in_the_body(checked, np.asarray(ball.vertices), None, 0)
     said = " ".join(str(w.message) for w in caught)
     if neck_from > 0.5:
-        assert found == [set()] and "bone 3: no limb, moving with its parent's" in said
+        assert found == ([set(), {3}] if muzzle else [set()])
+        assert "bone 3: no limb, moving with its parent's" in said
     else:
         assert found == [set(), {1}] and "moving with" not in said
