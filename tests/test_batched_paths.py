@@ -309,7 +309,7 @@ def _chunked(monkeypatch, size: int, call):
 
     monkeypatch.setattr(jax.lax, "map", recording)
     out = call()
-    if size not in seen:
+    if size not in seen:  # (a test on new inputs never comes here)
         jax.clear_caches()
         out = call()
     assert size in seen
@@ -317,13 +317,13 @@ def _chunked(monkeypatch, size: int, call):
 
 
 def test_flesh_in_chunks_equals_one_point_path(monkeypatch):
-    # Chunks of 64 points: 400 points, padded to 512 (`_batching.buckets`), make 8 chunks.
-    # (The one-point reference is the compiled program of the U-turn's test above: the same
-    # fleshing, closed over, and point count.)
+    # Chunks of 64 points: 600 points, padded to 768 (`_batching.buckets`), make 12 chunks.
+    # (Not the U-turn test's 400: its programs, traced with the default chunk, would be
+    # found in the caches, which `_chunked` would then clear for every later test.)
     target = fj.BSpline(U_TURN, degree=3)
     source = fj.Line(float(target.length))
     rng = np.random.default_rng(5)
-    n = 400
+    n = 600
     points = np.column_stack(
         [rng.uniform(-0.3, float(target.length) + 0.3, n), rng.uniform(-0.6, 0.6, (n, 2))]
     )
