@@ -28,9 +28,9 @@ from .visible import FEWEST, box_diagonal, moves_visibly, visible
 # A child's region meets its parent's at least this many spine samples beyond where the
 # parent's region meets the rest (`_room_to_bend`; `register_skeleton` projects exactly).
 ROOM = 2
-# A conflict whose bones (the parent with no room and its ancestors with limbs) all have their
-# joints less than this fraction as deep as the armature's deepest bone head lies in a neck
-# and a head, not in the torso (`_bones_in_the_body`).
+# Bones with limbs above a last bone from a fork (a muzzle) whose joints are all less than this
+# fraction as deep as the armature's deepest bone head lie in a neck and a head, not in the
+# torso: the muzzle, with no room or left nothing, moves with the head (`_bones_in_the_body`).
 NECK = 0.5
 # A medial mesh belongs to a mesh when its centres lie in the mesh's bounding box (up to this
 # fraction of its diagonal), no sphere's radius exceeds `REACHES` times the distance from its
