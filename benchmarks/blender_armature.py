@@ -266,13 +266,14 @@ def insect_armature_poses(fj, skeleton):
 def kangaroo_armature_poses(fj, skeleton):
     """`kangaroo_poses` on the kangaroo's own armature (`own_bones`), by bone name: the tail's
     first bone raised 30°, the left thigh swung 30° forwards, the left upper arm 40°
-    forwards, the snout turned 30° about up (the neck and head bones lie in the body)."""
+    forwards, the head turned 30° about up (its bone from the neck's top; the snout's bone
+    moves with it, the chest and neck bones lie in the body)."""
     up, ahead = np.array([0.0, 0.0, 1.0]), np.array([1.0, 0.0, 0.0])
     poses = {"pelvis-tail 1": fj.LimbPose(30.0, towards=up),
              "left hip-left knee": fj.LimbPose(30.0, towards=ahead),
              "left shoulder-left elbow": fj.LimbPose(40.0, towards=ahead)}
-    return lambda registration: poses | {"head-snout": fj.turn(registration, skeleton,
-                                                               "head-snout", 30.0, up=up)}
+    return lambda registration: poses | {"neck-head": fj.turn(registration, skeleton,
+                                                              "neck-head", 30.0, up=up)}
 
 
 def skin_mesh(bpy: str, name: str):
