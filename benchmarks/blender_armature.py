@@ -1,7 +1,7 @@
 """Our jointed pose against Blender's armature on the same joint rotations (issues 45/46).
 
     python benchmarks/blender_armature.py --bpy /path/to/venv-with-bpy/bin/python \
-        [--character biped|spot|human|insect|dog|kangaroo|dinosaur|cow] [--own-armature] \
+        [--character biped|spot|human|insect|dog|kangaroo|dinosaur|cow|horse] [--own-armature] \
         [--figure benchmarks/figures/skeleton-biped-vs-blender.png]
 
 The procedural biped's skeleton (`fj.skeleton`, 200 spheres): one leg posed at its hip 40°,
@@ -16,13 +16,14 @@ Blender (`pip install bpy` in another environment: `--bpy` names its Python) get
 per limb (head at the limb's bend start, tail where its bend is complete), a still body
 bone, automatic heat weights, and as each bone's rotation the rotation our pose gives that
 limb's end (so both pose the same joints by the same angles). `--own-armature` (the human,
-the cow, the dinosaur, the insect, the kangaroo): both get the armature the character is
-modelled on instead (`skin_characters.py`'s bones: pelvis, spine, clavicles and hips too), ours
-through `fj.skeleton(mesh, bones=...)` (the bones inside the body no limbs), the same poses
-given by bone name; Blender's bones that are none of our limbs stay at rest. Prints a
-Markdown table: volume change, the worst edge stretch and how many edges stretch past 2.5×,
-the body's largest drift, flagged vertices (ours) and the time of a frame (ours: float32,
-jitted; Blender: its depsgraph's evaluation of the armature modifier, LBS and DQS).
+the cow, the dinosaur, the insect, the kangaroo, the horse: its only poses): both get the
+armature the character is modelled on instead (`skin_characters.py`'s bones: pelvis, spine,
+clavicles and hips too), ours through `fj.skeleton(mesh, bones=...)` (the bones inside the
+body no limbs), the same poses given by bone name; Blender's bones that are none of our
+limbs stay at rest. Prints a Markdown table: volume change, the worst edge stretch and how
+many edges stretch past 2.5×, the body's largest drift, flagged vertices (ours) and the time
+of a frame (ours: float32, jitted; Blender: its depsgraph's evaluation of the armature
+modifier, LBS and DQS).
 """
 
 from __future__ import annotations
@@ -36,7 +37,7 @@ from pathlib import Path
 import numpy as np
 
 # The characters whose own armature (`--own-armature`) has poses here.
-OWN = ("human", "cow", "dinosaur", "insect", "kangaroo")
+OWN = ("human", "cow", "dinosaur", "insect", "kangaroo", "horse")
 
 
 def _longest_chains(skeleton) -> dict:
@@ -276,6 +277,20 @@ def kangaroo_armature_poses(fj, skeleton):
                                                               "neck-head", 30.0, up=up)}
 
 
+def horse_armature_poses(fj, skeleton):
+    """The horse's own armature (`own_bones`; its neck and head limbs since `3a7c25d`), by
+    bone name: the neck lowered 30° (grazing), the left front leg stepping (thigh 45°
+    forwards, the bone below it 45° back), the right hind thigh 30° back, the tail swung 30°
+    back."""
+    up, ahead = np.array([0.0, 0.0, 1.0]), np.array([1.0, 0.0, 0.0])
+    poses = {"neck base-neck top": fj.LimbPose(30.0, towards=-up),
+             "front left hip-front left knee": fj.LimbPose(45.0, towards=ahead),
+             "front left knee-front left fetlock": fj.LimbPose(45.0, towards=-ahead),
+             "hind right hip-hind right knee": fj.LimbPose(30.0, towards=-ahead),
+             "tail-tail tip": fj.LimbPose(30.0, towards=-ahead)}
+    return lambda registration: poses
+
+
 def skin_mesh(bpy: str, name: str):
     """The character `name` of `skin_characters.py`, modelled by Blender in a subprocess
     (`bpy`)."""
@@ -297,6 +312,7 @@ def ours(out: Path, character: str, bpy: str, own: bool = False):
     jax.config.update("jax_enable_x64", True)
     import fleshing_jax as fj
     from fleshing_jax._medial_axis.characters import biped
+    from fleshing_jax._medial_axis.surface import closed_mesh_arrays
     from fleshing_jax._skeleton.posing import check_poses, placed_poses, posed_limbs
 
     bones = None
@@ -307,7 +323,8 @@ def ours(out: Path, character: str, bpy: str, own: bool = False):
         skeleton = fj.skeleton(mesh, bones=bones)
         poses_of = {"human": human_armature_poses, "cow": cow_armature_poses,
                     "dinosaur": dinosaur_armature_poses, "insect": insect_armature_poses,
-                    "kangaroo": kangaroo_armature_poses}[character](fj, skeleton)
+                    "kangaroo": kangaroo_armature_poses,
+                    "horse": horse_armature_poses}[character](fj, skeleton)
     elif character == "spot":
         mesh = fj.data.spot()
         skeleton = fj.skeleton(mesh)
@@ -324,6 +341,10 @@ def ours(out: Path, character: str, bpy: str, own: bool = False):
         skeleton = fj.skeleton(mesh)
         poses_of = biped_poses(fj, skeleton)
     vertices, faces = np.asarray(mesh.vertices), np.asarray(mesh.faces)
+    # Faces wound against their neighbours (the horse's 288) turned as `fj.skeleton` turns
+    # them: the volumes signed right and Blender's normals consistent.
+    closed = closed_mesh_arrays(mesh, ride=True)
+    faces = closed[1] if len(closed[0]) == len(vertices) else faces
     registration = fj.register_skeleton(mesh, skeleton)
     count = len(skeleton.limbs)
     poses = poses_of(registration)
@@ -444,7 +465,7 @@ def main():
     parser.add_argument("--figure", type=Path, default=None)
     parser.add_argument("--character", default="biped",
                         choices=("biped", "spot", "human", "insect", "dog", "kangaroo",
-                                 "dinosaur", "cow"))
+                                 "dinosaur", "cow", "horse"))
     parser.add_argument("--own-armature", action="store_true",
                         help="the character's own armature (`skin_characters.py`'s bones, "
                              "every one to Blender, ours from `fj.skeleton(mesh, bones=...)`), "
@@ -457,6 +478,8 @@ def main():
         mine, theirs = Path(folder) / "ours.npz", Path(folder) / "blender.npz"
         if args.own_armature and args.character not in OWN:
             parser.error(f"--own-armature: --character {', '.join(OWN)}")
+        if args.character == "horse" and not args.own_armature:
+            parser.error("--character horse: with --own-armature (its poses are by bone name)")
         ours(mine, args.character, args.bpy, args.own_armature)
         subprocess.run([args.bpy, __file__, "--bpy", args.bpy, "--blender-side", str(mine),
                         str(theirs)], check=True, capture_output=True)  # fmt: skip
