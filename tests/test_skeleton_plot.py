@@ -6,6 +6,7 @@ import json
 import matplotlib
 import numpy as np
 import pytest
+from _skeleton_rigs import quadruped_rig
 
 import fleshing_jax as fj
 from fleshing_jax._cli import main
@@ -19,15 +20,16 @@ from mpl_toolkits.mplot3d.art3d import Path3DCollection, Poly3DCollection  # noq
 PNG = b"\x89PNG\r\n\x1a\n"
 
 
-# The skeleton tests' rigs (conftest): spot (y up) and quadruped(32) (z up).
+# The skeleton tests' rigs: spot (y up; conftest) and quadruped(32) (z up; `_skeleton_rigs`).
 @pytest.fixture(scope="module")
 def spot(spot_rig):
     return spot_rig[0], spot_rig[2]
 
 
 @pytest.fixture(scope="module")
-def animal(quadruped_rig):
-    return quadruped_rig[0], quadruped_rig[2]
+def animal():
+    mesh, _, skeleton = quadruped_rig()
+    return mesh, skeleton
 
 
 @pytest.fixture(autouse=True)
