@@ -89,3 +89,14 @@ def test_compressed_passes_give_the_function_s_derivatives():
         np.testing.assert_allclose(got, want, rtol=1e-14)
     check_grads(function, (y,), order=2, modes=("fwd",))
     check_grads(function, (y,), order=1, modes=("rev",))
+    # Kept (a solver's auxiliary output): the inner value beside the residuals, both with the
+    # function's derivatives (the inner's from the same passes).
+    kept = compressed(inner, outer, seeds, moves, keep_inner=True)
+    value, x = kept(y)
+    np.testing.assert_array_equal(x, inner(y))
+    for got, want in zip(jax.tree.leaves(value), jax.tree.leaves(function(y))):
+        np.testing.assert_array_equal(got, want)
+    jacobians = jax.jacfwd(kept)(y)
+    np.testing.assert_allclose(jacobians[1], jax.jacfwd(inner)(y), rtol=1e-14)
+    for got, want in zip(jacobians[0], jax.jacfwd(lambda y: outer(inner(y)))(y)):
+        np.testing.assert_allclose(got, want, rtol=1e-14)

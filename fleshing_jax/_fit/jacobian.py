@@ -56,9 +56,11 @@ def materialised(residuals: Callable[[PyTree], PyTree]) -> Callable:
 
 
 def compressed(inner: Callable[[PyTree], Array], outer: Callable[[Array], PyTree],
-               seeds: Array, moves: Array) -> Callable:
+               seeds: Array, moves: Array, keep_inner: bool = False) -> Callable:
     """`outer(inner(y))` as `materialised` makes it (its `jvp` `J ẏ`, the Jacobian by forward
     mode), with one forward pass through `inner` per row of `seeds` rather than per parameter.
+    With `keep_inner`, `(outer(inner(y)), inner(y))`: a solver's auxiliary output (`has_aux`),
+    `inner`'s value read from the Jacobian's forward pass, with no copy of `inner` of its own.
 
     `inner`: `y` → an (m, …) array (a posed mesh's vertices), the costly part; `outer`: that
     array → the residuals (a pytree; cheap beside `inner`). `seeds` (c, p) of 0 and 1: the
@@ -70,7 +72,8 @@ def compressed(inner: Callable[[PyTree], Array], outer: Callable[[Array], PyTree
 
     @jax.custom_jvp
     def function(y, args=None):
-        return outer(inner(y))
+        x = inner(y)
+        return (outer(x), x) if keep_inner else outer(x)
 
     @function.defjvp
     def _jvp(primals, tangents):
@@ -84,7 +87,10 @@ def compressed(inner: Callable[[PyTree], Array], outer: Callable[[Array], PyTree
         value, out = jax.vmap(lambda column: jax.jvp(outer, (x,), (column,)),
                               out_axes=(None, -1))(columns)
         step = ravel_pytree(dy)[0]
-        return value, jax.tree.map(lambda column: column @ step, out)
+        tangent = jax.tree.map(lambda column: column @ step, out)
+        if not keep_inner:
+            return value, tangent
+        return (value, x), (tangent, jnp.tensordot(step, columns, axes=1))
 
     return function
 

@@ -412,8 +412,13 @@ def fit_to_shape(registration: SkeletonRegistration, skeleton: Skeleton, target,
     steps = 0
     kept = np.concatenate([moving, still])
     owners = _owners(skeleton, limbs)
-    # The solve's surface where each solve starts (`_solved`'s pools): at rest, the rest's.
-    surface = rest[kept] if not held and not np.any(np.asarray(starts)) else None
+    # The solve's surface where each solve starts (`_solved`'s pools): at rest, the rest's;
+    # else the whole mesh posed there (exactly, not on the tables: only the pools read it).
+    if not held and not np.any(np.asarray(starts)):
+        surface = rest[kept]
+    else:
+        start = pose_skeleton(registration, skeleton, problem.poses(y), method=method)
+        surface = np.asarray(start.vertices)[kept]
     for i, sigma in enumerate(STAGES):
         problem = dataclasses.replace(problem, sigma=jnp.asarray(sigma * diagonal, dtype))
         last = i == len(STAGES) - 1
@@ -504,14 +509,14 @@ _distances = eqx.filter_jit(to_surface)
 
 
 def _solved(problem: ShapeProblem, solver, y: Array, steps: int, max_steps: int, throw: bool,
-            surface: np.ndarray | None = None):
+            surface: np.ndarray):
     """`problem` solved from `y` for at most `steps` steps (`fit_pose._solve`, under the
     static limit of `_fit.budget.limited(·, max_steps)`), each target point's nearest surface
     vertices chosen among its `_fit.surface.POOL` nearest where the solve starts (found on the
     host, `_fit.surface.pool`: no host callback in the program), and solved again from where
     it stopped, with pools found there, while they do not hold that surface's nearest
     (`covers`: the solve's own choice is then the k-d tree's) and steps are left. `surface`
-    (m + s, 3): the solve's surface posed at `y` (`ShapeProblem.surface`), else posed here.
+    (m + s, 3): the solve's surface posed at `y` (`ShapeProblem.surface`).
     `(problem with its last pools, y, result, stats (num_steps: every round's), linear,
     the surface at y)`, `y`, `result`, `linear` as `_solve`'s."""
     cloud = np.asarray(problem.cloud)
@@ -522,8 +527,6 @@ def _solved(problem: ShapeProblem, solver, y: Array, steps: int, max_steps: int,
                                                        True)
         return y, result, stats, linear, np.asarray(problem.surface(vertices))
 
-    if surface is None:  # (no step: the program's posing of y, with the pools it holds)
-        surface = solve(problem, y, 0, False)[-1]
     taken, candidates = 0, pool(cloud, surface)
     while True:
         problem = dataclasses.replace(problem, pool=jnp.asarray(candidates))
