@@ -90,6 +90,8 @@ import trimesh
 from jaxtyping import Array
 from scipy.spatial import cKDTree
 
+from .._batching.quick import QUICK_COMPILE
+from .._exported import persistent
 from .._fit.budget import limited
 from .._fit.problem import check_cloud
 from .._fit.surface import NEAREST, POOL, covers, pool, rings, to_surface
@@ -412,13 +414,8 @@ def fit_to_shape(registration: SkeletonRegistration, skeleton: Skeleton, target,
     steps = 0
     kept = np.concatenate([moving, still])
     owners = _owners(skeleton, limbs)
-    # The solve's surface where each solve starts (`_solved`'s pools): at rest, the rest's;
-    # else the whole mesh posed there (exactly, not on the tables: only the pools read it).
-    if not held and not np.any(np.asarray(starts)):
-        surface = rest[kept]
-    else:
-        start = pose_skeleton(registration, skeleton, problem.poses(y), method=method)
-        surface = np.asarray(start.vertices)[kept]
+    # The solve's surface where each solve starts (`_solved`'s pools): at rest, the rest's.
+    surface = rest[kept] if not held and not np.any(np.asarray(starts)) else None
     for i, sigma in enumerate(STAGES):
         problem = dataclasses.replace(problem, sigma=jnp.asarray(sigma * diagonal, dtype))
         last = i == len(STAGES) - 1
@@ -508,15 +505,28 @@ def fit_to_shape(registration: SkeletonRegistration, skeleton: Skeleton, target,
 _distances = eqx.filter_jit(to_surface)
 
 
+def _posed_surface(problem: ShapeProblem, y: Array) -> Array:
+    """The solve's surface (m + s, 3) posed at `y` as the solve poses it (`ShapeProblem`):
+    where a solve starts away from the last one's end (another start, `init`), for its pools.
+    (The solve's program holds no posing of its own beside its Jacobian's: `fit_pose._solve`.)"""
+    return problem.surface(problem.vertices(y))
+
+
+# Run once per start, on a few thousand points: compiled quickly (a third of the solve's
+# operations, no derivatives).
+_surface_at = persistent(_posed_surface, compiler_options=QUICK_COMPILE)
+
+
 def _solved(problem: ShapeProblem, solver, y: Array, steps: int, max_steps: int, throw: bool,
-            surface: np.ndarray):
+            surface: np.ndarray | None = None):
     """`problem` solved from `y` for at most `steps` steps (`fit_pose._solve`, under the
     static limit of `_fit.budget.limited(·, max_steps)`), each target point's nearest surface
     vertices chosen among its `_fit.surface.POOL` nearest where the solve starts (found on the
     host, `_fit.surface.pool`: no host callback in the program), and solved again from where
     it stopped, with pools found there, while they do not hold that surface's nearest
     (`covers`: the solve's own choice is then the k-d tree's) and steps are left. `surface`
-    (m + s, 3): the solve's surface posed at `y` (`ShapeProblem.surface`).
+    (m + s, 3): the solve's surface posed at `y` (`ShapeProblem.surface`), else posed here
+    (`_surface_at`).
     `(problem with its last pools, y, result, stats (num_steps: every round's), linear,
     the surface at y)`, `y`, `result`, `linear` as `_solve`'s."""
     cloud = np.asarray(problem.cloud)
@@ -527,6 +537,8 @@ def _solved(problem: ShapeProblem, solver, y: Array, steps: int, max_steps: int,
                                                        True)
         return y, result, stats, linear, np.asarray(problem.surface(vertices))
 
+    if surface is None:
+        surface = np.asarray(_surface_at(problem, y))
     taken, candidates = 0, pool(cloud, surface)
     while True:
         problem = dataclasses.replace(problem, pool=jnp.asarray(candidates))
