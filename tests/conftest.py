@@ -137,24 +137,16 @@ def spot_skeleton(seed):
     return fj.skeleton(fj.data.spot(), seed=seed)
 
 
-# Spot and the quadruped (`quadruped(32)`) rigged on 60 spheres of a quick medial mesh, shared
-# by the skeleton tests and the skeleton figures' tests (each built once per worker, not once
-# per file): `(mesh, medial, skeleton)`. Trimesh objects are mutable: tests copy before editing.
+# Spot rigged on 60 spheres of a quick medial mesh, shared by the skeleton tests and the
+# skeleton figures' tests (built once per worker, not once per file): `(mesh, medial,
+# skeleton)`. Trimesh objects are mutable: tests copy before editing. (The quadruped's rig:
+# `_skeleton_rigs.py`.)
 _FEW = dict(refine=0, progress=False)
 
 
 @pytest.fixture(scope="session")
 def spot_rig():
     mesh = fj.data.spot()  # y up
-    medial = fj.medial_mesh(mesh, 60, samples=5000, **_FEW)
-    return mesh, medial, fj.skeleton(mesh, medial=medial)
-
-
-@pytest.fixture(scope="session")
-def quadruped_rig():
-    from fleshing_jax._medial_axis.animal import quadruped
-
-    mesh = quadruped(32)  # z up; 4,256 vertices, its legs of a pair 0.06 apart
     medial = fj.medial_mesh(mesh, 60, samples=5000, **_FEW)
     return mesh, medial, fj.skeleton(mesh, medial=medial)
 
