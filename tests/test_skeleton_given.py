@@ -569,7 +569,6 @@ def test_bones_and_split_skeletons_save_and_load(given, split, tmp_path):
             assert np.array_equal(ours.spine.control_points, theirs.spine.control_points)
 
 
-
 @pytest.mark.parametrize("neck_from", [0.6, 0.1])
 @pytest.mark.parametrize("case", ["no room", "left nothing"])
 def test_a_muzzle_from_a_head_s_middle_moves_with_the_head(monkeypatch, case, neck_from):
